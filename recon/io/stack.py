@@ -1,0 +1,534 @@
+"""EXR histogram stacks: the on-disk contract between rendering, detection and recon.
+
+A capture is a directory::
+
+    capture/
+      manifest.json       everything needed to interpret the data
+      spot_00000.exr ...  one file per laser spot, in scan order
+      preview.png         optional picture
+
+Each ``spot_NNNNN.exr`` is a scanline EXR image of the sensor (``height`` x
+``width`` pixels, EXR row ``y`` is array row ``pixel_y``) with one channel per
+time bin. Channels are named ``t00000``, ``t00001``, ... (zero-padded so that
+names sort in time order) and hold FLOAT (expected photons or radiance, kind
+``ideal``) or UINT (photon counts, kind ``counts``). Key metadata is repeated
+as header attributes (prefix ``tmi_``) so one file is self-describing.
+
+A confocal capture (laser spot k on pixel k's wall patch) is one file,
+``spot_00000.exr``, whose pixel k was recorded with the laser on patch k.
+
+Writes are atomic: data goes to a temporary name in the same directory and is
+renamed into place, so a file with a final name is always complete. Readers
+check format version, shapes, channel names and types against the manifest
+and raise :class:`StackError` naming the file and the mismatch.
+
+This module needs numpy and OpenEXR only (never Mitsuba): it is the single
+reader/writer used by ``transient_mi`` and ``recon`` alike.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+FORMAT = "transient-mi-stack"
+FORMAT_VERSION = 1
+MANIFEST_NAME = "manifest.json"
+KINDS = ("ideal", "counts")
+CAPTURES = ("camera", "array", "confocal")
+#: Status of a capture directory: spots may still be missing while "incomplete".
+STATUSES = ("incomplete", "complete")
+
+__all__ = [
+    "FORMAT", "FORMAT_VERSION", "MANIFEST_NAME", "KINDS", "CAPTURES", "StackError", "spot_filename",
+    "channel_names", "dtype_for", "new_manifest", "validate_manifest", "write_manifest", "read_manifest",
+    "config_digest", "spot_path", "write_spot", "read_spot", "spot_is_complete", "missing_spots",
+    "iter_spots", "read_stack", "write_stack",
+]
+
+_DTYPES = {"ideal": np.dtype(np.float32), "counts": np.dtype(np.uint32)}
+
+
+from ..errors import UserInputError
+
+
+class StackError(UserInputError):
+    """A capture directory or spot file is missing, truncated or inconsistent."""
+
+
+# --------------------------------------------------------------------------- names
+
+
+def spot_filename(index: int) -> str:
+    """File name of laser spot ``index`` (``spot_00000.exr``)."""
+    return f"spot_{int(index):05d}.exr"
+
+
+def channel_names(n_bins: int) -> list[str]:
+    """Channel names for ``n_bins`` time bins, sorting in time order."""
+    width = max(5, len(str(max(n_bins - 1, 0))))
+    return [f"t{b:0{width}d}" for b in range(n_bins)]
+
+
+def dtype_for(kind: str) -> np.dtype:
+    """numpy dtype of the stored data: float32 for ``ideal``, uint32 for ``counts``."""
+    if kind not in _DTYPES:
+        raise StackError(f"kind={kind!r}: allowed {', '.join(KINDS)}")
+    return _DTYPES[kind]
+
+
+# ------------------------------------------------------------------------ manifest
+
+
+def new_manifest(
+    *,
+    kind: str,
+    capture: str,
+    width: int,
+    height: int,
+    n_files: int,
+    t0_ps: float,
+    bin_width_ps: float,
+    n_bins: int,
+    quantity: str,
+    include_first_last: bool = False,
+    geometry: dict | None = None,
+    laser: dict | None = None,
+    detector: dict | None = None,
+    render: dict | None = None,
+    **extra: Any,
+) -> dict:
+    """Build a manifest dictionary (validated).
+
+    Parameters
+    ----------
+    kind : {"ideal", "counts"}
+        Expected values (FLOAT) or detected photon counts (UINT).
+    capture : {"camera", "array", "confocal"}
+        A camera render (one file), an NLOS array capture (one file per laser
+        spot) or a confocal NLOS capture (one file).
+    width, height : int
+        Pixels of the sensor / SPAD array.
+    n_files : int
+        Number of ``spot_NNNNN.exr`` files.
+    t0_ps, bin_width_ps, n_bins
+        Time axis: bin ``b`` covers ``[t0_ps + b*bin_width_ps, t0_ps + (b+1)*bin_width_ps)``.
+    quantity : str
+        What a bin holds, e.g. ``"radiance"`` (camera renders: radiance
+        integrated over the bin), ``"photons_per_pulse"`` (ideal NLOS) or
+        ``"counts"``.
+    include_first_last : bool
+        Whether laser->wall and wall->detector segments are in the path length.
+    geometry, laser, detector, render : dict, optional
+        Scene geometry (positions in metres), laser, detector model
+        parameters and provenance; see the README for the keys.
+    **extra
+        Further top-level keys, stored verbatim (JSON-serialisable).
+    """
+    m = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "status": "incomplete",
+        "kind": kind,
+        "capture": capture,
+        "quantity": quantity,
+        "width": int(width),
+        "height": int(height),
+        "n_files": int(n_files),
+        "time": {"t0_ps": float(t0_ps), "bin_width_ps": float(bin_width_ps), "n_bins": int(n_bins)},
+        "include_first_last": bool(include_first_last),
+        "geometry": geometry,
+        "laser": laser,
+        "detector": detector,
+        "render": render,
+    }
+    m.update(extra)
+    return validate_manifest(_jsonable(m), "manifest")
+
+
+def _jsonable(obj):
+    """Convert numpy scalars/arrays (recursively) to plain JSON types."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, float) and not math.isfinite(obj):
+        raise StackError(f"manifest value {obj!r} is not finite")
+    return obj
+
+
+def validate_manifest(m: dict, where: str | os.PathLike = "manifest") -> dict:
+    """Check the manifest's required keys, types and ranges; return it.
+
+    Raises
+    ------
+    StackError
+        Naming ``where`` and the offending key.
+    """
+
+    def bad(msg: str) -> StackError:
+        return StackError(f"{where}: {msg}")
+
+    if not isinstance(m, dict):
+        raise bad("is not a JSON object")
+    if m.get("format") != FORMAT:
+        raise bad(f"format={m.get('format')!r}, expected {FORMAT!r}")
+    ver = m.get("format_version")
+    if ver != FORMAT_VERSION:
+        raise bad(f"format_version={ver!r}, this reader supports {FORMAT_VERSION}")
+    for key, allowed in (("kind", KINDS), ("capture", CAPTURES), ("status", STATUSES)):
+        if m.get(key) not in allowed:
+            raise bad(f"{key}={m.get(key)!r}, allowed: {', '.join(allowed)}")
+    for key in ("width", "height", "n_files"):
+        v = m.get(key)
+        if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
+            raise bad(f"{key}={v!r} must be a positive integer")
+    t = m.get("time")
+    if not isinstance(t, dict):
+        raise bad("time is missing (expected t0_ps, bin_width_ps, n_bins)")
+    n_bins = t.get("n_bins")
+    if not isinstance(n_bins, int) or isinstance(n_bins, bool) or n_bins <= 0:
+        raise bad(f"time.n_bins={n_bins!r} must be a positive integer")
+    bw = t.get("bin_width_ps")
+    if not isinstance(bw, (int, float)) or not bw > 0 or not math.isfinite(bw):
+        raise bad(f"time.bin_width_ps={bw!r} must be a finite number > 0")
+    t0 = t.get("t0_ps")
+    if not isinstance(t0, (int, float)) or not math.isfinite(t0):
+        raise bad(f"time.t0_ps={t0!r} must be a finite number")
+    if not isinstance(m.get("include_first_last"), bool):
+        raise bad(f"include_first_last={m.get('include_first_last')!r} must be true or false")
+    if m["capture"] in ("camera", "confocal") and m["n_files"] != 1:
+        raise bad(f"n_files={m['n_files']} but a {m['capture']} capture is stored in exactly 1 file")
+    geo = m.get("geometry")
+    if m["capture"] in ("array", "confocal"):
+        if not isinstance(geo, dict):
+            raise bad(f"geometry is missing; a {m['capture']} capture needs spot and pixel positions")
+        _check_geometry(geo, m, bad)
+    return m
+
+
+def _check_geometry(geo: dict, m: dict, bad) -> None:
+    H, W = m["height"], m["width"]
+    spots = np.asarray(geo.get("spots", []), dtype=float)
+    n_spots = H * W if m["capture"] == "confocal" else m["n_files"]
+    if spots.shape != (n_spots, 3):
+        raise bad(f"geometry.spots has shape {spots.shape}, expected ({n_spots}, 3)")
+    for key in ("pixel_centers", "pixel_normals"):
+        arr = np.asarray(geo.get(key, []), dtype=float)
+        if arr.shape != (H, W, 3):
+            raise bad(f"geometry.{key} has shape {arr.shape}, expected ({H}, {W}, 3)")
+    for key in ("laser_origin", "detector_origin"):
+        arr = np.asarray(geo.get(key, []), dtype=float)
+        if arr.shape != (3,):
+            raise bad(f"geometry.{key}={geo.get(key)!r} must be 3 numbers (metres)")
+
+
+def manifest_path(directory: str | os.PathLike) -> Path:
+    return Path(directory) / MANIFEST_NAME
+
+
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def write_manifest(directory: str | os.PathLike, manifest: dict) -> Path:
+    """Validate and atomically write ``manifest.json`` into ``directory``."""
+    path = manifest_path(directory)
+    m = validate_manifest(_jsonable(manifest), path)
+    _atomic_write_bytes(path, (json.dumps(m, indent=1, sort_keys=False) + "\n").encode())
+    return path
+
+
+def read_manifest(directory: str | os.PathLike) -> dict:
+    """Read and validate ``manifest.json`` of a capture directory."""
+    d = Path(directory)
+    if not d.is_dir():
+        raise StackError(f"{d}: not a capture directory (does not exist)" if not d.exists()
+                         else f"{d}: not a capture directory (it is a file)")
+    path = manifest_path(d)
+    if not path.is_file():
+        raise StackError(f"{path}: missing; {d} is not a transient-mi capture")
+    try:
+        m = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise StackError(f"{path}: not valid JSON ({e})") from None
+    return validate_manifest(m, path)
+
+
+def config_digest(config: Any) -> str:
+    """SHA-256 of a JSON-serialisable render configuration (for resume checks)."""
+    blob = json.dumps(_jsonable(config), sort_keys=True, separators=(",", ":")).encode()
+    return hashlib.sha256(blob).hexdigest()
+
+
+# ----------------------------------------------------------------------- spot files
+
+
+def _header(manifest: dict, index: int) -> dict:
+    import OpenEXR
+
+    t = manifest["time"]
+    h = {
+        "compression": OpenEXR.ZIP_COMPRESSION,
+        "type": OpenEXR.scanlineimage,
+        "tmi_format": FORMAT,
+        "tmi_format_version": FORMAT_VERSION,
+        "tmi_kind": manifest["kind"],
+        "tmi_capture": manifest["capture"],
+        "tmi_quantity": manifest["quantity"],
+        "tmi_spot_index": int(index),
+        "tmi_n_files": int(manifest["n_files"]),
+        # (t0_ps, bin_width_ps, n_bins) as doubles: EXR float attributes are 32-bit.
+        "tmi_time_axis": np.array([t["t0_ps"], t["bin_width_ps"], t["n_bins"]], dtype=np.float64),
+        "tmi_include_first_last": int(manifest["include_first_last"]),
+    }
+    geo = manifest.get("geometry")
+    if isinstance(geo, dict) and manifest["capture"] == "array":
+        h["tmi_spot_position"] = np.asarray(geo["spots"][index], dtype=np.float64)
+    digest = (manifest.get("render") or {}).get("config_sha256")
+    if digest:
+        h["tmi_config_sha256"] = str(digest)
+    return h
+
+
+def spot_path(directory: str | os.PathLike, index: int) -> Path:
+    return Path(directory) / spot_filename(index)
+
+
+def write_spot(directory: str | os.PathLike, index: int, data: np.ndarray, manifest: dict) -> Path:
+    """Atomically write laser spot ``index`` of a capture.
+
+    Parameters
+    ----------
+    directory : path
+        Capture directory (must exist).
+    index : int
+        Spot index in scan order, ``0 <= index < manifest['n_files']``.
+    data : ndarray, shape (height, width, n_bins)
+        Values for this spot; cast to float32 (``ideal``) or uint32
+        (``counts``). Ideal data must be finite and >= 0; counts must be
+        integers in [0, 2**32).
+    manifest : dict
+        The capture's manifest (gives shape, time axis and metadata).
+    """
+    import OpenEXR
+
+    d = Path(directory)
+    H, W, T = manifest["height"], manifest["width"], manifest["time"]["n_bins"]
+    if not 0 <= int(index) < manifest["n_files"]:
+        raise StackError(f"spot index {index} out of range [0, {manifest['n_files']})")
+    arr = np.asarray(data)
+    if arr.shape != (H, W, T):
+        raise StackError(f"{spot_path(d, index)}: data shape {arr.shape}, manifest says ({H}, {W}, {T})")
+    dt = dtype_for(manifest["kind"])
+    if manifest["kind"] == "ideal":
+        arr = arr.astype(np.float32, copy=False)
+        if not np.all(np.isfinite(arr)) or (arr.size and arr.min() < 0):
+            raise StackError(f"{spot_path(d, index)}: ideal data must be finite and >= 0")
+    else:
+        if arr.dtype.kind == "f":
+            if not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
+                raise StackError(f"{spot_path(d, index)}: counts must be whole numbers")
+        if arr.size and (arr.min() < 0 or arr.max() > np.iinfo(np.uint32).max):
+            raise StackError(f"{spot_path(d, index)}: counts must lie in [0, 2**32)")
+        arr = arr.astype(dt, copy=False)
+    names = channel_names(T)
+    channels = {name: np.ascontiguousarray(arr[:, :, b]) for b, name in enumerate(names)}
+    path = spot_path(d, index)
+    fd, tmp = tempfile.mkstemp(dir=d, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        OpenEXR.File(_header(manifest, index), channels).write(tmp)
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    return path
+
+
+def _open_exr(path: Path, header_only: bool):
+    import OpenEXR
+
+    if not path.is_file():
+        raise StackError(f"{path}: missing")
+    try:
+        return OpenEXR.File(str(path), header_only=header_only)
+    except Exception as e:  # OpenEXR raises RuntimeError/ValueError/OSError
+        raise StackError(f"{path}: not a readable EXR file ({e})") from None
+
+
+def _check_header(path: Path, hdr: dict, manifest: dict, index: int) -> None:
+    def expect(key, want):
+        got = hdr.get(key)
+        if got != want:
+            raise StackError(f"{path}: header {key}={got!r}, expected {want!r}")
+
+    expect("tmi_format", FORMAT)
+    expect("tmi_format_version", FORMAT_VERSION)
+    expect("tmi_kind", manifest["kind"])
+    expect("tmi_capture", manifest["capture"])
+    expect("tmi_spot_index", int(index))
+    t = manifest["time"]
+    axis = np.asarray(hdr.get("tmi_time_axis", []), dtype=np.float64)
+    want = np.array([t["t0_ps"], t["bin_width_ps"], t["n_bins"]], dtype=np.float64)
+    if axis.shape != (3,) or not np.array_equal(axis, want):
+        raise StackError(
+            f"{path}: time axis (t0_ps, bin_width_ps, n_bins)={tuple(axis.tolist())}, "
+            f"manifest says {tuple(want.tolist())}"
+        )
+    digest = (manifest.get("render") or {}).get("config_sha256")
+    if digest and hdr.get("tmi_config_sha256") != digest:
+        raise StackError(f"{path}: written by a different render configuration than {MANIFEST_NAME} describes")
+    lo, hi = hdr.get("dataWindow", (np.zeros(2), np.zeros(2)))
+    W, H = int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
+    if (H, W) != (manifest["height"], manifest["width"]):
+        raise StackError(f"{path}: image is {W}x{H}, manifest says {manifest['width']}x{manifest['height']}")
+
+
+def spot_is_complete(directory: str | os.PathLike, index: int, manifest: dict) -> bool:
+    """True if spot ``index`` exists and its header matches ``manifest``.
+
+    Files appear under their final name only once fully written (atomic
+    rename), so a matching header means a complete file. Used by resume.
+    """
+    path = spot_path(directory, index)
+    if not path.is_file():
+        return False
+    try:
+        f = _open_exr(path, header_only=True)
+        _check_header(path, f.header(), manifest, index)
+    except StackError:
+        return False
+    return True
+
+
+def read_spot(directory: str | os.PathLike, index: int, manifest: dict | None = None) -> np.ndarray:
+    """Read laser spot ``index`` as an array of shape (height, width, n_bins).
+
+    The dtype is float32 for ``ideal`` and uint32 for ``counts`` captures.
+
+    Raises
+    ------
+    StackError
+        If the file is missing, truncated, or disagrees with the manifest
+        (format, kind, spot index, time axis, image size, channels).
+    """
+    d = Path(directory)
+    m = read_manifest(d) if manifest is None else manifest
+    path = spot_path(d, index)
+    f = _open_exr(path, header_only=False)
+    _check_header(path, f.header(), m, index)
+    try:
+        chans = f.channels()
+    except Exception as e:
+        raise StackError(f"{path}: pixel data unreadable ({e})") from None
+    names = channel_names(m["time"]["n_bins"])
+    if set(chans) != set(names):
+        missing = sorted(set(names) - set(chans))[:3]
+        extra = sorted(set(chans) - set(names))[:3]
+        raise StackError(
+            f"{path}: has {len(chans)} channels, manifest says {len(names)} time bins"
+            + (f"; missing e.g. {missing}" if missing else "")
+            + (f"; unexpected e.g. {extra}" if extra else "")
+        )
+    dt = dtype_for(m["kind"])
+    out = np.empty((m["height"], m["width"], len(names)), dtype=dt)
+    for b, name in enumerate(names):
+        px = chans[name].pixels
+        if px is None or px.dtype != dt or px.shape != out.shape[:2]:
+            got = None if px is None else (px.dtype, px.shape)
+            raise StackError(f"{path}: channel {name} is {got}, expected ({dt}, {out.shape[:2]})")
+        out[:, :, b] = px
+    return out
+
+
+def missing_spots(directory: str | os.PathLike, manifest: dict | None = None) -> list[int]:
+    """Indices of spot files that are absent (not a content check)."""
+    d = Path(directory)
+    m = read_manifest(d) if manifest is None else manifest
+    return [j for j in range(m["n_files"]) if not spot_path(d, j).is_file()]
+
+
+def _require_complete(d: Path, m: dict) -> None:
+    missing = missing_spots(d, m)
+    if missing:
+        shown = ", ".join(spot_filename(j) for j in missing[:5]) + (" ..." if len(missing) > 5 else "")
+        raise StackError(
+            f"{d}: {len(missing)} of {m['n_files']} spot files missing ({shown}); "
+            "the render was interrupted: rerun it with --resume"
+        )
+    if m["status"] != "complete":
+        raise StackError(f"{manifest_path(d)}: status is {m['status']!r}; the render did not finish (rerun with --resume)")
+
+
+def iter_spots(directory: str | os.PathLike) -> Iterator[tuple[int, np.ndarray]]:
+    """Yield ``(index, data[height, width, n_bins])`` spot by spot (bounded memory)."""
+    d = Path(directory)
+    m = read_manifest(d)
+    _require_complete(d, m)
+    for j in range(m["n_files"]):
+        yield j, read_spot(d, j, m)
+
+
+def read_stack(directory: str | os.PathLike) -> tuple[dict, np.ndarray]:
+    """Read a whole capture: ``(manifest, data[n_files, height, width, n_bins])``.
+
+    Holds everything in memory; use :func:`iter_spots` for large captures.
+    """
+    d = Path(directory)
+    m = read_manifest(d)
+    _require_complete(d, m)
+    data = np.empty((m["n_files"], m["height"], m["width"], m["time"]["n_bins"]), dtype=dtype_for(m["kind"]))
+    for j in range(m["n_files"]):
+        data[j] = read_spot(d, j, m)
+    return m, data
+
+
+def write_stack(directory: str | os.PathLike, manifest: dict, data: np.ndarray) -> Path:
+    """Write a whole capture held in memory (``data[n_files, H, W, T]``).
+
+    Creates ``directory`` (its parent must exist), writes the manifest as
+    ``incomplete``, every spot, then the manifest as ``complete``.
+    """
+    d = Path(directory)
+    arr = np.asarray(data)
+    if arr.ndim != 4 or arr.shape[0] != manifest["n_files"]:
+        raise StackError(f"data shape {arr.shape}, expected ({manifest['n_files']}, H, W, T)")
+    d.mkdir(exist_ok=True)
+    m = dict(manifest, status="incomplete")
+    write_manifest(d, m)
+    for j in range(arr.shape[0]):
+        write_spot(d, j, arr[j], m)
+    m["status"] = "complete"
+    write_manifest(d, m)
+    return d
