@@ -3,8 +3,12 @@
 Every module in the sub-packages ``films``, ``integrators``, ``sensors`` and
 ``emitters`` that defines ``PLUGIN = (kind, name, class_name)`` is a plug-in.
 Plug-in classes derive from variant-specific Mitsuba base classes
-(``mi.Film`` of the active variant, ...), so on a variant change the modules
-are reloaded and registered again.
+(``mi.Film`` of the active variant, ...), so on a variant change every module
+of those sub-packages is dropped from ``sys.modules`` and imported afresh
+(a plug-in that subclasses another, such as ``spad_film`` deriving from
+``transient_film``, then imports the new base class), and registered again.
+Helper modules must look variant-specific types up at call time
+(``mi.Float``), never bind them at import.
 """
 
 from __future__ import annotations
@@ -39,9 +43,11 @@ def register_plugins() -> dict[str, tuple[str, str]]:
     Returns a mapping ``name -> (kind, module)``.
     """
     _registered.clear()
+    prefixes = tuple(f"transient_mi.{sub}." for sub in _SUBPACKAGES)
+    for name in [n for n in sys.modules if n.startswith(prefixes)]:
+        del sys.modules[name]
     for modname in _plugin_modules():
-        mod = sys.modules.get(modname)
-        mod = importlib.reload(mod) if mod is not None else importlib.import_module(modname)
+        mod = importlib.import_module(modname)
         spec = getattr(mod, "PLUGIN", None)
         if spec is None:
             continue
