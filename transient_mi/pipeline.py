@@ -72,8 +72,10 @@ def _check_output(out_dir: Path, resume: bool) -> None:
     parent = out_dir.parent if out_dir.parent != Path("") else Path(".")
     if not parent.is_dir():
         raise UserInputError(f"-o {out_dir}: parent directory {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise UserInputError(f"-o {out_dir}: parent directory {parent} is not writable")
+    try:  # a real probe: permission bits say little for root or read-only mounts
+        os.rmdir(tempfile.mkdtemp(dir=parent, prefix=".transient-mi-probe-"))
+    except OSError as e:
+        raise UserInputError(f"-o {out_dir}: cannot create a directory in {parent} ({e.strerror})") from None
     if out_dir.exists() and not resume and any(out_dir.iterdir()):
         raise UserInputError(f"-o {out_dir}: directory exists and is not empty (use --resume to continue it, "
                              "or choose another output)")

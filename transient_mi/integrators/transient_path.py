@@ -150,8 +150,7 @@ class TransientPath(mi.CppADIntegrator):
         done = 0
         for j0, j1 in layout.passes():
             rng = self._camera_pass(scene, sensor, hist, rng, layout, j0, j1, W, H, center)
-            hist.evaluate()
-            dr.eval(rng)
+            hist.evaluate(rng)
             done = min(total, layout.n_pixels * min(spp, j1 * K))
             if progress is not None:
                 progress(done, total)
