@@ -20,7 +20,10 @@ DEFAULT_VARIANT = "llvm_ad_mono"
 ENV_VAR = "TRANSIENT_MI_VARIANT"
 
 
-class VariantError(ValueError):
+from recon.errors import UserInputError
+
+
+class VariantError(UserInputError):
     """An unknown or unusable Mitsuba variant was requested."""
 
 
