@@ -77,6 +77,7 @@ def test_resume_with_other_settings_is_refused(rendered):
     (["-D", "3x=1"], "'3x' is not a valid parameter name"),
     (["-D", "nonexistent=1"], "unused parameters"),
     (["--spp", "-3"], "--spp -3"),
+    (["--variant", "scalar_rgb"], "cannot render"),
 ])
 def test_bad_input_one_line_error_no_output(tmp_path, args, message):
     out = tmp_path / "out"
@@ -106,3 +107,28 @@ def test_malformed_xml_is_one_line(tmp_path):
     r = cli("render", bad, "-o", tmp_path / "o")
     assert r.returncode == 2 and r.stderr.startswith(f"error: {bad}") and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_rgb_variant_renders_luminance_and_is_recorded(tmp_path):
+    out = tmp_path / "rgb"
+    r = cli("render", CBOX, "-o", out, *SMALL, "--variant", "llvm_ad_rgb")
+    assert r.returncode == 0, r.stderr
+    m, data = stack.read_stack(out)
+    assert m["render"]["variant"] == "llvm_ad_rgb" and data.shape == (1, 12, 16, 200) and data.sum() > 0
+
+
+def test_plugins_follow_a_variant_switch():
+    code = """
+import transient_mi as tm, mitsuba as mi
+for v in ["llvm_ad_rgb", "llvm_ad_mono"]:
+    tm.set_variant(v)
+    d = mi.cornell_box()
+    d["sensor"]["film"] = {"type": "transient_film", "width": 8, "height": 8, "n_bins": 100, "bin_width_ps": 300.0}
+    d["integrator"] = {"type": "transient_path", "max_depth": 3}
+    s = mi.load_dict(d)
+    res = s.integrator().render_transient(s, s.sensors()[0], spp=2)
+    assert mi.variant() == v and res.histogram.sum() > 0, v
+print("ok")
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert r.returncode == 0 and "ok" in r.stdout, r.stderr

@@ -116,6 +116,9 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
 
     if variant:
         tm.set_variant(variant)
+    if not tm.variant().startswith(("llvm_", "cuda_")):
+        raise UserInputError(f"variant {tm.variant()!r} cannot render: use an llvm_* or cuda_* variant "
+                             "(scalar_* variants only load scenes, for debugging)")
     if spp < 0:
         raise UserInputError(f"--spp {spp}: must be >= 1 (or 0 for the scene's value)")
     if not 0 <= seed < 2**32:
