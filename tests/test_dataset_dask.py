@@ -121,7 +121,8 @@ def test_local_cluster_builds_every_item_and_the_index(killed_run):
         assert m["render"]["seed"] == row["render_seed"] and m["render"]["spp"] == 2
         assert m["time"]["t0_ps"] == row["define.t0_ps"]
         rec = json.loads((out / "items" / row["item"] / "params.json").read_text())
-        assert rec["params_sha256"] == row["params_sha256"] and rec["defines"]["max_depth"] == str(row["define.max_depth"])
+        assert rec["params_sha256"] == row["params_sha256"]
+        assert rec["defines"]["max_depth"] == str(row["define.max_depth"])
         assert item_status(out / "items" / row["item"], row["params_sha256"]) == "valid"
     ds = json.loads((out / "dataset.json").read_text())
     assert ds["n_items"] == N_ITEMS and ds["spec"]["grid"] == {"define.max_depth": [2, 3]}

@@ -124,7 +124,8 @@ def test_yaml_and_json_specs_and_scene_relative_to_the_spec(tmp_path):
     scene.write_bytes(MESH_SCENE.read_bytes())
     (tmp_path / "sub" / "a.yaml").write_text("scene: scene.xml\nspp: 2\nobject: {kind: mannequin}\n"
                                              "grid:\n  object.pose: [arms_down, t_pose]\n")
-    (tmp_path / "sub" / "a.json").write_text(json.dumps({"scene": "scene.xml", "spp": 2, "object": {"kind": "mannequin"},
+    (tmp_path / "sub" / "a.json").write_text(json.dumps({"scene": "scene.xml", "spp": 2,
+                                                        "object": {"kind": "mannequin"},
                                                         "grid": {"object.pose": ["arms_down", "t_pose"]}}))
     a, b = load_spec(tmp_path / "sub" / "a.yaml"), load_spec(tmp_path / "sub" / "a.json")
     assert a.scene_file == b.scene_file == scene.resolve()

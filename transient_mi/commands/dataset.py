@@ -14,8 +14,9 @@ def dataset(
     scheduler: Optional[str] = typer.Option(None, "--scheduler",
                                             help="Address of a running Dask scheduler, e.g. tcp://127.0.0.1:8786 "
                                                  "(default: a local cluster)."),
-    workers: Optional[int] = typer.Option(None, "--workers", help="Worker processes of the local cluster "
-                                                                   "(default: one per core)."),
+    workers: Optional[int] = typer.Option(None, "--workers",
+                                          help="Worker processes of the local cluster (default: one per core up "
+                                               "to 4 cores, about sqrt(cores) above)."),
     threads_per_worker: Optional[int] = typer.Option(None, "--threads-per-worker",
                                                      help="drjit threads in each worker process (default: cores / "
                                                           "worker processes on each host)."),

@@ -313,11 +313,53 @@ class DaskConnection:
             self.cluster = None
 
 
-def default_workers() -> int:
-    """Local worker processes by default: one per core."""
-    from dask.system import CPU_COUNT
+def check_cluster(client, scheduler: str, scene_file: Path, out: Path) -> int:
+    """Check an external cluster before submitting: importable transient_mi, shared files.
 
-    return max(1, int(CPU_COUNT))
+    Dask deserialises tasks on the scheduler, so the scheduler and every
+    worker need transient-mi installed; workers read the scene and write the
+    items, so they must see the same paths. Returns the number of workers.
+
+    Raises
+    ------
+    UserInputError
+        Naming what is missing where.
+    """
+    import importlib.util
+    import os.path
+
+    if client.run_on_scheduler(importlib.util.find_spec, "transient_mi") is None:
+        raise UserInputError(f"--scheduler {scheduler}: the scheduler cannot import transient_mi; start "
+                             "`dask scheduler` in an environment where transient-mi is installed (Dask reads the "
+                             "tasks there)")
+    specs = client.run(importlib.util.find_spec, "transient_mi")
+    bad = sorted(a for a, sp in specs.items() if sp is None)
+    if bad:
+        raise UserInputError(f"--scheduler {scheduler}: {len(bad)} of {len(specs)} workers cannot import transient_mi "
+                             f"({', '.join(bad[:3])}); start `dask worker` where transient-mi is installed")
+    for what, fn, path in (("scene file", os.path.isfile, scene_file), ("output folder", os.path.isdir, out)):
+        seen = client.run(fn, str(path))
+        blind = sorted(a for a, ok in seen.items() if not ok)
+        if blind:
+            raise UserInputError(f"--scheduler {scheduler}: {len(blind)} of {len(seen)} workers cannot see the "
+                                 f"{what} {path} ({', '.join(blind[:3])}); workers need a shared filesystem "
+                                 "with the same paths")
+    return len(specs)
+
+
+def default_workers() -> int:
+    """Local worker processes by default: Dask's own split of the cores into processes.
+
+    Up to 4 cores, one process per core (each rendering with one drjit
+    thread); above, about sqrt(cores) processes sharing the cores as drjit
+    threads (fewer copies of a large render's memory). On the 2-core machine
+    we measured, 2 x 1 and 1 x 2 gave the same items per hour within the
+    run-to-run noise (docs/dataset.md).
+    """
+    from dask.system import CPU_COUNT
+    from distributed.deploy.utils import nprocesses_nthreads
+
+    return max(1, nprocesses_nthreads(int(CPU_COUNT))[0])
 
 
 def _threads_plan(client, scheduler: str | None, workers: int, threads_per_worker: int | None):
@@ -352,7 +394,7 @@ def run_dataset(spec_file: str | Path, out_dir: str | Path, *, scheduler: str | 
         Address of a running Dask scheduler (``tcp://host:8786``); default: a
         local cluster.
     workers : int, optional
-        Worker processes of the local cluster (default: one per core).
+        Worker processes of the local cluster (default: :func:`default_workers`).
     threads_per_worker : int, optional
         drjit threads in each worker process (default: cores / workers on
         each host).
@@ -405,8 +447,12 @@ def run_dataset(spec_file: str | Path, out_dir: str | Path, *, scheduler: str | 
     conn = DaskConnection(scheduler, workers)  # connect first: a bad address fails before anything is written
     try:
         report.cluster = conn.description
-        threads = _threads_plan(conn.client, scheduler, conn.n_workers, threads_per_worker)
+        if scheduler:  # before anything is written
+            where = out.resolve() if out.exists() else out.resolve().parent
+            if check_cluster(conn.client, scheduler, spec.scene_file, where) == 0:
+                say(f"--scheduler {scheduler} has no workers yet: items start when workers join")
         with _locked_output(out):
+            threads = _threads_plan(conn.client, scheduler, conn.n_workers, threads_per_worker)
             items_dir = out / ITEMS_DIR
             items_dir.mkdir(exist_ok=True)
             report.cleaned_tmp = clean_temporaries(items_dir)
