@@ -55,7 +55,6 @@ rate is ``n / (1 + n tau)`` (non-paralyzable) or ``n exp(-n tau)``
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
 from scipy.special import nbdtr
 
 from recon.pileup import coates_correction  # noqa: F401  (re-exported)
@@ -207,14 +206,8 @@ def ready_shift(grid: CycleGrid, dead_time_ps: float) -> tuple[np.ndarray, np.nd
     return target.astype(np.int64), delay
 
 
-def _logaddexp_acc(x, axis=-1, reverse=False):
-    if reverse:
-        return np.flip(np.logaddexp.accumulate(np.flip(x, axis), axis=axis), axis)
-    return np.logaddexp.accumulate(x, axis=axis)
-
-
 def stationary_avalanche_rates(lam: np.ndarray, grid: CycleGrid, dead_time_ps: float,
-                               tol: float = 1e-12, max_iter: int = 2000) -> tuple[np.ndarray, dict]:
+                               tol: float = 1e-12, max_iter: int = 5000) -> tuple[np.ndarray, dict]:
     """Expected avalanches per cycle in every slot for a non-paralyzable dead time (Markov chain).
 
     Parameters
@@ -234,53 +227,43 @@ def stationary_avalanche_rates(lam: np.ndarray, grid: CycleGrid, dead_time_ps: f
 
     Notes
     -----
-    Work is done in log space: with ``Lambda_j`` the intensity before slot
-    ``j`` and ``kappa = 1 / (exp(Lambda_P) - 1)``, the chain's step is
-    ``(pi Q)_j = (1 - e^{-lam_j}) e^{-Lambda_j} (C_j + kappa C_P)`` with
-    ``C_j = sum_{s <= j} beta_s e^{Lambda_s}`` and ``beta`` the ready-boundary
-    distribution (``pi`` moved by the dead time). The lazy step
-    ``pi <- (pi + pi Q) / 2`` has the same fixed point and cannot oscillate.
+    The chain's state is the slot of the last avalanche; the detector is
+    ready again at the boundary nearest to ``slot centre + dead time``
+    (:func:`ready_shift`), then waits for the first photon. One step of the
+    chain and the mean waiting times are periodic first-order recurrences
+    (:mod:`._chain_kernel`). The lazy step ``pi <- (pi + pi Q) / 2`` has the
+    same fixed point and cannot oscillate; iteration stops when the L1 change
+    is below ``tol`` for every pixel. The mean time between avalanches is
+    ``sum_i pi_i (delay_i + W(ready_i))``, so the avalanches per cycle in
+    slot ``i`` are ``pi_i P / mean``.
     """
+    from ._chain_kernel import mean_wait, stationary
+
     lam = np.asarray(lam, dtype=np.float64)
     n_pix, n = lam.shape
     rates = np.zeros_like(lam)
-    lamP = lam.sum(1)
-    live = lamP > 0
+    live = lam.sum(1) > 0
     info = {"iterations": 0, "residual": 0.0}
     if not np.any(live):
         return rates, info
-    L = lam[live]
+    L = np.ascontiguousarray(lam[live])
     target, delay = ready_shift(grid, dead_time_ps)
-    S = sparse.csr_matrix((np.ones(n), (np.arange(n), target)), shape=(n, n))
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        Lstart = np.cumsum(L, axis=1) - L
-        LP = L.sum(1, keepdims=True)
-        logc = np.log(-np.expm1(-L))
-        log_kappa = -np.where(LP > 30, LP, np.log(np.expm1(LP)))
-        # mean wait from each boundary to the next avalanche
-        widths = grid.widths[None, :]
-        logI = np.where(L > 0, np.log(widths) + logc - np.log(L), np.log(widths))
-        logR = _logaddexp_acc(-Lstart + logI, reverse=True)
-        logW = Lstart + np.logaddexp(logR, log_kappa + logR[:, :1])
-        pi = np.exp(-Lstart + logc)  # fresh-cycle start (Coates)
-        pi /= pi.sum(1, keepdims=True)
-        active = np.arange(len(L))
-        it = 0
-        res = np.inf
-        while active.size and it < max_iter:
-            it += 1
-            p = pi[active]
-            beta = np.asarray(p @ S)
-            logC = _logaddexp_acc(np.log(beta) + Lstart[active])
-            new = np.exp(logc[active] - Lstart[active] + np.logaddexp(logC, log_kappa[active] + logC[:, -1:]))
-            new /= new.sum(1, keepdims=True)
-            new = 0.5 * (p + new)
-            change = np.abs(new - p).sum(1)
-            pi[active] = new
-            res = float(change.max())
-            active = active[change > tol]
-        beta = np.asarray(pi @ S)
-        mean_interval = (pi * delay[None, :]).sum(1) + np.nansum(np.where(beta > 0, beta * np.exp(logW), 0.0), 1)
+    decay = np.exp(-L)
+    onem = -np.expm1(-L)
+    one_minus_e = -np.expm1(-L.sum(1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        within = np.where(L > 0, grid.widths[None, :] * onem / L, grid.widths[None, :])
+    pi = first_photon_probabilities(L)  # a detector fresh at the cycle start
+    pi /= pi.sum(1, keepdims=True)
+    iters = np.zeros(len(L), dtype=np.int64)
+    resid = np.zeros(len(L))
+    stationary(pi, target, decay, onem, one_minus_e, tol, max_iter, iters, resid)
+    it, res = int(iters.max()), float(resid.max())
+    W = np.empty_like(L)
+    mean_wait(decay, within, one_minus_e, W)
+    beta = np.zeros_like(pi)
+    np.add.at(beta.T, target, pi.T)
+    mean_interval = (pi * delay[None, :]).sum(1) + (beta * W).sum(1)
     rates[live] = pi * (grid.period_ps / mean_interval)[:, None]
-    info.update(iterations=it, residual=res if np.isfinite(res) else 0.0)
+    info.update(iterations=it, residual=res)
     return rates, info
