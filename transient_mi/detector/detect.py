@@ -28,7 +28,7 @@ def check_ideal(ideal, where: str = "ideal") -> np.ndarray:
     bad = ~np.isfinite(arr) | (arr < 0)
     if np.any(bad):
         idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise UserInputError(f"{where}[{', '.join(map(str, idx))}] = {arr[idx]!r}: expected photons per pulse "
+        raise UserInputError(f"{where}[{', '.join(map(str, idx))}] = {float(arr[idx])!r}: expected photons per pulse "
                              "must be finite and >= 0")
     return arr
 

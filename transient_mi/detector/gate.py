@@ -133,7 +133,7 @@ def transition_10_90_ps(t_ps, g) -> tuple[float, float]:
     rise = cross(t[:k + 1], g[:k + 1], 0.9 * top) - cross(t[:k + 1], g[:k + 1], 0.1 * top)
     tr, gr = t[k:][::-1], g[k:][::-1]
     fall = cross(tr, gr, 0.1 * top) - cross(tr, gr, 0.9 * top)
-    return float(rise), float(-fall)
+    return float(rise), float(fall)
 
 
 # ------------------------------------------------------------------- automatic
