@@ -16,9 +16,13 @@ Dead time longer than the period
 If every detection blinds the detector for ``m`` whole further cycles (e.g. a
 TCSPC that converts at most 20 M counts/s, i.e. 50 ns dead time, at a 50 MHz
 laser with a short gated window: ``m = 2``), only the cycles in which it was
-ready can detect: ``N_live = N - m * sum_b n_b``. ``blind_cycles=m`` uses
-``N_live`` in place of ``N`` (detections falling outside the histogram, e.g.
-pushed out by jitter, are not seen and are neglected).
+ready can detect: ``N_live = N - m * K`` with ``K = sum_b n_b``, up to the last
+detection's blind cycles, which may run past the end of the measurement
+(between 0 and ``m`` of them are lost; half of them, ``m / 2``, are added
+back: the midpoint of the bounds). ``blind_cycles=m`` uses ``N_live`` in
+place of ``N``; apply it per pixel (a histogram summed over pixels needs
+``m / 2`` per pixel, an O(m / N) difference). Detections falling outside the
+histogram (e.g. pushed out by jitter) are not seen and are neglected.
 
 Limits: the estimator assumes bins are in the order of the true arrival
 times; timing jitter smears the histogram after the pile-up happened, so apply
@@ -53,7 +57,8 @@ def _prepare(counts, n_cycles, axis, blind_cycles):
     if np.any(~(m >= 0)) or np.any(~np.isfinite(m)):
         raise UserInputError(f"blind_cycles={blind_cycles!r} must be finite and >= 0")
     try:
-        live = n - m * c.sum(-1)
+        total = c.sum(-1)
+        live = n - m * total + 0.5 * m * (total > 0)
     except ValueError:
         raise UserInputError(f"n_cycles shape {n.shape} does not broadcast against the counts' "
                              f"non-time shape {c.shape[:-1]}") from None
@@ -64,9 +69,11 @@ def _prepare(counts, n_cycles, axis, blind_cycles):
     live = live[..., None]
     before = np.cumsum(c, axis=-1) - c  # counts in earlier bins
     remaining = live - before
-    if np.any(remaining < c - 1e-9):
+    # with blind cycles, the last detection's unknown truncation allows up to m/2 more
+    slack = 1e-9 + 0.5 * np.asarray(m, dtype=np.float64)[..., None] if np.ndim(m) else 1e-9 + 0.5 * float(m)
+    if np.any(remaining < c - slack):
         raise UserInputError("counts exceed the live cycles: more detections than laser cycles")
-    return c, remaining
+    return c, np.maximum(remaining, c)
 
 
 def coates_correction(counts: np.ndarray, n_cycles, axis: int = -1, blind_cycles=0) -> np.ndarray:

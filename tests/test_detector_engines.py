@@ -29,11 +29,16 @@ def _both(ideal, params, N, w, seed=1):
     return out
 
 
-def test_engines_agree_in_the_exact_regime_with_jitter_and_dead_time_longer_than_the_period():
+@pytest.mark.parametrize("params", [
+    # the paper's detector, gated around the signal: whole blind cycles (m = 2 from the TCSPC)
+    DetectorParams(gate_open_ps=200.0, gate_close_ps=800.0),
+    # a paralyzable SPAD alone (m = 0): its extensions never reach the next window
+    DetectorParams(gate_open_ps=200.0, gate_close_ps=800.0, dead_time_model="paralyzable",
+                   tcspc_max_count_rate_hz=None, jitter_ps=60.0),
+], ids=["paper_m2", "paralyzable_m0"])
+def test_engines_agree_in_the_exact_regime_with_jitter(params):
     T, w, n_pix, N = 128, 8.0, 64, 30_000
     ideal = _nlos_like(n_pix, T)
-    # the paper's detector, gated around the signal: whole blind cycles (m = 2), exact
-    params = DetectorParams(gate_open_ps=200.0, gate_close_ps=800.0)
     r = _both(ideal, params, N, w)
     assert r["analytic"][1]["exact"] and r["analytic"][1]["pixels_by_regime"]["whole_blind_cycles"] == n_pix
     a, e = r["analytic"][0], r["exact"][0]
