@@ -163,3 +163,36 @@ def test_crosstalk_reaches_the_four_neighbours_at_the_same_time():
     ca = detect(ideal, params, N, bin_width_ps=w, seed=13, engine="analytic").astype(float)
     ea = np.array([ca[0, 1].sum(), ca[1, 0].sum(), ca[1, 2].sum(), ca[2, 1].sum()])
     assert abs(ea.sum() - edges.sum()) <= 3 * math.sqrt(ea.sum() + edges.sum())
+
+
+# ---------------------------------------------------------------- jitter kernel
+
+
+def test_jitter_kernel_convolution_matches_a_direct_sum():
+    from transient_mi.detector.model import apply_jitter_kernel
+
+    rng = np.random.default_rng(0)
+    for first, K in [(-3, 7), (2, 5), (-40, 81), (5, 30)]:  # direct and FFT paths
+        x, k = rng.random((3, 50)), rng.random(K)
+        ref = np.zeros_like(x)
+        for b in range(50):
+            for j in range(K):
+                if 0 <= b - first - j < 50:
+                    ref[:, b] += x[:, b - first - j] * k[j]
+        assert np.allclose(apply_jitter_kernel(x, first, k), ref, atol=1e-12)
+
+
+@pytest.mark.parametrize("kw", [dict(jitter_ps=25.0), dict(jitter_ps=10.0, irf_tail_fraction=0.3, irf_tail_ps=30.0),
+                                dict(jitter_ps=0.0, irf_tail_fraction=1.0, irf_tail_ps=12.0)])
+def test_jitter_bin_kernel_matches_sampled_delays(kw):
+    from transient_mi.detector import Jitter
+
+    w = 8.0
+    jit = Jitter.from_params(DetectorParams(**kw))
+    first, k = jit.bin_kernel(w)
+    assert abs(k.sum() - 1) < 1e-9
+    rng = np.random.default_rng(1)
+    n = 200_000
+    shift = np.floor(rng.random(n) + jit.sample(rng, n) / w).astype(int) - first
+    assert shift.min() >= 0 and shift.max() < len(k)
+    assert chisq_gof(np.bincount(shift, minlength=len(k)), n * k, ddof=0) > ALPHA

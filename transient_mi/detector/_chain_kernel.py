@@ -12,7 +12,7 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def stationary(pi, target, decay, onem, one_minus_e, tol, max_iter, iters, resid):
     """Iterate the lazy chain ``pi <- (pi + pi Q) / 2`` per pixel until the L1 change is < ``tol``.
 
@@ -20,7 +20,9 @@ def stationary(pi, target, decay, onem, one_minus_e, tol, max_iter, iters, resid
     of steps and the last L1 change. See :func:`chain_step` for one step.
     """
     n_pix, n = pi.shape
-    for p in numba.prange(n_pix):  # pixels are independent: deterministic in any thread count
+    # serial on purpose: numba's default (workqueue) threading layer is unsafe when callers run
+    # detection from several threads (e.g. a threaded Dask worker)
+    for p in range(n_pix):
         beta = np.empty(n)
         out = np.empty(n)
         it = 0

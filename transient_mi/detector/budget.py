@@ -55,7 +55,7 @@ class Budget:
         return 1e12 / self.repetition_rate_hz
 
 
-def _pos(v, name):
+def _pos(v, name=None):
     try:
         x = float(v)
     except (TypeError, ValueError):

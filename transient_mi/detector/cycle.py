@@ -91,7 +91,5 @@ def make_cycle_grid(t0_ps: float, bin_width_ps: float, n_bins: int, period_ps: f
         n_rem = int(min(max_remainder_slots, max(1, math.ceil(rest / bin_width_ps - 1e-9))))
         edges.append(window + rest * np.arange(1, n_rem + 1, dtype=np.float64) / n_rem)
     e = np.concatenate(edges)
-    e[-1] = max(e[-1], period_ps) if len(edges) > 1 else e[-1]
-    if len(edges) == 1:
-        e[-1] = period_ps  # window fills the period (up to rounding)
+    e[-1] = period_ps  # exact end of the cycle (the window may fill it up to rounding)
     return CycleGrid(float(t0_ps), float(bin_width_ps), int(n_bins), float(period_ps), e)

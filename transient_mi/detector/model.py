@@ -103,19 +103,32 @@ def build_model(params: DetectorParams, *, bin_width_ps: float, n_bins: int, t0_
 
 
 def apply_jitter_kernel(x: np.ndarray, first: int, kernel: np.ndarray) -> np.ndarray:
-    """Convolve per-bin probabilities ``x[..., T]`` with the jitter kernel; mass leaving the window is dropped."""
+    """Convolve per-bin probabilities ``x[..., T]`` with the jitter kernel; mass leaving the window is dropped.
+
+    Output bin ``b`` receives ``sum_j x[b - first - j] kernel[j]`` (kernel
+    index ``j`` is a shift of ``first + j`` bins). Short kernels are applied
+    directly, long ones by FFT (negative round-off is clipped to 0).
+    """
     T = x.shape[-1]
     if len(kernel) == 1 and first == 0:
         return x * kernel[0]
-    from scipy.signal import oaconvolve
-
-    full = oaconvolve(x, kernel.reshape((1,) * (x.ndim - 1) + (-1,)), mode="full", axes=-1)
-    # full[..., i] = sum_j x[..., i - j] kernel[j]; output bin b = input bin + first + j,
-    # so out[..., b] = full[..., b - first] where 0 <= b - first < full length
+    K = len(kernel)
     out = np.zeros_like(x)
+    if K <= 16:
+        for j, kj in enumerate(kernel):
+            s = first + j  # shift in bins
+            if s >= 0 and s < T:
+                out[..., s:] += kj * x[..., :T - s]
+            elif s < 0 and -s < T:
+                out[..., :T + s] += kj * x[..., -s:]
+        return out
+    n = T + K - 1
+    nfft = 1 << (n - 1).bit_length()
+    full = np.fft.irfft(np.fft.rfft(x, nfft, axis=-1) * np.fft.rfft(kernel, nfft), nfft, axis=-1)[..., :n]
+    # full[..., i] = sum_j x[..., i - j] kernel[j], so out[..., b] = full[..., b - first]
     src_lo = max(0, -first)
     dst_lo = max(0, first)
-    n = min(T - dst_lo, full.shape[-1] - src_lo)
-    if n > 0:
-        out[..., dst_lo:dst_lo + n] = full[..., src_lo:src_lo + n]
+    m = min(T - dst_lo, n - src_lo)
+    if m > 0:
+        out[..., dst_lo:dst_lo + m] = full[..., src_lo:src_lo + m]
     return np.clip(out, 0.0, None)
