@@ -59,3 +59,29 @@ def test_spad_film_rejects_bad_parameters(kw, text):
     with pytest.raises(Exception) as e:
         _film(**kw)
     assert text in str(e.value)
+
+
+def test_render_pipeline_detect_step_uses_the_film_parameters(tmp_path):
+    """The render pipeline's detection step (ideal in OUT/ideal, counts in OUT) with a spad_film's kwargs."""
+    import types
+
+    import numpy as np
+
+    from detector_helpers import make_ideal_capture
+    from recon.io.stack import read_manifest, read_stack
+    from transient_mi import pipeline
+
+    film = _film(pulses=2000, auto_gate=True, pde=0.5, seed=4)
+    out = tmp_path / "out"
+    out.mkdir()
+    data = np.zeros((2, 3, 4, 64), np.float32)
+    data[..., 40:44] = 1e-3
+    make_ideal_capture(out / "ideal", data, bin_width_ps=8.0, t0_ps=100.0)
+    job = types.SimpleNamespace(out_dir=out, detect_kwargs=film.detect_kwargs())
+    assert pipeline._detect_into(job, out / "ideal") == out
+    m, counts = read_stack(out)
+    assert m["kind"] == "counts" and counts.shape == (2, 3, 4, 64) and counts.dtype == np.uint32
+    d = m["detector"]
+    assert d["pulses"] == 2000 and d["pde"] == 0.5 and d["seed"] == 4 and d["resolved"]["gate"] == "auto"
+    assert read_manifest(out / "ideal")["kind"] == "ideal"
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]

@@ -109,9 +109,11 @@ def run_exact(model: DetectorModel, ideal: np.ndarray, n_pulses: int, rng: np.ra
     done = 0
     n_events = 0
     N = int(n_pulses)
+    # chunk times are float64 ps from the chunk start: keep their rounding (C P 2^-52) below 1e-3 bin
+    max_cycles = max(1, int(1e-3 * min(grid.bin_width_ps, widths.min()) / (P * 2.0 ** -52)))
     while done < N:
         C = N - done if total_rate <= 0 else int(min(N - done, max(1, events_per_chunk // max(total_rate, 1e-300))))
-        C = max(1, C)
+        C = max(1, min(C, max_cycles))
         chunk_len = C * P
         k = rng.poisson(C * lam_tot)
         M = int(k.sum())
