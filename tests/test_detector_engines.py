@@ -196,3 +196,20 @@ def test_jitter_bin_kernel_matches_sampled_delays(kw):
     shift = np.floor(rng.random(n) + jit.sample(rng, n) / w).astype(int) - first
     assert shift.min() >= 0 and shift.max() < len(k)
     assert chisq_gof(np.bincount(shift, minlength=len(k)), n * k, ddof=0) > ALPHA
+
+
+def test_support_trims_only_negligible_intensity():
+    from transient_mi.detector.pileup import support
+
+    rng = np.random.default_rng(0)
+    lam = rng.random((200, 30)) * (rng.random((200, 30)) < 0.3) * 1e-6
+    neg = 2e-7
+    ia, ib = support(lam, neg)
+    for i in range(len(lam)):
+        head = np.cumsum(lam[i])
+        tail = np.cumsum(lam[i][::-1])[::-1]
+        if head[-1] <= 2 * neg:
+            assert (ia[i], ib[i]) == (30, -1)
+            continue
+        assert ia[i] == np.argmax(head > neg) and ib[i] == np.nonzero(tail > neg)[0].max()
+        assert lam[i, :ia[i]].sum() <= neg and lam[i, ib[i] + 1:].sum() <= neg

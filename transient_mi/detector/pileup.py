@@ -100,13 +100,15 @@ def support(lam: np.ndarray, negligible: np.ndarray | float) -> tuple[np.ndarray
     """
     lam = np.asarray(lam, dtype=np.float64)
     cum = np.cumsum(lam, axis=-1)
-    tot = cum[..., -1:]
-    neg = np.asarray(negligible, dtype=np.float64)[..., None] if np.ndim(negligible) else negligible
+    tot = cum[..., -1:].copy()  # (cum is modified below)
+    neg = np.asarray(negligible, dtype=np.float64)
+    neg = neg[..., None] if neg.ndim else neg
     ia = np.argmax(cum > neg, axis=-1)
-    tail = tot - (cum - lam)  # intensity from slot j to the end
+    # the intensity from slot j to the end exceeds neg iff cum_before_j < tot - neg (monotone in j)
+    cum -= lam
+    ib = np.count_nonzero(cum < tot - neg, axis=-1) - 1
+    empty = (tot <= 2 * neg)[..., 0]
     n = lam.shape[-1]
-    ib = n - 1 - np.argmax((tail > neg)[..., ::-1], axis=-1)
-    empty = tot[..., 0] <= 2 * neg if np.ndim(neg) == 0 else tot[..., 0] <= 2 * neg[..., 0]
     ia = np.where(empty, n, ia)
     ib = np.where(empty, -1, ib)
     return ia, ib
