@@ -120,7 +120,7 @@ class TransientFilm(mi.Film):
 
     # --------------------------------------------------------------- results
 
-    def set_result(self, result: TransientResult) -> None:
+    def set_result(self, result: TransientResult | None) -> None:
         """Store the result of the last render (called by the integrator)."""
         self.result = result
 

@@ -129,6 +129,7 @@ class TransientPath(mi.CppADIntegrator):
                 "scalar_* variants load scenes and construct plug-ins for debugging only")
         if not 0 <= seed < 2**32:
             raise PluginParameterError(f"{self.NAME}: seed={seed} must be in [0, 2**32)")
+        film.set_result(None)  # release the previous render's histogram before allocating
         spp = spp or int(sensor.sampler().sample_count())
         if spp < 1:
             raise PluginParameterError(f"{self.NAME}: spp={spp} must be >= 1")
