@@ -85,3 +85,10 @@ def test_render_pipeline_detect_step_uses_the_film_parameters(tmp_path):
     assert d["pulses"] == 2000 and d["pde"] == 0.5 and d["seed"] == 4 and d["resolved"]["gate"] == "auto"
     assert read_manifest(out / "ideal")["kind"] == "ideal"
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+def test_detection_seed_follows_the_render_seed_unless_given():
+    f = _film()
+    a, b = f.detect_kwargs(render_seed=5)["seed"], f.detect_kwargs(render_seed=6)["seed"]
+    assert a != b and a == f.detect_kwargs(render_seed=5)["seed"]
+    assert _film(seed=3).detect_kwargs(render_seed=5)["seed"] == 3

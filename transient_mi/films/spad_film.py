@@ -80,7 +80,8 @@ class SpadFilm(TransientFilm):
          - Laser overrides (default: the emitter's).
        * - ``seed``
          - integer
-         - Seed of the detection noise (default 0).
+         - Seed of the detection noise (default: derived from the render's
+           ``--seed``, so one seed fixes the whole capture).
        * - ``engine``
          - string
          - ``auto`` (default), ``analytic`` or ``exact``.
@@ -116,7 +117,8 @@ class SpadFilm(TransientFilm):
         self.pulses = self._whole(props, "pulses")
         self.exposure_s = get_float(props, name, "exposure_s", None, min_value=0.0, min_exclusive=True) \
             if "exposure_s" in props else None
-        self.seed = get_int(props, name, "seed", 0, min_value=0, max_value=2**63 - 1)
+        # None: derived from the render's --seed by the pipeline (see detect_kwargs)
+        self.seed = get_int(props, name, "seed", -1, min_value=0, max_value=2**63 - 1) if "seed" in props else None
         self.engine = get_choice(props, name, "engine", "auto", ENGINES)
         try:
             self.params = DetectorParams(**kw).validate()
@@ -146,13 +148,22 @@ class SpadFilm(TransientFilm):
         """``(pulses, exposure_s)`` as given (None when absent; default 1e6 pulses)."""
         return self.pulses, self.exposure_s
 
-    def detector_seed(self) -> int:
-        return self.seed
+    def detector_seed(self, render_seed: int = 0) -> int:
+        """The detector's seed: the ``seed`` property, else derived from the render seed."""
+        if self.seed is not None:
+            return self.seed
+        import numpy as np
 
-    def detect_kwargs(self) -> dict:
-        """Keyword arguments of :func:`transient_mi.detector.detect_stack` for this film."""
+        return int(np.random.SeedSequence([int(render_seed), 0x5BAD]).generate_state(1, dtype=np.uint32)[0])
+
+    def detect_kwargs(self, render_seed: int = 0) -> dict:
+        """Keyword arguments of :func:`transient_mi.detector.detect_stack` for this film.
+
+        ``render_seed``: the render's seed, from which the detection seed is
+        derived when the film has no ``seed`` property.
+        """
         return {"params": self.params, "pulses": self.pulses, "exposure_s": self.exposure_s,
-                "seed": self.seed, "engine": self.engine}
+                "seed": self.detector_seed(render_seed), "engine": self.engine}
 
     def to_string(self):
         # The render configuration digest includes str(film); detector settings are deliberately left
