@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import os
 import platform
-import shutil
 import sys
 import tempfile
 import time
@@ -140,7 +139,10 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         raise UserInputError(f"{scene_file}: the sensor's film must be a transient_film or spad_film")
     spp = spp or int(sensor.sampler().sample_count())
     layout = sensor.capture_layout(scene) if hasattr(sensor, "capture_layout") else _camera_layout(sensor)
-    detect_kwargs = film.detect_kwargs() if hasattr(film, "detect_kwargs") else None
+    detect_kwargs = film.detect_kwargs(render_seed=seed) if hasattr(film, "detect_kwargs") else None
+    if detect_kwargs is not None and layout["quantity"] != "photons_per_pulse":
+        raise UserInputError(f"{scene_file}: a spad_film needs an NLOS sensor (spad_array) that records "
+                             "photons per laser pulse; under a camera use transient_film")
 
     axis = film.time_axis()
     config = {
@@ -277,22 +279,14 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Pa
 
 
 def _detect_into(job: RenderJob, ideal_dir: Path) -> Path:
-    """Run the film's detector model on the ideal capture; counts land in ``job.out_dir``."""
+    """Run the film's detector model on the ideal capture; counts land in ``job.out_dir``.
+
+    (``detect_stack`` writes into a temporary sibling and moves the files in
+    with the manifest last, keeping ``ideal/``.)
+    """
     from transient_mi.detector import detect_stack
 
-    out = job.out_dir
-    tmp = Path(tempfile.mkdtemp(dir=out, prefix=".counts-"))
-    shutil.rmtree(tmp)
-    try:
-        detect_stack(ideal_dir, tmp, **job.detect_kwargs)
-        names = sorted(p.name for p in tmp.iterdir())
-        for name in names:  # manifest last: the capture is valid only once it is there
-            if name != stack.MANIFEST_NAME:
-                os.replace(tmp / name, out / name)
-        os.replace(tmp / stack.MANIFEST_NAME, out / stack.MANIFEST_NAME)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return out
+    return detect_stack(ideal_dir, job.out_dir, progress=True, **job.detect_kwargs)
 
 
 def render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int = 0, variant: str | None = None,
