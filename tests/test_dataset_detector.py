@@ -139,3 +139,46 @@ def test_detector_step_with_the_real_detector(tmp_path):
         assert item_status(d, it.params_sha256) == "valid"
         c.append(int(counts.sum()))
     assert c[1] > c[0] > 0  # twice the detection efficiency, more counts
+
+
+def _spad_film_scene(tmp_path: Path) -> Path:
+    """nlos_point_targets.xml with its transient_film turned into a spad_film (the detector in the scene)."""
+    from transient_mi.scenes import scene_path
+
+    text = scene_path("nlos_point_targets").read_text()
+    assert text.count('<film type="transient_film">') == 1
+    text = text.replace('<film type="transient_film">',
+                        '<film type="spad_film">\n            <integer name="pulses" value="100000"/>')
+    p = tmp_path / "spad_scene.xml"
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.skipif(_MISSING is not None, reason=f"needs the real detector and NLOS scenes: {_MISSING}")
+def test_scene_with_a_spad_film_gives_counts_items(tmp_path):
+    from transient_mi.dataset.runner import validate_scene
+
+    scene = _spad_film_scene(tmp_path)
+    spec = parse_spec({"scene": str(scene), "seed": 2, "spp": 4,
+                       "defines": {"width": 4, "height": 4, "spots_x": 2, "spots_y": 2, "n_bins": 128,
+                                   "bin_width_ps": 64}})
+    (it,) = expand_items(spec, variant="llvm_ad_mono", scene_sha256="0" * 64)
+    validate_scene(spec, [it])
+    items_dir = tmp_path / "items"
+    items_dir.mkdir()
+    build_item({"record": it.record, "items_dir": str(items_dir), "scene_file": str(spec.scene_file),
+                "threads": None})
+    d = items_dir / it.name
+    m, counts = stack.read_stack(d / "capture")
+    assert m["kind"] == "counts" and counts.dtype == np.uint32
+    assert stack.read_manifest(d / "capture" / "ideal")["kind"] == "ideal"
+    row = item_row(d, tmp_path)
+    assert row["kind"] == "counts" and row["ideal"] == f"items/{it.name}/capture/ideal"
+    assert row["detector_seed"] == m["detector"]["seed"] is not None
+    # detector settings in the spec as well would detect twice: refused before any work
+    both = parse_spec({"scene": str(scene), "spp": 4, "defines": {"width": 4, "height": 4},
+                       "detector": {"pulses": 1000}})
+    from recon.errors import UserInputError
+
+    with pytest.raises(UserInputError, match="has a spad_film, which runs the detector itself"):
+        validate_scene(both, expand_items(both, variant="llvm_ad_mono", scene_sha256="0" * 64))

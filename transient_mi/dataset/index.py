@@ -37,6 +37,8 @@ def item_row(item_dir: Path, root: Path) -> dict:
     rel = item_dir.relative_to(root).as_posix()
     det = rec.get("detector")
     capture = f"{rel}/{CAPTURE_NAME}"
+    kind = res.get("kind", "counts" if det else "ideal")
+    ideal = f"{rel}/{res['ideal']}" if res.get("ideal") else (f"{capture}/ideal" if det else capture)
     row = {
         "item": rec["item"],
         "index": rec["index"],
@@ -44,11 +46,11 @@ def item_row(item_dir: Path, root: Path) -> dict:
         "grid_index": rec["grid_index"],
         "params_sha256": rec["params_sha256"],
         "render_seed": rec["render_seed"],
-        "detector_seed": det["seed"] if det else None,
+        "detector_seed": res.get("detector_seed", det["seed"] if det else None),
         "spp": res.get("spp_used", rec["spp"]),
-        "kind": "counts" if det else "ideal",
+        "kind": kind,
         "capture": capture,
-        "ideal": f"{capture}/ideal" if det else capture,
+        "ideal": ideal,
         "mesh": f"{rel}/{rec['object']['file']}" if rec.get("object") else None,
     }
     for k, v in rec["parameters"].items():

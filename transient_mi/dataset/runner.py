@@ -207,11 +207,16 @@ def validate_scene(spec: DatasetSpec, items: list[Item]) -> int:
             nonlocal n_loads
             try:
                 with resolver_first(tdir):
-                    prepare_render(scene_file, tdir / f"capture{n_loads}", defines=defines, spp=first.record["spp"],
-                                   seed=first.record["render_seed"], variant=first.record["variant"])
+                    job = prepare_render(scene_file, tdir / f"capture{n_loads}", defines=defines,
+                                         spp=first.record["spp"], seed=first.record["render_seed"],
+                                         variant=first.record["variant"])
             except UserInputError as e:
                 raise UserInputError(f"{what}: {e}") from None
             n_loads += 1
+            if job.detect_kwargs is not None and spec.has_detector:
+                raise UserInputError(f"detector: scene {scene_file.name} has a spad_film, which runs the detector "
+                                     "itself; remove the spec's detector settings (vary the film's parameters "
+                                     "as scene -D values instead) or use a transient_film")
 
         load(first.defines, f"item 0 ({first.name})")
         seen = {tuple(sorted(first.defines.items()))}

@@ -8,9 +8,9 @@ a final name is always complete. Inside, in this order:
 1. ``mesh.ply``: the generated object (when the spec has one);
 2. ``capture/``: the ideal capture, rendered by :mod:`transient_mi.pipeline`
    with the item's ``-D`` values, spp and render seed; with detector
-   settings the counts capture goes to ``capture/`` and the ideal one to
-   ``capture/ideal/`` (the layout of ``transient-mi render`` with a
-   ``spad_film``);
+   settings in the spec (or a ``spad_film`` in the scene) the counts capture
+   goes to ``capture/`` and the ideal one to ``capture/ideal/`` (the layout
+   of ``transient-mi render`` with a ``spad_film``);
 3. ``params.json``: the item record (see :mod:`transient_mi.dataset.items`);
 4. ``result.json``: timings, the worker, and the size of every file
    (written last: the item's completion record).
@@ -278,11 +278,18 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
         run_render(job, progress=False, on_spot=_kill_hook(rec["index"], tmp))
         times["render_time_s"] = time.perf_counter() - t
         spp_used = job.spp
+        ideal = job.ideal_dir  # capture/ideal when the scene's spad_film ran the detector itself
         del job
         if rec["detector"] is not None:
             t = time.perf_counter()
             _detect(ideal, capture, rec["detector"])
             times["detect_time_s"] = time.perf_counter() - t
+        counts = ideal != capture
+        detector_seed = None
+        if counts:
+            from recon.io import stack
+
+            detector_seed = (stack.read_manifest(capture).get("detector") or {}).get("seed")
     except UserInputError as e:
         raise ItemError(f"{where}: {e}") from None
     _write_json(tmp / PARAMS_NAME, rec)
@@ -290,6 +297,9 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
         "item": rec["item"],
         "params_sha256": rec["params_sha256"],
         "spp_used": spp_used,
+        "kind": "counts" if counts else "ideal",
+        "ideal": ideal.relative_to(tmp).as_posix(),
+        "detector_seed": detector_seed,
         **times,
         "total_time_s": time.perf_counter() - t_start,
         "worker": _worker_id(),
