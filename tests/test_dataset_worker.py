@@ -78,21 +78,24 @@ def test_scene_loads_on_one_thread_and_renders_on_all(mannequin_item, monkeypatc
     threads (parallel float adds); items load their scene on one thread so the same item gives the same bytes."""
     import drjit as dr
 
+    import mitsuba as mi
+
     import transient_mi.pipeline as pipeline
+    import transient_mi.scene_io as scene_io
 
     item, items_dir, task = mannequin_item
     seen = {}
-    real_prepare, real_run = pipeline.prepare_render, pipeline.run_render
+    real_load, real_run = mi.load_file, pipeline.run_render
 
-    def prepare(*a, **k):
+    def load(*a, **k):
         seen["load"] = dr.thread_count()
-        return real_prepare(*a, **k)
+        return real_load(*a, **k)
 
     def run(*a, **k):
         seen["render"] = dr.thread_count()
         return real_run(*a, **k)
 
-    monkeypatch.setattr(pipeline, "prepare_render", prepare)
+    monkeypatch.setattr(scene_io.mi, "load_file", load)
     monkeypatch.setattr(pipeline, "run_render", run)
     monkeypatch.delenv(w.THREADS_ENV, raising=False)
     try:

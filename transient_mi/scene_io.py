@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+from contextlib import contextmanager
 from pathlib import Path
 
 import mitsuba as mi
@@ -65,8 +66,31 @@ def file_sha256(path: str | Path) -> str:
     return h.hexdigest()
 
 
+@contextmanager
+def single_threaded():
+    """Run the ``with`` block with one drjit thread, then restore the thread count.
+
+    Scenes are loaded this way: Mitsuba computes the vertex normals of a
+    mesh file that has none (e.g. the generated mannequin PLY) with parallel
+    floating-point scatter-adds, whose order, and so the last bits of the
+    normals and of every render, varies between runs when more than one
+    thread does it. Loaded on one thread, the same scene gives the same bytes.
+    """
+    import drjit as dr
+
+    n = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        yield
+    finally:
+        dr.set_thread_count(n)
+
+
 def load_scene(path: str | Path, defines: dict[str, str] | None = None):
     """Load a Mitsuba XML scene, turning loader failures into :class:`UserInputError`.
+
+    The scene is loaded on one drjit thread (see :func:`single_threaded`) so
+    that renders are byte-reproducible; rendering then uses every thread.
 
     Parameters
     ----------
@@ -81,6 +105,7 @@ def load_scene(path: str | Path, defines: dict[str, str] | None = None):
     if not p.is_file():
         raise UserInputError(f"scene file {str(p)!r} is not a file")
     try:
-        return mi.load_file(str(p), **(defines or {}))
+        with single_threaded():
+            return mi.load_file(str(p), **(defines or {}))
     except RuntimeError as e:
         raise UserInputError(f"{p}: {mitsuba_error_message(e)}") from None

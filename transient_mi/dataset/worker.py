@@ -20,7 +20,7 @@ the end of this one) deletes; Dask re-runs the item elsewhere. If two
 attempts of the same item race (a worker thought dead was not), the second
 rename fails and the finished item is kept.
 
-The scene is loaded with one drjit thread (see :func:`single_threaded`) and
+The scene is loaded with one drjit thread (see :func:`transient_mi.scene_io.single_threaded`) and
 rendered with all of the worker's threads. The mesh reaches the scene as the relative path ``mesh.ply`` (the item
 directory is put first on Mitsuba's file resolver while the scene loads),
 so the recorded ``-D`` values, and with them the bytes of the EXR files, do
@@ -107,26 +107,6 @@ def resolver_first(directory: Path):
             if str(fr[i]) == str(directory):
                 del fr[i]
                 break
-
-
-@contextmanager
-def single_threaded():
-    """Run the ``with`` block with one drjit thread, then restore the thread count.
-
-    Scenes are loaded this way: Mitsuba computes the vertex normals of a
-    mesh file that has none (the generated ``mesh.ply``) with parallel
-    floating-point scatter-adds, whose order, and so the last bits of the
-    normals and of every render, varies between runs when more than one
-    thread does it. Loaded on one thread, the same item gives the same bytes.
-    """
-    import drjit as dr
-
-    n = dr.thread_count()
-    dr.set_thread_count(1)
-    try:
-        yield
-    finally:
-        dr.set_thread_count(n)
 
 
 def host_threads() -> tuple[str, int]:
@@ -271,7 +251,7 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
         capture = tmp / CAPTURE_NAME
         ideal = capture / "ideal" if rec["detector"] is not None else capture
         ideal.parent.mkdir(parents=True, exist_ok=True)
-        with resolver_first(tmp), single_threaded():
+        with resolver_first(tmp):
             job = prepare_render(scene_file, ideal, defines=rec["defines"], spp=rec["spp"], seed=rec["render_seed"],
                                  variant=rec["variant"])
         t = time.perf_counter()
