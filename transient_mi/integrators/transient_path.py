@@ -10,7 +10,7 @@ import numpy as np
 
 from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_streams,
                                              seed_rng, to_mono)
-from transient_mi.props import PluginParameterError, get_int
+from transient_mi.props import PluginParameterError, get_float, get_int
 
 PLUGIN = ("integrator", "transient_path", "TransientPath")
 
@@ -57,6 +57,10 @@ class TransientPath(mi.CppADIntegrator):
        * - ``rr_depth``
          - integer
          - Depth at which Russian roulette starts, >= 1 (default 5).
+       * - ``hidden_geometry_prob``
+         - float
+         - NLOS only: probability of hidden-geometry sampling (vs BSDF
+           sampling) at the relay-wall patch point, in [0, 1] (default 0.8).
 
     Determinism: each SIMD lane accumulates its own histogram slot (see
     :mod:`transient_mi.integrators._lanes`), so the same seed gives the same
@@ -76,8 +80,17 @@ class TransientPath(mi.CppADIntegrator):
         self.nlos_options = self._read_nlos_options(props)
 
     def _read_nlos_options(self, props) -> dict:
-        """Extra parameters used with NLOS sensors (none yet)."""
-        return {}
+        """Extra parameters used with NLOS sensors (``spad_array``).
+
+        ``hidden_geometry_prob``: probability of choosing hidden-geometry
+        (area) sampling over BSDF sampling for the direction leaving the
+        relay-wall patch point (one-sample MIS with the balance heuristic,
+        see :mod:`transient_mi.integrators._nlos`); in [0, 1], default 0.8.
+        """
+        return {
+            "hidden_geometry_prob": get_float(props, self.NAME, "hidden_geometry_prob", 0.8,
+                                              min_value=0.0, max_value=1.0),
+        }
 
     # ---------------------------------------------------------------- API
 

@@ -1,0 +1,612 @@
+r"""The NLOS estimator: photons per laser pulse reaching each SPAD pixel, per time bin.
+
+This module holds the scene analysis of an NLOS capture (:class:`NLOSSetup`:
+relay wall, hidden geometry, laser spots, pixel patches, validation) and the
+vectorised path tracer used by the ``spad_array`` sensor (:func:`render_spot`).
+
+Radiometry (what one bin of an ideal capture holds)
+---------------------------------------------------
+All quantities are per laser pulse; distances in metres.
+
+1. Photons per pulse: ``N = E_pulse / (h c / lambda)``
+   (:func:`recon.units.photons_per_pulse`).
+2. The beam hits the wall at the laser spot ``S`` (first surface hit by the
+   ray from the laser origin ``L`` towards the scan point). All ``N``
+   photons arrive at ``S``; the wall re-emits them like a point source of
+   radiant intensity (photons per steradian)
+   ``I(w) = N f_s(S; w_L, w) cos(theta_S(w))``, with ``f_s`` the wall's
+   BSDF (1/sr) and ``w_L`` the direction back to the laser. (Mitsuba's
+   ``bsdf.eval`` with ``si.wi`` towards the laser returns ``f_s cos``.)
+3. A surface point ``X`` with normal ``n_X`` receives the irradiance (photons
+   per m^2) ``E(X) = I(w_SX) cos(theta_X) / |S - X|^2`` (if ``S`` and ``X``
+   see each other) and scatters radiance
+   ``L(X, w_o) = f_X(w_XS, w_o) E(X)``. Further bounces follow the
+   rendering equation.
+4. SPAD pixel ``k`` is focused on its wall patch ``A_k`` (a square of side
+   ``pixel_footprint_m`` in the wall plane; on a non-planar wall, the part
+   of the surface seen through that square from the detector ``D``). It
+   collects the light leaving each patch point ``p`` towards the aperture,
+   a disc of area ``A_ap = pi (aperture_diameter_m / 2)^2`` at ``D`` facing
+   the array's ``target``, which subtends the solid angle
+   ``A_ap cos(theta_ap) / |p - D|^2``. The ideal capture is
+   ``Phi_k = int_{A_k} L(p, w_pD) cos(theta_p) A_ap cos(theta_ap) / |p - D|^2 dA_p``
+   (photons), resolved by arrival time.
+5. Arrival time: the optical path length of the whole path divided by c,
+   time zero being the pulse leaving the laser. With
+   ``include_first_last=false`` the first (``|L - S|``) and last
+   (``|p - D|``) segments are left out of the recorded path length (the
+   actual sampled segments).
+6. The wall's own first-bounce return (``L -> S -> D``) is a delta in space
+   and time: the pixel whose patch contains ``S`` receives
+   ``N f_s(S; w_L, w_SD) cos(theta_S) A_ap cos(theta_ap) / |S - D|^2``
+   photons at path length ``|L - S| + |S - D|`` (0 without first/last),
+   added in closed form (no sampling noise); ``include_wall_return=false``
+   leaves it out.
+
+Estimator (unbiased)
+--------------------
+Per sample, for the lane's pixel ``k`` (and its laser spot ``S``: the
+array's current spot, or in confocal mode the spot on patch ``k``):
+
+* **Patch sampling.** ``q`` uniform on the planar square patch (pdf
+  ``1/A_pix``); ``p`` = first surface hit of the ray ``D -> q``. In the
+  solid angle from ``D``, ``dA_q cos(theta_q)/|q - D|^2 = dA_p cos(theta_p)/|p - D|^2``,
+  so the sensor weight is ``W0 = A_ap cos(theta_ap) A_pix cos(theta_q) / |q - D|^2``
+  and ``W0 L(p, w_pD)`` is an unbiased estimate of ``Phi_k``.
+* **Laser-spot connection (next-event estimation).** At every path vertex
+  ``X`` (the patch point included) the spot is connected deterministically:
+  contribution ``beta W0 f_X(w_i, w_XS) cos(theta_X) I(w_SX) / |S - X|^2 V(X, S)``,
+  recorded at the path's length plus ``|X - S|``. ``S`` is a point, so no
+  other strategy can reach it: no MIS weight is needed.
+* **Next direction at the patch point: one-sample MIS** between BSDF
+  sampling (probability ``1 - alpha``) and hidden-geometry sampling
+  (probability ``alpha``, parameter ``hidden_geometry_prob`` of
+  ``transient_path``): a hidden shape is chosen in proportion to its area
+  and a point ``X`` uniformly on it (area pdf ``1/A_hidden`` for every
+  hidden point), as in Royo et al. 2022, "Non-line-of-sight transient
+  rendering". The ray towards ``X`` is traced; if its first hit is not
+  ``X`` (occluded) the sample contributes nothing. Either way the
+  continuation vertex ``Y`` is weighted with the balance heuristic,
+  ``f cos / (alpha p_hidden(w) + (1 - alpha) p_bsdf(w))`` with
+  ``p_hidden(w) = |Y - p|^2 / (|cos theta_Y| A_hidden)`` when ``Y`` lies on
+  hidden geometry and 0 otherwise. This one-sample MIS estimator is
+  unbiased wherever BSDF sampling alone is (``alpha < 1``); with
+  ``alpha = 1`` paths whose second vertex is on the relay wall (impossible
+  on a planar wall) are not sampled. Delta BSDF lobes are weighted by
+  ``1 / (1 - alpha)``.
+* **Further vertices:** BSDF sampling and laser-spot connection up to
+  ``max_depth`` path segments (detector to laser, Mitsuba's meaning:
+  ``max_depth = 4`` records up to three-bounce light ``D-p-X-S-L``,
+  ``2`` only the wall return), Russian roulette from ``rr_depth`` on.
+
+The *relay wall* is the shape hit by the ray from the detector to the
+array's ``target``; *hidden geometry* is every other shape. Other emitters
+of the scene are ignored: only the laser lights an NLOS capture.
+
+Histograms are accumulated per SIMD lane (:mod:`._lanes`): same seed, same
+bytes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from recon.units import C_M_PER_PS
+from transient_mi.integrators._lanes import LaneHistogram, LaneLayout, choose_streams, seed_rng, to_mono
+from transient_mi.props import PluginParameterError
+from transient_mi.wall import WallFrame, ray_plane_point
+
+#: Relative tolerance on the hit distance when checking that a hidden-geometry
+#: sample is the first surface along its ray.
+VISIBILITY_REL_TOL = 1e-4
+#: ``max_depth`` value standing for "unlimited".
+UNLIMITED_DEPTH = 1 << 30
+
+
+def _ovec(v) -> "mi.Vector3f":
+    v = [float(c) for c in v]
+    return mi.Vector3f(dr.opaque(mi.Float, v[0]), dr.opaque(mi.Float, v[1]), dr.opaque(mi.Float, v[2]))
+
+
+def _opt(v) -> "mi.Point3f":
+    return mi.Point3f(_ovec(v))
+
+
+def _of(x) -> "mi.Float":
+    return dr.opaque(mi.Float, float(x))
+
+
+def _fmt(p) -> str:
+    return "(" + ", ".join(f"{float(c):.4g}" for c in p) + ")"
+
+
+@dataclass
+class NLOSSetup:
+    """Everything the estimator and the manifest need about one NLOS capture.
+
+    Built (and validated) by :meth:`build`; positions in metres, world frame.
+
+    Attributes
+    ----------
+    capture : {"array", "confocal"}
+    width, height : int
+        SPAD pixels.
+    frame : WallFrame
+        Wall frame centred on the array's ``target``.
+    footprint_m : float
+        Side of a pixel's square wall patch.
+    detector, aperture_normal : ndarray (3,)
+        Detector position and the unit normal of its aperture (towards ``target``).
+    aperture_area_m2 : float
+    laser_origin : ndarray (3,)
+    photons_per_pulse : float
+    spot_targets : ndarray (n_spots, 3)
+        Where the laser is aimed (scan grid, or patch centres in confocal mode).
+    spots : ndarray (n_spots, 3)
+        Laser spots ``S`` (first hits of the laser rays).
+    pixel_centers, pixel_normals : ndarray (height, width, 3)
+        Surface point seen at each patch centre and its normal.
+    wall_return : dict of ndarrays
+        Closed-form first-bounce return per spot: ``pixel`` (flat pixel index
+        or -1), ``photons`` (per pulse), ``opl_m``.
+    """
+
+    capture: str
+    width: int
+    height: int
+    frame: WallFrame
+    footprint_m: float
+    detector: np.ndarray
+    aperture_normal: np.ndarray
+    aperture_area_m2: float
+    aperture_diameter_m: float
+    include_first_last: bool
+    include_wall_return: bool
+    laser: object
+    laser_origin: np.ndarray
+    photons_per_pulse: float
+    spot_targets: np.ndarray
+    spots: np.ndarray
+    spot_grid: tuple
+    pixel_centers: np.ndarray
+    pixel_normals: np.ndarray
+    wall_size_m: tuple
+    relay_wall: object
+    hidden_shapes: list
+    hidden_area_m2: float
+    wall_return: dict = field(default_factory=dict)
+
+    @property
+    def n_spots(self) -> int:
+        return len(self.spots)
+
+    @property
+    def n_files(self) -> int:
+        return 1 if self.capture == "confocal" else self.n_spots
+
+    # ---------------------------------------------------------------- build
+
+    @classmethod
+    def build(cls, scene, sensor) -> "NLOSSetup":
+        """Analyse ``scene`` for ``sensor`` (a ``spad_array``) and validate the geometry.
+
+        Raises
+        ------
+        PluginParameterError
+            No or several lasers, a target that hits no surface, patches off
+            the relay wall, laser spots off the wall, occluded spots.
+        """
+        name = sensor.NAME
+        film = sensor.film()
+        W, H = film.width, film.height
+        lasers = [e for e in scene.emitters() if hasattr(e, "is_pulsed_laser")]
+        if len(lasers) != 1:
+            raise PluginParameterError(
+                f"{name}: the scene has {len(lasers)} pulsed_laser emitters; an NLOS capture needs exactly one")
+        laser = lasers[0]
+        frame = sensor.frame
+        D = sensor.origin
+        fp = sensor.pixel_footprint_m
+
+        # ---- relay wall: the shape hit at the array's target
+        si_t = _intersect(scene, D[None], (sensor.target - D)[None])
+        if not bool(si_t["valid"][0]):
+            raise PluginParameterError(
+                f"{name}: the ray from origin={_fmt(D)} to target={_fmt(sensor.target)} hits no surface; "
+                "target must be a point on the relay wall")
+        wall = si_t["shape"][0]
+
+        # ---- the laser's scan plane must be the wall plane
+        if np.dot(laser.frame.normal, frame.normal) < 1 - 1e-6:
+            raise PluginParameterError(
+                f"pulsed_laser: wall_normal={_fmt(laser.frame.normal)} differs from the spad_array's "
+                f"wall_normal={_fmt(frame.normal)}; they must describe the same relay wall")
+        if frame.height(laser.origin) <= 0:
+            raise PluginParameterError(
+                f"pulsed_laser: origin={_fmt(laser.origin)} is behind the relay wall (its height along "
+                f"wall_normal {_fmt(frame.normal)} is {frame.height(laser.origin):.4g} m); "
+                "the laser must be on the hidden-space side (> 0)")
+
+        # ---- patches must lie on the relay wall: test every patch corner
+        corners = frame.grid_corners(W, H, fp, shrink=1e-4).reshape(-1, 3)
+        hit = _intersect(scene, np.broadcast_to(D, corners.shape), corners - D)
+        on_wall = hit["valid"] & _same_shape(hit["shape"], wall)
+        if not on_wall.all():
+            bad = int(np.argmin(on_wall)) // 4
+            iy, ix = divmod(bad, W)
+            raise PluginParameterError(
+                f"{name}: the {W} x {H} pixel array with pixel_footprint_m={fp:g} "
+                f"({W * fp:.4g} m x {H * fp:.4g} m centred on target={_fmt(sensor.target)}) does not fit on the "
+                f"relay wall: the patch of pixel (x={ix}, y={iy}) is not (all) on it as seen from the detector; "
+                "use fewer pixels or a smaller pixel_footprint_m")
+        centers_plane = frame.grid(W, H, fp).reshape(-1, 3)
+        hc = _intersect(scene, np.broadcast_to(D, centers_plane.shape), centers_plane - D)
+        pixel_centers = hc["p"].reshape(H, W, 3)
+        pixel_normals = hc["n"].reshape(H, W, 3)
+
+        # ---- laser spots
+        if sensor.capture == "confocal":
+            spot_targets = centers_plane
+            spot_grid = (H, W)
+        else:
+            spot_targets = laser.spot_targets()
+            spot_grid = (laser.spots_y, laser.spots_x)
+        Lo = laser.origin
+        hs = _intersect(scene, np.broadcast_to(Lo, spot_targets.shape), spot_targets - Lo)
+        ok = hs["valid"] & _same_shape(hs["shape"], wall)
+        if not ok.all():
+            j = int(np.argmin(ok))
+            what = "hits nothing" if not hs["valid"][j] else "hits another surface first"
+            where = ("the patch centre of pixel %d" % j if sensor.capture == "confocal" else
+                     f"scan point {j} (spots_x={laser.spots_x}, spots_y={laser.spots_y}, "
+                     f"spot_spacing_m={laser.spot_spacing_m:g} around target={_fmt(laser.target)})")
+            raise PluginParameterError(
+                f"pulsed_laser: laser spot {j} is off the relay wall: the ray from origin={_fmt(Lo)} to "
+                f"{where} at {_fmt(spot_targets[j])} {what}; keep the scan grid on the wall")
+        spots = hs["p"]
+
+        aperture_normal = sensor.target - D
+        aperture_normal = aperture_normal / np.linalg.norm(aperture_normal)
+        wall_size = _extent_in_frame(wall, frame)
+        hidden = [s for s in scene.shapes() if not _is(s, wall)]
+        hidden_area = float(sum(float(s.surface_area()[0]) for s in hidden))
+
+        setup = cls(
+            capture=sensor.capture, width=W, height=H, frame=frame, footprint_m=fp, detector=D,
+            aperture_normal=aperture_normal,
+            aperture_area_m2=math.pi * (sensor.aperture_diameter_m / 2.0) ** 2,
+            aperture_diameter_m=sensor.aperture_diameter_m,
+            include_first_last=sensor.include_first_last, include_wall_return=sensor.include_wall_return,
+            laser=laser, laser_origin=Lo, photons_per_pulse=laser.photons_per_pulse,
+            spot_targets=np.asarray(spot_targets, dtype=np.float64), spots=spots, spot_grid=spot_grid,
+            pixel_centers=pixel_centers, pixel_normals=pixel_normals, wall_size_m=wall_size,
+            relay_wall=wall, hidden_shapes=hidden, hidden_area_m2=hidden_area,
+        )
+        setup.wall_return = setup._wall_return(scene, hs)
+        return setup
+
+    def _wall_return(self, scene, hs) -> dict:
+        """Closed-form first-bounce return ``L -> S -> D`` for every spot (photons per pulse)."""
+        S = self.spots
+        n = len(S)
+        D = self.detector
+        ix, iy, inside = self.frame.cell_of(ray_plane_point(D, S, self.frame), self.width, self.height,
+                                            self.footprint_m)
+        pixel = np.where(inside, iy * self.width + ix, -1)
+        if self.capture == "confocal":  # pixel k is recorded with spot k only
+            pixel = np.where(pixel == np.arange(n), pixel, -1)
+        # f_s(S; w_L, w_SD) cos, evaluated by Mitsuba on the spot's surface interaction
+        Lo = self.laser_origin
+        d = S - Lo
+        ray = mi.Ray3f(mi.Point3f(*[mi.Float(Lo[i] + 0 * d[:, i]) for i in range(3)]),
+                       mi.Vector3f(*[mi.Float(c) for c in (d / np.linalg.norm(d, axis=1, keepdims=True)).T]))
+        si = scene.ray_intersect(ray)
+        toD = D - S
+        dist = np.linalg.norm(toD, axis=1)
+        w = toD / dist[:, None]
+        wo = si.to_local(mi.Vector3f(*[mi.Float(c) for c in w.T]))
+        f = to_mono(si.bsdf().eval(mi.BSDFContext(), si, wo), si.wavelengths)
+        target_d = mi.Point3f(*[mi.Float(np.full(n, D[i])) for i in range(3)])
+        occluded = scene.ray_test(si.spawn_ray_to(target_d))
+        f = np.asarray(f.numpy(), dtype=np.float64)
+        vis = ~np.asarray(occluded.numpy(), dtype=bool)
+        cos_ap = np.clip(-(w @ self.aperture_normal), 0.0, None)
+        photons = self.photons_per_pulse * f * self.aperture_area_m2 * cos_ap / dist ** 2
+        photons = np.where(vis & (pixel >= 0) & self.include_wall_return, photons, 0.0)
+        opl = (np.linalg.norm(d, axis=1) + dist) if self.include_first_last else np.zeros(n)
+        return {"pixel": pixel.astype(np.int64), "photons": photons, "opl_m": opl}
+
+    # ------------------------------------------------------------- manifest
+
+    def geometry(self) -> dict:
+        """The manifest's ``geometry`` entry."""
+        return {
+            "laser_origin": self.laser_origin.tolist(),
+            "detector_origin": self.detector.tolist(),
+            "spots": self.spots.tolist(),
+            "spot_targets": self.spot_targets.tolist(),
+            "spot_grid": list(self.spot_grid),
+            "pixel_centers": self.pixel_centers.tolist(),
+            "pixel_normals": self.pixel_normals.tolist(),
+            "wall_normal": self.frame.normal.tolist(),
+            "wall_frame": self.frame.as_dict(),
+            "wall_size_m": list(self.wall_size_m),
+            "pixel_footprint_m": self.footprint_m,
+            "aperture_diameter_m": self.aperture_diameter_m,
+            "aperture_normal": self.aperture_normal.tolist(),
+            "include_wall_return": self.include_wall_return,
+            "relay_wall": self.relay_wall.id(),
+            "hidden_area_m2": self.hidden_area_m2,
+        }
+
+
+# ---------------------------------------------------------------------- helpers
+
+
+def _intersect(scene, origins, directions) -> dict:
+    """Intersect rays (numpy ``[n, 3]``) with the scene; returns numpy fields and shape pointers."""
+    o = np.asarray(origins, dtype=np.float64)
+    d = np.asarray(directions, dtype=np.float64)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    ray = mi.Ray3f(mi.Point3f(*[mi.Float(c) for c in o.T]), mi.Vector3f(*[mi.Float(c) for c in d.T]))
+    si = scene.ray_intersect(ray)
+    valid = np.asarray(si.is_valid().numpy(), dtype=bool)
+    p = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in si.p], axis=1)
+    nrm = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in si.n], axis=1)
+    return {"valid": valid, "p": p, "n": nrm, "t": np.asarray(si.t.numpy(), dtype=np.float64),
+            "shape": si.shape}
+
+
+def _is(a, b) -> bool:
+    try:
+        return a.ptr == b.ptr  # type: ignore[attr-defined]
+    except AttributeError:
+        return a is b
+
+
+def _same_shape(ptrs, shape) -> np.ndarray:
+    eq = ptrs == mi.ShapePtr(shape)
+    return np.asarray(eq.numpy(), dtype=bool)
+
+
+def _extent_in_frame(shape, frame: WallFrame) -> tuple[float, float]:
+    """Size (metres) of ``shape``'s bounding box along the wall axes ``ex``, ``ey``."""
+    bb = shape.bbox()
+    lo, hi = np.array(list(bb.min), dtype=np.float64), np.array(list(bb.max), dtype=np.float64)
+    corners = np.array([[(hi if (i >> k) & 1 else lo)[k] for k in range(3)] for i in range(8)])
+    u, v, _ = frame.to_wall(corners)
+    return float(u.max() - u.min()), float(v.max() - v.min())
+
+
+# ------------------------------------------------------------------ rendering
+
+
+@dataclass
+class _Consts:
+    """Opaque per-capture values (one compiled kernel for every spot and setting)."""
+
+    D: object
+    c00: object
+    step_x: object
+    step_y: object
+    n_plane: object
+    n_ap: object
+    a_pix: object
+    a_ap: object
+    laser_origin: object
+    spot_target: object
+    first_last: object
+    alpha: object
+    hidden_area: object
+    max_depth: object
+    rr_depth: object
+    width: object
+
+
+def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spot: int, progress=None):
+    """Render spot ``spot`` (array) or the whole confocal capture (``spot`` 0).
+
+    Parameters
+    ----------
+    setup : NLOSSetup
+        From :meth:`NLOSSetup.build` for this ``scene``.
+    scene : mitsuba.Scene
+    film : transient_film
+    options : dict
+        ``max_depth`` (segments, -1 unlimited), ``rr_depth``,
+        ``hidden_geometry_prob`` (alpha in [0, 1]).
+    seed, spp : int
+    spot : int
+        Laser spot index (scan order); 0 for confocal captures.
+    progress : callable, optional
+        ``progress(done_paths, total_paths)``.
+
+    Returns
+    -------
+    TransientResult
+        Histograms ``[height, width, n_bins]`` in photons per pulse per bin.
+    """
+    from transient_mi.films.transient_film import TransientResult
+
+    W, H = setup.width, setup.height
+    if setup.capture == "confocal" and spot != 0:
+        raise PluginParameterError(f"spad_array: spot={spot}; a confocal capture is one file (spot 0)")
+    if not 0 <= spot < setup.n_spots:
+        raise PluginParameterError(f"spad_array: spot={spot} out of range [0, {setup.n_spots})")
+    taps = film.kernel_taps()
+    pad = len(taps) // 2
+    axis = film.time_axis()
+    K = choose_streams(W * H, spp, axis.n_bins + 2 * pad)
+    layout = LaneLayout(W * H, spp, K)
+    hist = LaneHistogram(layout, axis, pad)
+    rng = seed_rng(seed, layout.n_lanes)
+
+    fr = setup.frame
+    c00 = fr.grid(W, H, setup.footprint_m)[0, 0]
+    max_depth = options.get("max_depth", -1)
+    alpha = float(options.get("hidden_geometry_prob", 0.8)) if setup.hidden_shapes else 0.0
+    c = _Consts(
+        D=_opt(setup.detector), c00=_opt(c00), step_x=_ovec(fr.ex * setup.footprint_m),
+        step_y=_ovec(fr.ey * setup.footprint_m), n_plane=_ovec(fr.normal), n_ap=_ovec(setup.aperture_normal),
+        a_pix=_of(setup.footprint_m ** 2), a_ap=_of(setup.aperture_area_m2), laser_origin=_opt(setup.laser_origin),
+        spot_target=_opt(setup.spot_targets[spot]), first_last=_of(1.0 if setup.include_first_last else 0.0),
+        alpha=_of(alpha), hidden_area=_of(max(setup.hidden_area_m2, 1e-30)),
+        max_depth=dr.opaque(mi.Int32, UNLIMITED_DEPTH if max_depth == -1 else int(max_depth)),
+        rr_depth=dr.opaque(mi.Int32, int(options.get("rr_depth", 5))),
+        width=dr.opaque(mi.UInt32, W),
+    )
+    if setup.hidden_shapes:
+        hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
+        areas = [float(s.surface_area()[0]) for s in setup.hidden_shapes]
+        distr = mi.DiscreteDistribution(mi.Float(areas))
+    else:
+        hidden_ptrs, distr = None, None
+    wall_ptr = mi.ShapePtr(setup.relay_wall)
+    confocal = setup.capture == "confocal"
+
+    total = layout.n_pixels * spp
+    for j0, j1 in layout.passes():
+        rng = _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr, confocal)
+        hist.evaluate()
+        dr.eval(rng)
+        if progress is not None:
+            progress(min(total, layout.n_pixels * min(spp, j1 * K)), total)
+
+    # closed-form first-bounce return of the wall (weighted by spp: collect() divides by it)
+    wr = setup.wall_return
+    spots = np.arange(setup.n_spots) if confocal else np.array([spot])
+    pix = wr["pixel"][spots]
+    sel = (pix >= 0) & (wr["photons"][spots] > 0)
+    if sel.any():
+        ph = wr["photons"][spots][sel] / setup.photons_per_pulse  # N is applied below
+        lanes = mi.UInt32((pix[sel] * K).astype(np.uint32))
+        hist.record(lanes, mi.Float(wr["opl_m"][spots][sel]), mi.Float(ph * spp), mi.Bool(True))
+        hist.evaluate()
+
+    h, steady, dropped, frac = hist.collect(taps)
+    N = setup.photons_per_pulse
+    return TransientResult(
+        histogram=(h.astype(np.float64) * N).astype(np.float32).reshape(H, W, axis.n_bins),
+        steady=(steady.astype(np.float64) * N).astype(np.float32).reshape(H, W),
+        dropped_contributions=dropped,
+        dropped_fraction=frac,
+        samples=total,
+    )
+
+
+@dr.syntax
+def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr, confocal):
+    K = layout.streams
+    lane = dr.arange(mi.UInt32, layout.n_lanes)
+    pixel = lane // K
+    k = lane - pixel * K
+    px = mi.Float(pixel % c.width)
+    py = mi.Float(pixel // c.width)
+    centre = c.c00 + px * c.step_x + py * c.step_y
+
+    # ---- laser spot of every lane (confocal: its own patch centre)
+    aim = mi.Point3f(centre) if confocal else mi.Point3f(c.spot_target)
+    laser_ray = mi.Ray3f(c.laser_origin, dr.normalize(aim - c.laser_origin))
+    si_s = scene.ray_intersect(laser_ray, ray_flags=mi.RayFlags.All, coherent=True)
+    spot_ok = si_s.is_valid()
+    spot_p = mi.Point3f(si_s.p)
+    opl_laser = c.first_last * si_s.t
+    bsdf_s = si_s.bsdf()
+
+    j = mi.UInt32(dr.opaque(mi.UInt32, j0))
+    j_end = dr.opaque(mi.UInt32, j1)
+    spp = dr.opaque(mi.UInt32, layout.spp)
+    has_hidden = hidden_ptrs is not None
+    ctx = mi.BSDFContext()
+
+    while (j < j_end) & (k + j * K < spp):
+        # ---- patch sample and primary ray
+        q = centre + (rng.next_float32() - 0.5) * c.step_x + (rng.next_float32() - 0.5) * c.step_y
+        to_q = q - c.D
+        dist_q = dr.norm(to_q)
+        d0 = to_q / dist_q
+        w0 = c.a_ap * dr.maximum(dr.dot(d0, c.n_ap), 0.0) * c.a_pix * dr.abs(dr.dot(d0, c.n_plane)) / dr.square(dist_q)
+        si = scene.ray_intersect(mi.Ray3f(c.D, d0), ray_flags=mi.RayFlags.All, coherent=True)
+        opl = c.first_last * si.t
+        beta = mi.Spectrum(1.0)
+        depth = mi.Int32(1)
+        eta = mi.Float(1.0)
+        active = si.is_valid() & spot_ok
+
+        while active:
+            bsdf = si.bsdf()
+            # ---- laser-spot connection
+            to_s = spot_p - si.p
+            dist_s = dr.norm(to_s)
+            d_s = to_s / dist_s
+            active_nee = active & (depth + 2 <= c.max_depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+            f_x = bsdf.eval(ctx, si, si.to_local(d_s), active_nee)
+            i_s = bsdf_s.eval(ctx, si_s, si_s.to_local(-d_s), active_nee)
+            val = to_mono(beta * f_x * i_s, si.wavelengths) * (w0 / dr.square(dist_s))
+            active_nee &= val > 0
+            occluded = scene.ray_test(si.spawn_ray_to(spot_p), active_nee)
+            hist.record(lane, opl + dist_s + opl_laser, val, active_nee & ~occluded)
+
+            # ---- next direction
+            active_next = active & (depth + 3 <= c.max_depth)
+            first = depth == 1
+            u_strategy = rng.next_float32()
+            u_shape = rng.next_float32()
+            u_pos = mi.Point2f(rng.next_float32(), rng.next_float32())
+            u_lobe = rng.next_float32()
+            u_dir = mi.Point2f(rng.next_float32(), rng.next_float32())
+            alpha = dr.select(first, c.alpha, 0.0)
+            use_hg = active_next & (u_strategy < alpha)
+            if dr.hint(has_hidden, mode="scalar"):
+                idx = distr.sample(u_shape, use_hg)
+                shape = dr.gather(mi.ShapePtr, hidden_ptrs, idx, use_hg)
+                ps = shape.sample_position(0.0, u_pos, use_hg)
+                o_hg = si.spawn_ray_to(ps.p).o  # offset origin, as for any spawned ray
+                to_x = ps.p - o_hg
+                dist_x = dr.norm(to_x)
+                d_hg = to_x / dist_x
+            else:
+                shape = dr.zeros(mi.ShapePtr)
+                dist_x = mi.Float(0.0)
+                o_hg = mi.Point3f(si.p)
+                d_hg = mi.Vector3f(0.0, 0.0, 1.0)
+            bs, bsdf_w = bsdf.sample(ctx, si, u_lobe, u_dir, active_next & ~use_hg)
+            ray_b = si.spawn_ray(si.to_world(bs.wo))
+            ray = mi.Ray3f(dr.select(use_hg, o_hg, ray_b.o), dr.select(use_hg, d_hg, ray_b.d))
+            d_next = ray.d
+            si_next = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active_next)
+
+            # one-sample MIS (balance heuristic) at the patch point
+            wo = si.to_local(d_next)
+            f_val, pdf_b = bsdf.eval_pdf(ctx, si, wo, active_next & first)
+            on_hidden = si_next.is_valid() & (si_next.shape != wall_ptr)
+            cos_y = dr.abs(dr.dot(si_next.n, d_next))
+            dist2_y = dr.squared_norm(si_next.p - si.p)
+            pdf_h = dr.select(on_hidden & (cos_y > 0), dist2_y / (cos_y * c.hidden_area), 0.0)
+            pdf_mix = alpha * pdf_h + (1.0 - alpha) * pdf_b
+            w_first = dr.select(pdf_mix > 0, f_val / pdf_mix, 0.0)
+            hg_ok = si_next.is_valid() & (si_next.shape == shape) & \
+                (dr.abs(si_next.t - dist_x) <= VISIBILITY_REL_TOL * dist_x)
+            w_first = dr.select(use_hg & ~hg_ok, 0.0, w_first)
+            delta_lobe = ~use_hg & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            w_first = dr.select(delta_lobe, bsdf_w / (1.0 - alpha), w_first)
+            weight = dr.select(first, w_first, bsdf_w)
+            beta *= weight
+            eta *= dr.select(use_hg, 1.0, bs.eta)
+
+            opl = opl + dr.sqrt(dist2_y)
+            depth += 1
+            beta_max = dr.max(mi.unpolarized_spectrum(beta))
+            rr_prob = dr.minimum(beta_max * dr.square(eta), 0.95)
+            rr_active = (depth - 1) >= c.rr_depth
+            rr_continue = rng.next_float32() < rr_prob
+            beta[rr_active] *= dr.rcp(rr_prob)
+            active = active_next & si_next.is_valid() & (~rr_active | rr_continue) & (beta_max > 0)
+            si = si_next
+        j += 1
+    return rng
