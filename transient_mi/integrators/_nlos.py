@@ -220,6 +220,13 @@ class NLOSSetup:
                 f"{name}: the ray from origin={_fmt(D)} to target={_fmt(sensor.target)} hits no surface; "
                 "target must be a point on the relay wall")
         wall = si_t["shape"][0]
+        thick = _thickness_along(wall, frame)
+        if thick > 0.25 * max(_extent_in_frame(wall, frame)):
+            raise PluginParameterError(
+                f"{name}: the relay wall (the shape hit at target={_fmt(sensor.target)}) extends {thick:.3g} m "
+                "along wall_normal: it was probably merged with hidden geometry by Mitsuba's scene optimisation "
+                "(shapes with equivalent BSDFs are merged); load the scene with optimize=False "
+                "(transient_mi.scene_io.load_scene and `transient-mi render` do)")
 
         # ---- the laser's scan plane must be the wall plane
         if np.dot(laser.frame.normal, frame.normal) < 1 - 1e-6:
@@ -374,12 +381,21 @@ def _same_shape(ptrs, shape) -> np.ndarray:
     return np.asarray(eq.numpy(), dtype=bool)
 
 
-def _extent_in_frame(shape, frame: WallFrame) -> tuple[float, float]:
-    """Size (metres) of ``shape``'s bounding box along the wall axes ``ex``, ``ey``."""
+def _bbox_corners(shape) -> np.ndarray:
     bb = shape.bbox()
     lo, hi = np.array(list(bb.min), dtype=np.float64), np.array(list(bb.max), dtype=np.float64)
-    corners = np.array([[(hi if (i >> k) & 1 else lo)[k] for k in range(3)] for i in range(8)])
-    u, v, _ = frame.to_wall(corners)
+    return np.array([[(hi if (i >> k) & 1 else lo)[k] for k in range(3)] for i in range(8)])
+
+
+def _thickness_along(shape, frame: WallFrame) -> float:
+    """Extent (metres) of ``shape``'s bounding box along the wall normal."""
+    _, _, h = frame.to_wall(_bbox_corners(shape))
+    return float(h.max() - h.min())
+
+
+def _extent_in_frame(shape, frame: WallFrame) -> tuple[float, float]:
+    """Size (metres) of ``shape``'s bounding box along the wall axes ``ex``, ``ey``."""
+    u, v, _ = frame.to_wall(_bbox_corners(shape))
     return float(u.max() - u.min()), float(v.max() - v.min())
 
 
