@@ -246,10 +246,17 @@ class NLOSSetup:
         if not on_wall.all():
             bad = int(np.argmin(on_wall)) // 4
             iy, ix = divmod(bad, W)
+            if hit["valid"][bad * 4: bad * 4 + 4].all():
+                first = bad * 4 + int(np.argmin(on_wall[bad * 4: bad * 4 + 4]))
+                sid = hit["shape"][first].id()
+                raise PluginParameterError(
+                    f"{name}: the wall patch of pixel (x={ix}, y={iy}) is hidden from the detector at "
+                    f"origin={_fmt(D)} by another shape{' (' + repr(sid) + ')' if sid else ''}; "
+                    "move the detector or the occluding object")
             raise PluginParameterError(
                 f"{name}: the {W} x {H} pixel array with pixel_footprint_m={fp:g} "
-                f"({W * fp:.4g} m x {H * fp:.4g} m centred on target={_fmt(sensor.target)}) does not fit on the "
-                f"relay wall: the patch of pixel (x={ix}, y={iy}) is not (all) on it as seen from the detector; "
+                f"({W * fp:.4g} m x {H * fp:.4g} m centred on target={_fmt(sensor.target)}) is larger than the "
+                f"relay wall: the patch of pixel (x={ix}, y={iy}) extends beyond it; "
                 "use fewer pixels or a smaller pixel_footprint_m")
         centers_plane = frame.grid(W, H, fp).reshape(-1, 3)
         hc = _intersect(scene, np.broadcast_to(D, centers_plane.shape), centers_plane - D)
