@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy import stats
 
 import transient_mi  # noqa: F401  (LLVM + variant + plug-ins)
 from nlos_helpers import (LASER, DETECTOR, bin_of, nlos_scene, patch_centers, render, seed_stats, square,
@@ -21,7 +22,7 @@ TARGET_ALBEDO = 0.6
 W = H = 4
 FP = 0.01
 BW = 8.0
-N_SEEDS = 10
+N_SEEDS = 16
 SPP = 128
 
 
@@ -41,13 +42,16 @@ def test_three_bounce_small_patch(include_first_last, t0_ps):
     mean, se = seed_stats(totals)
     hist = runs.mean(0)
     L_S = np.linalg.norm(LASER - S)
+    refs = np.zeros((H, W))
     for y in range(H):
         for x in range(W):
             ref, opl_lo, opl_hi = three_bounce_reference(S, centers[y, x], FP, X0, SIDE, TARGET_ALBEDO)
-            # total photons per pixel: the analytic product of the geometry terms, within 3 sigma
+            refs[y, x] = ref
+            # total photons per pixel = the analytic product of the geometry terms; 4 sigma per pixel is
+            # the 3-sigma level (p = 0.003) for the family of 16 pixels (Bonferroni)
             assert se[y, x] > 0
             z = (mean[y, x] - ref) / se[y, x]
-            assert abs(z) < 3.0, f"pixel ({x},{y}): {mean[y, x]:.6g} vs analytic {ref:.6g} ({z:+.2f} sigma)"
+            assert abs(z) < 4.0, f"pixel ({x},{y}): {mean[y, x]:.6g} vs analytic {ref:.6g} ({z:+.2f} sigma)"
             # arrival times: every recorded photon (hence the peak bin) lies in the range that the
             # patch's and the target's extents allow
             extra = 0.0
@@ -69,6 +73,11 @@ def test_three_bounce_small_patch(include_first_last, t0_ps):
             # centre of the allowed range, for a readable check of the time origin
             centre_ps = (0.5 * (lo + hi)) / C_M_PER_PS
             assert abs(t0_ps + (peak + 0.5) * BW - centre_ps) <= 0.5 * (hi - lo) / C_M_PER_PS + BW
+    # the sum over all pixels within 3 sigma, and the pixels jointly (chi-square)
+    total_se = totals.sum(axis=(1, 2)).std(ddof=1) / np.sqrt(N_SEEDS)
+    assert abs(mean.sum() - refs.sum()) < 3 * total_se
+    chi2 = float((((mean - refs) / se) ** 2).sum())
+    assert stats.chi2.sf(chi2, H * W) > 1e-3, chi2
 
 
 def test_first_last_shifts_by_the_segment_lengths():

@@ -108,6 +108,23 @@ VISIBILITY_REL_TOL = 1e-4
 UNLIMITED_DEPTH = 1 << 30
 
 
+#: Dimensions drawn from the randomised low-discrepancy sequence: patch point (2), strategy choice (1),
+#: hidden shape (1), point on it (2), BSDF direction (2) at the patch point.
+QMC_DIMS = 8
+
+
+def kronecker_generators(d: int = QMC_DIMS) -> list[int]:
+    """Generators of the R_d Kronecker sequence (Roberts 2018) as 32-bit fixed-point fractions.
+
+    ``phi_d`` is the positive root of ``x^(d+1) = x + 1``; dimension ``k``
+    advances by ``frac(phi_d^-(k+1))`` per sample.
+    """
+    phi = 2.0
+    for _ in range(100):
+        phi = (1.0 + phi) ** (1.0 / (d + 1))
+    return [int((phi ** -(k + 1) % 1.0) * 2.0 ** 32) & 0xFFFFFFFF for k in range(d)]
+
+
 def _ovec(v) -> "mi.Vector3f":
     v = [float(c) for c in v]
     return mi.Vector3f(dr.opaque(mi.Float, v[0]), dr.opaque(mi.Float, v[1]), dr.opaque(mi.Float, v[2]))
@@ -179,6 +196,7 @@ class NLOSSetup:
     relay_wall: object
     hidden_shapes: list
     hidden_area_m2: float
+    planar_wall: bool = False
     wall_return: dict = field(default_factory=dict)
 
     @property
@@ -300,6 +318,7 @@ class NLOSSetup:
             spot_targets=np.asarray(spot_targets, dtype=np.float64), spots=spots, spot_grid=spot_grid,
             pixel_centers=pixel_centers, pixel_normals=pixel_normals, wall_size_m=wall_size,
             relay_wall=wall, hidden_shapes=hidden, hidden_area_m2=hidden_area,
+            planar_wall=bool(thick <= 1e-6 * max(1.0, max(wall_size))),
         )
         setup.wall_return = setup._wall_return(scene, hs)
         return setup
@@ -429,6 +448,8 @@ class _Consts:
     max_depth: object
     rr_depth: object
     width: object
+    seed: object
+    planar_wall: bool
 
 
 def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spot: int, progress=None):
@@ -482,6 +503,8 @@ def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp:
         max_depth=dr.opaque(mi.Int32, UNLIMITED_DEPTH if max_depth == -1 else int(max_depth)),
         rr_depth=dr.opaque(mi.Int32, int(options.get("rr_depth", 5))),
         width=dr.opaque(mi.UInt32, W),
+        seed=dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
+        planar_wall=setup.planar_wall,
     )
     if setup.hidden_shapes:
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
@@ -541,6 +564,13 @@ def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr
     opl_laser = c.first_last * si_s.t
     bsdf_s = si_s.bsdf()
 
+    # ---- randomised QMC: an R_d sequence over the pixel's samples, shifted at random per pixel
+    gen = [dr.opaque(mi.UInt32, g) for g in kronecker_generators()]
+    shift = []
+    for d in range(0, QMC_DIMS, 2):
+        a, b = mi.sample_tea_32(pixel, c.seed ^ mi.UInt32(0x9E3779B9 * (d + 1) & 0xFFFFFFFF))
+        shift += [a, b]
+
     j = mi.UInt32(dr.opaque(mi.UInt32, j0))
     j_end = dr.opaque(mi.UInt32, j1)
     spp = dr.opaque(mi.UInt32, layout.spp)
@@ -548,8 +578,10 @@ def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr
     ctx = mi.BSDFContext()
 
     while (j < j_end) & (k + j * K < spp):
+        i_sample = k + j * K
+        qmc = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
         # ---- patch sample and primary ray
-        q = centre + (rng.next_float32() - 0.5) * c.step_x + (rng.next_float32() - 0.5) * c.step_y
+        q = centre + (qmc[0] - 0.5) * c.step_x + (qmc[1] - 0.5) * c.step_y
         to_q = q - c.D
         dist_q = dr.norm(to_q)
         d0 = to_q / dist_q
@@ -568,6 +600,9 @@ def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr
             dist_s = dr.norm(to_s)
             d_s = to_s / dist_s
             active_nee = active & (depth + 2 <= c.max_depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+            if dr.hint(c.planar_wall, mode="scalar"):
+                # spot and vertex on the same plane: cos(theta_S) = 0 exactly, nothing to connect
+                active_nee &= si.shape != wall_ptr
             f_x = bsdf.eval(ctx, si, si.to_local(d_s), active_nee)
             i_s = bsdf_s.eval(ctx, si_s, si_s.to_local(-d_s), active_nee)
             val = to_mono(beta * f_x * i_s, si.wavelengths) * (w0 / dr.square(dist_s))
@@ -578,11 +613,13 @@ def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr
             # ---- next direction
             active_next = active & (depth + 3 <= c.max_depth)
             first = depth == 1
-            u_strategy = rng.next_float32()
-            u_shape = rng.next_float32()
-            u_pos = mi.Point2f(rng.next_float32(), rng.next_float32())
+            u_strategy = dr.select(first, qmc[2], rng.next_float32())
+            u_shape = dr.select(first, qmc[3], rng.next_float32())
+            u_pos = mi.Point2f(dr.select(first, qmc[4], rng.next_float32()),
+                               dr.select(first, qmc[5], rng.next_float32()))
             u_lobe = rng.next_float32()
-            u_dir = mi.Point2f(rng.next_float32(), rng.next_float32())
+            u_dir = mi.Point2f(dr.select(first, qmc[6], rng.next_float32()),
+                               dr.select(first, qmc[7], rng.next_float32()))
             alpha = dr.select(first, c.alpha, 0.0)
             use_hg = active_next & (u_strategy < alpha)
             if dr.hint(has_hidden, mode="scalar"):
