@@ -17,6 +17,17 @@ import time
 import numpy as np
 
 
+def peak_rss_mb():
+    """Peak resident set size of this process (VmHWM; not inherited across exec)."""
+    try:
+        for line in open("/proc/self/status"):
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def main(path):
     cfg = json.load(open(path))
     import drjit as dr
@@ -69,7 +80,7 @@ def main(path):
     out = []
     for spp, seed, save in cfg["runs"]:
         timings = []
-        for rep in range(2 if cfg.get("warm", True) else 1):  # first call compiles; time the second
+        for rep in range(1 + cfg.get("repeats", 2)):  # first call compiles; the minimum of the others counts
             t0 = time.perf_counter()
             _, transient = mi.render(scene, spp=int(spp), seed=int(seed))
             dr.eval(transient)
@@ -84,8 +95,8 @@ def main(path):
             data = data[None]
         if save:
             np.save(save, data)
-        out.append({"spp": spp, "seed": seed, "time_s": timings[-1], "first_call_s": timings[0],
-                    "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        out.append({"spp": spp, "seed": seed, "time_s": min(timings[1:]), "first_call_s": timings[0],
+                    "max_rss_mb": peak_rss_mb(),
                     "shape": list(data.shape), "sum": float(data.astype(np.float64).sum()),
                     "projector_intensity": intensity})
         print(json.dumps(out[-1]), flush=True)

@@ -67,11 +67,11 @@ LASER = [-0.9, 0.05, 0.45]
 DETECTOR = [-0.9, -0.05, 0.45]
 LETTER_Z = 0.5
 LETTER_SIZE = 0.4
-RECTANGLES = [  # the letter F (as scenes/nlos_letter.xml): centre, half sizes, albedo; facing -z
+RECTANGLES = [  # the letter F (as scenes/nlos_letter.xml), non-overlapping: centre, half sizes, albedo; facing -z
     {"center": [-0.22 * LETTER_SIZE, 0.0, LETTER_Z], "half": [0.08 * LETTER_SIZE, 0.5 * LETTER_SIZE], "albedo": 0.8},
-    {"center": [0.0, 0.42 * LETTER_SIZE, LETTER_Z], "half": [0.3 * LETTER_SIZE, 0.08 * LETTER_SIZE], "albedo": 0.8},
-    {"center": [-0.08 * LETTER_SIZE, 0.02 * LETTER_SIZE, LETTER_Z], "half": [0.22 * LETTER_SIZE, 0.07 * LETTER_SIZE],
+    {"center": [0.08 * LETTER_SIZE, 0.42 * LETTER_SIZE, LETTER_Z], "half": [0.22 * LETTER_SIZE, 0.08 * LETTER_SIZE],
      "albedo": 0.8},
+    {"center": [0.0, 0.02 * LETTER_SIZE, LETTER_Z], "half": [0.14 * LETTER_SIZE, 0.07 * LETTER_SIZE], "albedo": 0.8},
 ]
 PULSE_ENERGY_J = 2e-9
 WAVELENGTH_NM = 1550.0
@@ -128,13 +128,15 @@ def ours_scene_dict(cfg):
 
     d = {
         "type": "scene",
-        "integrator": {"type": "transient_path", "max_depth": 4},
+        "integrator": {"type": "transient_path", "max_depth": 4,
+                       "hidden_geometry_prob": cfg.get("hidden_geometry_prob", 0.8)},
         "laser": {"type": "pulsed_laser", "origin": mi.ScalarPoint3f(*LASER), "target": mi.ScalarPoint3f(0, 0, 0),
                   "spots_x": W if cfg["capture"] == "array" else 1, "spots_y": W if cfg["capture"] == "array" else 1,
                   "spot_spacing_m": fp, "pulse_energy_j": PULSE_ENERGY_J, "wavelength_nm": WAVELENGTH_NM},
         "sensor": {"type": "spad_array", "origin": mi.ScalarPoint3f(*DETECTOR), "target": mi.ScalarPoint3f(0, 0, 0),
                    "pixel_footprint_m": fp, "aperture_diameter_m": APERTURE_DIAMETER_M, "capture": cfg["capture"],
                    "include_first_last": False, "include_wall_return": False,
+                   "pixel_sampling": cfg.get("pixel_sampling", "area"),
                    "film": {"type": "transient_film", "width": W, "height": W, "n_bins": cfg["n_bins"],
                             "bin_width_ps": bw / C_M_PER_PS, "t0_ps": start / C_M_PER_PS}},
         "relay_wall": {"type": "rectangle", "to_world": T().scale([WALL["half_size"], WALL["half_size"], 1.0]),
@@ -181,10 +183,21 @@ def ours_scene_xml(cfg, n_spots_side: int) -> str:
 """
 
 
-def ours_worker(cfg_path: str) -> None:
-    """Render the runs of one configuration with transient-mi (this process)."""
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process since it started (VmHWM; not inherited across exec)."""
+    try:
+        for line in open("/proc/self/status"):
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     import resource
 
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def ours_worker(cfg_path: str) -> None:
+    """Render the runs of one configuration with transient-mi (this process)."""
     job = json.load(open(cfg_path))
     cfg = job["cfg"]
     if job.get("pipeline"):
@@ -193,7 +206,7 @@ def ours_worker(cfg_path: str) -> None:
         t0 = time.perf_counter()
         render(job["scene"], job["out_dir"], spp=job["spp"], seed=1, progress=False)
         res = {"time_s": time.perf_counter() - t0,
-               "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+               "max_rss_mb": peak_rss_mb()}
         json.dump(res, open(job["result"], "w"))
         return
     import mitsuba as mi
@@ -207,16 +220,16 @@ def ours_worker(cfg_path: str) -> None:
     out = []
     for spp, seed, save in job["runs"]:
         timings = []
-        for rep in range(2):
+        for rep in range(1 + job.get("repeats", 2)):  # first call compiles; the minimum of the others counts
             t0 = time.perf_counter()
             data = np.stack([integ.render_transient(scene, sensor, seed=seed * 100003 + j, spp=spp,
                                                     spot=j).histogram for j in spots])
             timings.append(time.perf_counter() - t0)
         if save:
             np.save(save, data)
-        out.append({"spp": spp, "seed": seed, "time_s": timings[-1], "first_call_s": timings[0],
+        out.append({"spp": spp, "seed": seed, "time_s": min(timings[1:]), "first_call_s": timings[0],
                     "spots_rendered": len(spots),
-                    "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+                    "max_rss_mb": peak_rss_mb(),
                     "shape": list(data.shape), "sum": float(data.astype(np.float64).sum())})
         print(json.dumps(out[-1]), file=sys.stderr, flush=True)
     json.dump(out, open(job["result"], "w"))
@@ -281,7 +294,7 @@ def _series(side: str, cfg: dict, tmp: Path, py: Path | None) -> dict:
     runs.append([int(spp_ref), 999, str(tmp / f"{side}_ref.npy")])
     result = tmp / f"{side}_result.json"
     if side == "ours":
-        job = {"cfg": cfg, "runs": runs, "result": str(result)}
+        job = {"cfg": cfg, "runs": runs, "result": str(result), "repeats": cfg.get("repeats", 2)}
         (tmp / "ours_job.json").write_text(json.dumps(job))
         env = dict(os.environ, PYTHONPATH=str(ROOT))
         _run([sys.executable, __file__, "--worker", str(tmp / "ours_job.json")], env=env)
@@ -289,20 +302,23 @@ def _series(side: str, cfg: dict, tmp: Path, py: Path | None) -> dict:
         bw, start = time_axis(cfg)
         mcfg = {"capture": cfg["capture"], "width": cfg["size"], "height": cfg["size"], "n_bins": cfg["n_bins"],
                 "bin_width_opl": bw, "start_opl": start, "wall": WALL, "detector": DETECTOR, "laser": LASER,
-                "max_depth": -1, "rectangles": RECTANGLES, "runs": runs, "result": str(result)}
+                "max_depth": -1, "rectangles": RECTANGLES, "runs": runs, "result": str(result),
+                "repeats": cfg.get("repeats", 2)}
         (tmp / "mt_job.json").write_text(json.dumps(mcfg))
         _run([str(py), str(ROOT / "bench" / "_mitransient_worker.py"), str(tmp / "mt_job.json")], env=_mt_env())
     info = json.loads(result.read_text())
     spots = error_spots(cfg)
-    ref = np.load(runs[-1][2]).astype(np.float64)
+    ref = np.load(runs[-1][2], mmap_mode="r")
     if side == "mitransient" and cfg["capture"] == "array":
         ref = ref[spots]
+    ref = np.asarray(ref, dtype=np.float64)
     ref_norm2 = float((ref ** 2).mean())
     a_est, rows = [], []
     for (spp, seed, path), inf in zip(runs[:-1], info[:-1]):
-        x = np.load(path).astype(np.float64)
+        x = np.load(path, mmap_mode="r")
         if side == "mitransient" and cfg["capture"] == "array":
             x = x[spots]
+        x = np.asarray(x, dtype=np.float64)
         mse_rel = float(((x - ref) ** 2).mean()) / ref_norm2
         a_est.append(mse_rel / (1.0 / spp + 1.0 / spp_ref))
         rows.append({"spp": spp, "time_s": inf["time_s"], "first_call_s": inf["first_call_s"],
@@ -333,9 +349,10 @@ def _mean_agreement(cfg, ours_ref: str, mt_ref: str) -> dict:
     fp = 2 * WALL["half_size"] / W
     spots = error_spots(cfg)
     o = np.load(ours_ref).astype(np.float64)  # [s, H, W, T]
-    m = np.load(mt_ref).astype(np.float64)
+    m = np.load(mt_ref, mmap_mode="r")
     if cfg["capture"] == "array":
         m = m[spots]
+    m = np.asarray(m, dtype=np.float64)
     u = (np.arange(W) - (W - 1) / 2) * fp
     P = np.stack(np.meshgrid(u, u, indexing="xy"), -1)  # [H, W, 2]: x = u[ix], y = u[iy]
     P = np.concatenate([P, np.zeros(P.shape[:2] + (1,))], -1)
@@ -402,6 +419,10 @@ def main(argv=None) -> dict:
                     help="auto: use mitransient's venv if present; install: create it if missing; skip")
     ap.add_argument("--only", default=None, help="run only configurations whose name contains this")
     ap.add_argument("--out", default=None, help="also write the JSON here")
+    ap.add_argument("--pixel-sampling", default="center", choices=("center", "area"),
+                    help="transient-mi's pixel_sampling for the comparison (center = mitransient's estimand)")
+    ap.add_argument("--hidden-geometry-prob", type=float, default=1.0,
+                    help="transient-mi's hidden_geometry_prob (1 is unbiased on a planar relay wall)")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker:
@@ -418,6 +439,8 @@ def main(argv=None) -> dict:
         for cfg in configs(args.small):
             if args.only and args.only not in cfg["name"]:
                 continue
+            cfg["pixel_sampling"] = args.pixel_sampling
+            cfg["hidden_geometry_prob"] = args.hidden_geometry_prob
             t_cfg = tmp / cfg["name"]
             t_cfg.mkdir()
             entry = {"name": cfg["name"], "capture": cfg["capture"], "pixels": [cfg["size"]] * 2,

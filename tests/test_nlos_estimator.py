@@ -125,3 +125,22 @@ def test_same_seed_same_bytes():
     c = render(sc, seed=8, spp=32)
     assert a.tobytes() == b.tobytes()
     assert a.tobytes() != c.tobytes()
+
+
+def test_spot_groups_estimate_the_same_as_single_spots():
+    """Spots rendered together (sharing detector-side sub-paths) equal spots rendered alone, statistically."""
+    hidden = [square((0.05, 0.05, 0.35), 0.12, 0.7)]
+    sc = nlos_scene(width=3, height=3, footprint=0.06, spots=(2, 2), spacing=0.15, hidden=hidden,
+                    include_wall_return=False, max_depth=6, n_bins=60, bin_width_ps=80.0, t0_ps=9000.0)
+    integ, sensor = sc.integrator(), sc.sensors()[0]
+    groups = [np.stack([r.histogram for r in integ.render_transient(sc, sensor, seed=300 + s, spp=64,
+                                                                    spots=[0, 1, 2, 3])]).astype(np.float64)
+              for s in range(N_SEEDS)]
+    singles = [np.stack([render(sc, seed=400 + 10 * s + j, spp=64, spot=j) for j in range(4)])
+               for s in range(N_SEEDS)]
+    mg, eg = seed_stats(_coarse(np.stack(groups), 10))
+    ms, es = seed_stats(_coarse(np.stack(singles), 10))
+    p, dof = _chi2_pvalue(mg, eg, ms, es)
+    assert dof >= 50
+    assert p > 1e-3, f"groups vs single spots: chi2 p-value {p:.2g}"
+    assert sensor.spot_groups(sc, 64) == [[0, 1, 2, 3]]

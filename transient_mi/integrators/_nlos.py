@@ -98,6 +98,7 @@ import numpy as np
 
 from recon.units import C_M_PER_PS
 from transient_mi.integrators._lanes import LaneHistogram, LaneLayout, choose_streams, seed_rng, to_mono
+from transient_mi.time_axis import apply_kernel
 from transient_mi.props import PluginParameterError
 from transient_mi.wall import WallFrame, ray_plane_point
 
@@ -197,6 +198,7 @@ class NLOSSetup:
     hidden_shapes: list
     hidden_area_m2: float
     planar_wall: bool = False
+    pixel_sampling: str = "area"
     wall_return: dict = field(default_factory=dict)
 
     @property
@@ -319,6 +321,7 @@ class NLOSSetup:
             pixel_centers=pixel_centers, pixel_normals=pixel_normals, wall_size_m=wall_size,
             relay_wall=wall, hidden_shapes=hidden, hidden_area_m2=hidden_area,
             planar_wall=bool(thick <= 1e-6 * max(1.0, max(wall_size))),
+            pixel_sampling=sensor.pixel_sampling,
         )
         setup.wall_return = setup._wall_return(scene, hs)
         return setup
@@ -373,6 +376,7 @@ class NLOSSetup:
             "aperture_diameter_m": self.aperture_diameter_m,
             "aperture_normal": self.aperture_normal.tolist(),
             "include_wall_return": self.include_wall_return,
+            "pixel_sampling": self.pixel_sampling,
             "relay_wall": self.relay_wall.id(),
             "hidden_area_m2": self.hidden_area_m2,
         }
@@ -441,7 +445,6 @@ class _Consts:
     a_pix: object
     a_ap: object
     laser_origin: object
-    spot_target: object
     first_last: object
     alpha: object
     hidden_area: object
@@ -450,10 +453,91 @@ class _Consts:
     width: object
     seed: object
     planar_wall: bool
+    center_only: bool
+    max_depth_static: int
+    confocal: bool
+    spot_is_vertex1: bool
+    n_group: object
+
+
+#: Histogram floats held per kernel launch when an array capture renders a group of spots at once.
+GROUP_HIST_FLOATS = 1 << 26
+#: Most laser spots rendered together (sharing the detector-side sub-paths).
+MAX_GROUP = 32
+#: Lanes to aim for (enough to keep every CPU thread's SIMD units busy).
+GROUP_TARGET_LANES = 1 << 14
+
+
+def group_layout(n_pixels: int, spp: int, n_bins_ext: int, n_spots: int) -> tuple[int, int]:
+    """``(streams K, spots per group)`` for an array capture; depends only on the configuration.
+
+    Lanes ``n_pixels * K`` aim at :data:`GROUP_TARGET_LANES`; a group holds as
+    many spots as fit ``GROUP_HIST_FLOATS`` histogram values (at most
+    :data:`MAX_GROUP`). Every group shares the detector-side sub-path of each
+    sample (patch point, hidden vertex, further bounces) between its spots.
+    """
+    k = 1
+    while k * 2 <= spp and n_pixels * k * 2 <= GROUP_TARGET_LANES:
+        k *= 2
+    per_spot = n_pixels * k * n_bins_ext
+    g = max(1, min(MAX_GROUP, n_spots, GROUP_HIST_FLOATS // max(per_spot, 1)))
+    return k, g
+
+
+class _GroupHistogram(LaneHistogram):
+    """Lane histograms with one sub-slot per spot of the group (slot = ``[spot, bin]``)."""
+
+    def __init__(self, layout: LaneLayout, axis, pad: int, n_sub: int):
+        self.n_sub = n_sub
+        super().__init__(layout, axis, pad)
+        n = layout.n_lanes * n_sub
+        self.data = dr.zeros(mi.Float, n * self.n_bins_ext)
+        self.steady = dr.zeros(mi.Float, n)
+        self.dropped = dr.zeros(mi.UInt32, n)
+        self._nsub = dr.opaque(mi.UInt32, n_sub)
+
+    def record(self, lane, opl_m, value, active, sub=0):
+        slot = mi.UInt32(lane) * self._nsub + mi.UInt32(sub)
+        LaneHistogram.record(self, slot, opl_m, value, active)
+
+    def collect_all(self, taps):
+        """Per spot of the group: ``(hist[n_pixels, n_bins], steady[n_pixels], dropped, fraction)``."""
+        L = self.layout
+        T = self.n_bins_ext
+        data = np.asarray(self.data.numpy(), dtype=np.float32).reshape(L.n_pixels, L.streams, self.n_sub, T)
+        hist = data.sum(axis=1, dtype=np.float64) / L.spp  # [P, G, T]
+        del data
+        steady = np.asarray(self.steady.numpy()).reshape(L.n_pixels, L.streams, self.n_sub).sum(
+            axis=1, dtype=np.float64) / L.spp
+        dropped = np.asarray(self.dropped.numpy(), dtype=np.uint64).reshape(L.n_pixels, L.streams, self.n_sub)
+        dropped = dropped.sum(axis=(0, 1))
+        out = []
+        for g in range(self.n_sub):
+            h = apply_kernel(hist[:, g], taps) if len(taps) > 1 else hist[:, g]
+            total = float(steady[:, g].sum())
+            frac = 0.0 if total <= 0 else max(0.0, (total - float(h.sum())) / total)
+            out.append((h, steady[:, g], int(dropped[g]), frac))
+        return out
 
 
 def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spot: int, progress=None):
-    """Render spot ``spot`` (array) or the whole confocal capture (``spot`` 0).
+    """Render laser spot ``spot`` of an array capture alone, or the confocal capture (``spot`` 0).
+
+    See :func:`render_spots`; returns one ``TransientResult``.
+    """
+    return render_spots(setup, scene, film, options, seed=seed, spp=spp, spots=[spot], progress=progress)[0]
+
+
+def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spots, progress=None):
+    """Render a group of laser spots of an array capture together (or the confocal capture, ``[0]``).
+
+    The spots of a group share every sample's detector-side sub-path
+    (patch point, hidden vertex, further bounces) and differ only in the
+    final connection to their laser spot: each spot's estimate is unbiased,
+    and a group of ``G`` spots costs little more than one. The result of a
+    spot depends on the seed and on the group it was rendered with (the
+    render pipeline always uses the same groups, see
+    :meth:`~transient_mi.sensors.spad_array.SpadArray.spot_groups`).
 
     Parameters
     ----------
@@ -465,46 +549,64 @@ def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp:
         ``max_depth`` (segments, -1 unlimited), ``rr_depth``,
         ``hidden_geometry_prob`` (alpha in [0, 1]).
     seed, spp : int
-    spot : int
-        Laser spot index (scan order); 0 for confocal captures.
+    spots : sequence of int
+        Laser spot indices (scan order); ``[0]`` for confocal captures.
     progress : callable, optional
         ``progress(done_paths, total_paths)``.
 
     Returns
     -------
-    TransientResult
-        Histograms ``[height, width, n_bins]`` in photons per pulse per bin.
+    list of TransientResult
+        One per spot, histograms ``[height, width, n_bins]`` in photons per
+        pulse per bin.
     """
     from transient_mi.films.transient_film import TransientResult
 
     W, H = setup.width, setup.height
-    if setup.capture == "confocal" and spot != 0:
-        raise PluginParameterError(f"spad_array: spot={spot}; a confocal capture is one file (spot 0)")
-    if not 0 <= spot < setup.n_spots:
-        raise PluginParameterError(f"spad_array: spot={spot} out of range [0, {setup.n_spots})")
+    spots = [int(j) for j in spots]
+    confocal = setup.capture == "confocal"
+    if confocal and spots != [0]:
+        raise PluginParameterError(f"spad_array: spots={spots}; a confocal capture is one file (spot 0)")
+    for j in spots:
+        if not 0 <= j < setup.n_spots:
+            raise PluginParameterError(f"spad_array: spot={j} out of range [0, {setup.n_spots})")
+    if len(set(spots)) != len(spots) or not spots:
+        raise PluginParameterError(f"spad_array: spots={spots} must be distinct and non-empty")
     taps = film.kernel_taps()
     pad = len(taps) // 2
     axis = film.time_axis()
-    K = choose_streams(W * H, spp, axis.n_bins + 2 * pad)
+    G = len(spots)
+    if confocal:
+        K = choose_streams(W * H, spp, axis.n_bins + 2 * pad)
+    else:
+        K, _ = group_layout(W * H, spp, axis.n_bins + 2 * pad, setup.n_spots)
     layout = LaneLayout(W * H, spp, K)
-    hist = LaneHistogram(layout, axis, pad)
+    hist = _GroupHistogram(layout, axis, pad, G)
     rng = seed_rng(seed, layout.n_lanes)
 
     fr = setup.frame
     c00 = fr.grid(W, H, setup.footprint_m)[0, 0]
     max_depth = options.get("max_depth", -1)
     alpha = float(options.get("hidden_geometry_prob", 0.8)) if setup.hidden_shapes else 0.0
+    center = setup.pixel_sampling == "center"
     c = _Consts(
         D=_opt(setup.detector), c00=_opt(c00), step_x=_ovec(fr.ex * setup.footprint_m),
         step_y=_ovec(fr.ey * setup.footprint_m), n_plane=_ovec(fr.normal), n_ap=_ovec(setup.aperture_normal),
         a_pix=_of(setup.footprint_m ** 2), a_ap=_of(setup.aperture_area_m2), laser_origin=_opt(setup.laser_origin),
-        spot_target=_opt(setup.spot_targets[spot]), first_last=_of(1.0 if setup.include_first_last else 0.0),
+        first_last=_of(1.0 if setup.include_first_last else 0.0),
         alpha=_of(alpha), hidden_area=_of(max(setup.hidden_area_m2, 1e-30)),
         max_depth=dr.opaque(mi.Int32, UNLIMITED_DEPTH if max_depth == -1 else int(max_depth)),
         rr_depth=dr.opaque(mi.Int32, int(options.get("rr_depth", 5))),
         width=dr.opaque(mi.UInt32, W),
         seed=dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
         planar_wall=setup.planar_wall,
+        center_only=center,
+        max_depth_static=UNLIMITED_DEPTH if max_depth == -1 else int(max_depth),
+        confocal=confocal,
+        # confocal + patch centre: the pixel's wall point *is* its laser spot, so the segment back to the
+        # spot from the hidden vertex is the (already traced) segment from the wall point
+        spot_is_vertex1=confocal and center,
+        n_group=dr.opaque(mi.UInt32, G),
     )
     if setup.hidden_shapes:
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
@@ -513,11 +615,24 @@ def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp:
     else:
         hidden_ptrs, distr = None, None
     wall_ptr = mi.ShapePtr(setup.relay_wall)
-    confocal = setup.capture == "confocal"
+
+    # the laser spots of the group (array captures): one ray each, evaluated once
+    group = None
+    if not confocal:
+        tg = setup.spot_targets[spots]
+        Lo = setup.laser_origin
+        d = tg - Lo
+        d = d / np.linalg.norm(d, axis=1, keepdims=True)
+        ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.full(G, Lo[i])) for i in range(3)]),
+                       mi.Vector3f(*[mi.Float(d[:, i]) for i in range(3)]))
+        si_g = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
+        bsdf_g = si_g.bsdf()
+        dr.eval(si_g, bsdf_g)
+        group = (si_g, bsdf_g)
 
     total = layout.n_pixels * spp
     for j0, j1 in layout.passes():
-        rng = _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr, confocal)
+        rng = _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr, group)
         hist.evaluate()
         dr.eval(rng)
         if progress is not None:
@@ -525,28 +640,111 @@ def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp:
 
     # closed-form first-bounce return of the wall (weighted by spp: collect() divides by it)
     wr = setup.wall_return
-    spots = np.arange(setup.n_spots) if confocal else np.array([spot])
-    pix = wr["pixel"][spots]
-    sel = (pix >= 0) & (wr["photons"][spots] > 0)
+    all_spots = np.arange(setup.n_spots) if confocal else np.array(spots)
+    sub = np.zeros(len(all_spots), dtype=np.uint32) if confocal else np.arange(G, dtype=np.uint32)
+    pix = wr["pixel"][all_spots]
+    sel = (pix >= 0) & (wr["photons"][all_spots] > 0)
     if sel.any():
-        ph = wr["photons"][spots][sel] / setup.photons_per_pulse  # N is applied below
+        ph = wr["photons"][all_spots][sel] / setup.photons_per_pulse  # N is applied below
         lanes = mi.UInt32((pix[sel] * K).astype(np.uint32))
-        hist.record(lanes, mi.Float(wr["opl_m"][spots][sel]), mi.Float(ph * spp), mi.Bool(True))
+        hist.record(lanes, mi.Float(wr["opl_m"][all_spots][sel]), mi.Float(ph * spp), mi.Bool(True),
+                    sub=mi.UInt32(sub[sel]))
         hist.evaluate()
 
-    h, steady, dropped, frac = hist.collect(taps)
     N = setup.photons_per_pulse
-    return TransientResult(
-        histogram=(h.astype(np.float64) * N).astype(np.float32).reshape(H, W, axis.n_bins),
-        steady=(steady.astype(np.float64) * N).astype(np.float32).reshape(H, W),
-        dropped_contributions=dropped,
-        dropped_fraction=frac,
-        samples=total,
-    )
+    results = []
+    for h, steady, dropped, frac in hist.collect_all(taps):
+        results.append(TransientResult(
+            histogram=(h * N).astype(np.float32).reshape(H, W, axis.n_bins),
+            steady=(steady * N).astype(np.float32).reshape(H, W),
+            dropped_contributions=dropped,
+            dropped_fraction=frac,
+            samples=total,
+        ))
+    return results
 
 
 @dr.syntax
-def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr, confocal):
+def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot, group, wall_ptr, ctx,
+                   visible=None):
+    """Deterministic connection of vertex ``si`` to the laser spot(s) (next-event estimation).
+
+    ``spot``: the lane's own spot ``(si_s, bsdf_s)`` (confocal), else ``group``
+    holds the group's spots, connected one after another. ``visible``: the
+    visibility when it is already known (confocal patch-centre captures).
+    """
+    bsdf = si.bsdf()
+    active_nee = active & (depth + 2 <= c.max_depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+    if dr.hint(c.planar_wall, mode="scalar"):
+        # spot and vertex on the same plane: cos(theta_S) = 0 exactly, nothing to connect
+        active_nee &= si.shape != wall_ptr
+    b = mi.UInt32(0)
+    while active_nee & (b < c.n_group):
+        if dr.hint(group is None, mode="scalar"):
+            si_s, bsdf_s = spot
+        else:
+            si_s = dr.gather(mi.SurfaceInteraction3f, group[0], b)
+            bsdf_s = dr.gather(mi.BSDFPtr, group[1], b)
+        spot_p = si_s.p
+        to_s = spot_p - si.p
+        dist_s = dr.norm(to_s)
+        d_s = to_s / dist_s
+        f_x = bsdf.eval(ctx, si, si.to_local(d_s), active_nee)
+        i_s = bsdf_s.eval(ctx, si_s, si_s.to_local(-d_s), active_nee)
+        val = to_mono(beta * f_x * i_s, si.wavelengths) * (w0 / dr.square(dist_s))
+        ok = active_nee & (val > 0) & si_s.is_valid()
+        if dr.hint(visible is None, mode="scalar"):
+            ok &= ~scene.ray_test(si.spawn_ray_to(spot_p), ok)
+        else:
+            ok &= visible
+        hist.record(lane, opl + dist_s + c.first_last * si_s.t, val, ok, sub=b)
+        b += 1
+
+
+def _first_bounce(scene, si, active, u, rng, c, hidden_ptrs, distr, wall_ptr, ctx):
+    """Direction leaving the patch point: one-sample MIS between hidden-geometry and BSDF sampling.
+
+    Returns ``(si_next, weight, eta)``; ``weight`` is ``f cos / (alpha p_hidden + (1 - alpha) p_bsdf)``
+    (0 for an occluded hidden-geometry sample).
+    """
+    bsdf = si.bsdf()
+    alpha = c.alpha
+    use_hg = active & (u[0] < alpha)
+    if hidden_ptrs is not None:
+        idx = distr.sample(u[1], use_hg)
+        shape = dr.gather(mi.ShapePtr, hidden_ptrs, idx, use_hg)
+        ps = shape.sample_position(0.0, mi.Point2f(u[2], u[3]), use_hg)
+        o_hg = si.spawn_ray_to(ps.p).o  # offset origin, as for any spawned ray
+        to_x = ps.p - o_hg
+        dist_x = dr.norm(to_x)
+        d_hg = to_x / dist_x
+    else:
+        shape = dr.zeros(mi.ShapePtr)
+        dist_x = mi.Float(0.0)
+        o_hg = mi.Point3f(si.p)
+        d_hg = mi.Vector3f(0.0, 0.0, 1.0)
+    bs, bsdf_w = bsdf.sample(ctx, si, rng.next_float32(), mi.Point2f(u[4], u[5]), active & ~use_hg)
+    ray_b = si.spawn_ray(si.to_world(bs.wo))
+    ray = mi.Ray3f(dr.select(use_hg, o_hg, ray_b.o), dr.select(use_hg, d_hg, ray_b.d))
+    si_next = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
+    f_val, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ray.d), active)
+    on_hidden = si_next.is_valid() & (si_next.shape != wall_ptr)
+    cos_y = dr.abs(dr.dot(si_next.n, ray.d))
+    dist2_y = dr.squared_norm(si_next.p - si.p)
+    pdf_h = dr.select(on_hidden & (cos_y > 0), dist2_y / (cos_y * c.hidden_area), 0.0)
+    pdf_mix = alpha * pdf_h + (1.0 - alpha) * pdf_b
+    weight = mi.Spectrum(dr.select(pdf_mix > 0, f_val / pdf_mix, 0.0))
+    hg_ok = si_next.is_valid() & (si_next.shape == shape) & \
+        (dr.abs(si_next.t - dist_x) <= VISIBILITY_REL_TOL * dist_x)
+    weight = dr.select(use_hg & ~hg_ok, 0.0, weight)
+    delta_lobe = ~use_hg & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    weight = dr.select(delta_lobe, bsdf_w / (1.0 - alpha), weight)
+    eta = dr.select(use_hg, 1.0, bs.eta)
+    return si_next, weight, eta, active & si_next.is_valid()
+
+
+@dr.syntax
+def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr, group):
     K = layout.streams
     lane = dr.arange(mi.UInt32, layout.n_lanes)
     pixel = lane // K
@@ -555,14 +753,12 @@ def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr
     py = mi.Float(pixel // c.width)
     centre = c.c00 + px * c.step_x + py * c.step_y
 
-    # ---- laser spot of every lane (confocal: its own patch centre)
-    aim = mi.Point3f(centre) if confocal else mi.Point3f(c.spot_target)
-    laser_ray = mi.Ray3f(c.laser_origin, dr.normalize(aim - c.laser_origin))
-    si_s = scene.ray_intersect(laser_ray, ray_flags=mi.RayFlags.All, coherent=True)
-    spot_ok = si_s.is_valid()
-    spot_p = mi.Point3f(si_s.p)
-    opl_laser = c.first_last * si_s.t
-    bsdf_s = si_s.bsdf()
+    # ---- confocal: the laser spot of every lane is its own patch centre
+    spot = None
+    if dr.hint(c.confocal, mode="scalar"):
+        laser_ray = mi.Ray3f(c.laser_origin, dr.normalize(centre - c.laser_origin))
+        si_s = scene.ray_intersect(laser_ray, ray_flags=mi.RayFlags.All, coherent=True)
+        spot = (si_s, si_s.bsdf())
 
     # ---- randomised QMC: an R_d sequence over the pixel's samples, shifted at random per pixel
     gen = [dr.opaque(mi.UInt32, g) for g in kronecker_generators()]
@@ -571,102 +767,85 @@ def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr
         a, b = mi.sample_tea_32(pixel, c.seed ^ mi.UInt32(0x9E3779B9 * (d + 1) & 0xFFFFFFFF))
         shift += [a, b]
 
+    # ---- patch centre only: the wall point (vertex 1) is the same for every sample
+    if dr.hint(c.center_only, mode="scalar"):
+        if dr.hint(c.spot_is_vertex1, mode="scalar"):
+            si_c = dr.detach(spot[0])  # the laser spot itself, seen from the detector
+            to_c = si_c.p - c.D
+            si_c.wi = si_c.to_local(-dr.normalize(to_c))
+        else:
+            si_c = scene.ray_intersect(mi.Ray3f(c.D, dr.normalize(centre - c.D)), ray_flags=mi.RayFlags.All,
+                                       coherent=True)
+        to_c = centre - c.D
+        d_c = dr.normalize(to_c)
+        w0_c = c.a_ap * dr.maximum(dr.dot(d_c, c.n_ap), 0.0) * c.a_pix * dr.abs(dr.dot(d_c, c.n_plane)) / \
+            dr.squared_norm(to_c)
+        opl_c = c.first_last * dr.norm(si_c.p - c.D)
+
     j = mi.UInt32(dr.opaque(mi.UInt32, j0))
     j_end = dr.opaque(mi.UInt32, j1)
     spp = dr.opaque(mi.UInt32, layout.spp)
-    has_hidden = hidden_ptrs is not None
     ctx = mi.BSDFContext()
+    deeper = c.max_depth_static > 4
 
     while (j < j_end) & (k + j * K < spp):
         i_sample = k + j * K
-        qmc = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
-        # ---- patch sample and primary ray
-        q = centre + (qmc[0] - 0.5) * c.step_x + (qmc[1] - 0.5) * c.step_y
-        to_q = q - c.D
-        dist_q = dr.norm(to_q)
-        d0 = to_q / dist_q
-        w0 = c.a_ap * dr.maximum(dr.dot(d0, c.n_ap), 0.0) * c.a_pix * dr.abs(dr.dot(d0, c.n_plane)) / dr.square(dist_q)
-        si = scene.ray_intersect(mi.Ray3f(c.D, d0), ray_flags=mi.RayFlags.All, coherent=True)
-        opl = c.first_last * si.t
+        u = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
+        # ---- patch point p (vertex 1) and the sensor weight
+        if dr.hint(c.center_only, mode="scalar"):
+            si = si_c
+            w0 = w0_c
+            opl = opl_c
+        else:
+            q = centre + (u[0] - 0.5) * c.step_x + (u[1] - 0.5) * c.step_y
+            to_q = q - c.D
+            dist_q = dr.norm(to_q)
+            d0 = to_q / dist_q
+            w0 = c.a_ap * dr.maximum(dr.dot(d0, c.n_ap), 0.0) * c.a_pix * dr.abs(dr.dot(d0, c.n_plane)) / \
+                dr.square(dist_q)
+            si = scene.ray_intersect(mi.Ray3f(c.D, d0), ray_flags=mi.RayFlags.All, coherent=True)
+            opl = c.first_last * si.t
+        active = si.is_valid()
         beta = mi.Spectrum(1.0)
-        depth = mi.Int32(1)
-        eta = mi.Float(1.0)
-        active = si.is_valid() & spot_ok
+        _connect_spots(scene, hist, lane, si, beta, w0, opl, mi.Int32(1), active, c, spot, group, wall_ptr, ctx)
 
-        while active:
-            bsdf = si.bsdf()
-            # ---- laser-spot connection
-            to_s = spot_p - si.p
-            dist_s = dr.norm(to_s)
-            d_s = to_s / dist_s
-            active_nee = active & (depth + 2 <= c.max_depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-            if dr.hint(c.planar_wall, mode="scalar"):
-                # spot and vertex on the same plane: cos(theta_S) = 0 exactly, nothing to connect
-                active_nee &= si.shape != wall_ptr
-            f_x = bsdf.eval(ctx, si, si.to_local(d_s), active_nee)
-            i_s = bsdf_s.eval(ctx, si_s, si_s.to_local(-d_s), active_nee)
-            val = to_mono(beta * f_x * i_s, si.wavelengths) * (w0 / dr.square(dist_s))
-            active_nee &= val > 0
-            occluded = scene.ray_test(si.spawn_ray_to(spot_p), active_nee)
-            hist.record(lane, opl + dist_s + opl_laser, val, active_nee & ~occluded)
+        # ---- vertex 2 by one-sample MIS, then its spot connection (three-bounce light)
+        active &= 5 <= c.max_depth + 1  # i.e. max_depth >= 4
+        si2, weight, eta, active = _first_bounce(scene, si, active, u[2:], rng, c, hidden_ptrs, distr, wall_ptr,
+                                                 ctx)
+        beta = beta * weight
+        opl = opl + dr.norm(si2.p - si.p)
+        if dr.hint(c.spot_is_vertex1, mode="scalar"):
+            # the segment vertex 2 -> spot is the segment just traced from the spot: visible
+            _connect_spots(scene, hist, lane, si2, beta, w0, opl, mi.Int32(2), active, c, spot, group, wall_ptr,
+                           ctx, visible=mi.Bool(True))
+        else:
+            _connect_spots(scene, hist, lane, si2, beta, w0, opl, mi.Int32(2), active, c, spot, group, wall_ptr,
+                           ctx)
 
-            # ---- next direction
-            active_next = active & (depth + 3 <= c.max_depth)
-            first = depth == 1
-            u_strategy = dr.select(first, qmc[2], rng.next_float32())
-            u_shape = dr.select(first, qmc[3], rng.next_float32())
-            u_pos = mi.Point2f(dr.select(first, qmc[4], rng.next_float32()),
-                               dr.select(first, qmc[5], rng.next_float32()))
-            u_lobe = rng.next_float32()
-            u_dir = mi.Point2f(dr.select(first, qmc[6], rng.next_float32()),
-                               dr.select(first, qmc[7], rng.next_float32()))
-            alpha = dr.select(first, c.alpha, 0.0)
-            use_hg = active_next & (u_strategy < alpha)
-            if dr.hint(has_hidden, mode="scalar"):
-                idx = distr.sample(u_shape, use_hg)
-                shape = dr.gather(mi.ShapePtr, hidden_ptrs, idx, use_hg)
-                ps = shape.sample_position(0.0, u_pos, use_hg)
-                o_hg = si.spawn_ray_to(ps.p).o  # offset origin, as for any spawned ray
-                to_x = ps.p - o_hg
-                dist_x = dr.norm(to_x)
-                d_hg = to_x / dist_x
-            else:
-                shape = dr.zeros(mi.ShapePtr)
-                dist_x = mi.Float(0.0)
-                o_hg = mi.Point3f(si.p)
-                d_hg = mi.Vector3f(0.0, 0.0, 1.0)
-            bs, bsdf_w = bsdf.sample(ctx, si, u_lobe, u_dir, active_next & ~use_hg)
-            ray_b = si.spawn_ray(si.to_world(bs.wo))
-            ray = mi.Ray3f(dr.select(use_hg, o_hg, ray_b.o), dr.select(use_hg, d_hg, ray_b.d))
-            d_next = ray.d
-            si_next = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active_next)
-
-            # one-sample MIS (balance heuristic) at the patch point
-            wo = si.to_local(d_next)
-            f_val, pdf_b = bsdf.eval_pdf(ctx, si, wo, active_next & first)
-            on_hidden = si_next.is_valid() & (si_next.shape != wall_ptr)
-            cos_y = dr.abs(dr.dot(si_next.n, d_next))
-            dist2_y = dr.squared_norm(si_next.p - si.p)
-            pdf_h = dr.select(on_hidden & (cos_y > 0), dist2_y / (cos_y * c.hidden_area), 0.0)
-            pdf_mix = alpha * pdf_h + (1.0 - alpha) * pdf_b
-            w_first = dr.select(pdf_mix > 0, f_val / pdf_mix, 0.0)
-            hg_ok = si_next.is_valid() & (si_next.shape == shape) & \
-                (dr.abs(si_next.t - dist_x) <= VISIBILITY_REL_TOL * dist_x)
-            w_first = dr.select(use_hg & ~hg_ok, 0.0, w_first)
-            delta_lobe = ~use_hg & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-            w_first = dr.select(delta_lobe, bsdf_w / (1.0 - alpha), w_first)
-            weight = dr.select(first, w_first, bsdf_w)
-            beta *= weight
-            eta *= dr.select(use_hg, 1.0, bs.eta)
-
-            opl = opl + dr.sqrt(dist2_y)
-            depth += 1
-            beta_max = dr.max(mi.unpolarized_spectrum(beta))
-            rr_prob = dr.minimum(beta_max * dr.square(eta), 0.95)
-            rr_active = (depth - 1) >= c.rr_depth
-            rr_continue = rng.next_float32() < rr_prob
-            beta[rr_active] *= dr.rcp(rr_prob)
-            active = active_next & si_next.is_valid() & (~rr_active | rr_continue) & (beta_max > 0)
-            si = si_next
+        # ---- further vertices: BSDF sampling, spot connections, Russian roulette
+        if dr.hint(deeper, mode="scalar"):
+            depth = mi.Int32(2)
+            si = si2
+            while active:
+                active_next = active & (depth + 3 <= c.max_depth)
+                bsdf = si.bsdf()
+                bs, bsdf_w = bsdf.sample(ctx, si, rng.next_float32(), mi.Point2f(rng.next_float32(),
+                                                                                 rng.next_float32()), active_next)
+                ray = si.spawn_ray(si.to_world(bs.wo))
+                si_next = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active_next)
+                beta *= bsdf_w
+                eta *= bs.eta
+                opl = opl + dr.norm(si_next.p - si.p)
+                depth += 1
+                beta_max = dr.max(mi.unpolarized_spectrum(beta))
+                rr_prob = dr.minimum(beta_max * dr.square(eta), 0.95)
+                rr_active = (depth - 1) >= c.rr_depth
+                rr_continue = rng.next_float32() < rr_prob
+                beta[rr_active] *= dr.rcp(rr_prob)
+                active = active_next & si_next.is_valid() & (~rr_active | rr_continue) & (beta_max > 0)
+                _connect_spots(scene, hist, lane, si_next, beta, w0, opl, depth, active, c, spot, group, wall_ptr,
+                               ctx)
+                si = si_next
         j += 1
     return rng

@@ -105,7 +105,7 @@ class TransientPath(mi.CppADIntegrator):
         return mi.TensorXf(result.histogram)
 
     def render_transient(self, scene, sensor, *, seed: int = 0, spp: int = 0, spot: int | None = None,
-                         progress=None):
+                         spots=None, progress=None):
         """Render one transient image (or one laser spot of an NLOS capture).
 
         Parameters
@@ -118,6 +118,9 @@ class TransientPath(mi.CppADIntegrator):
             Samples per pixel; 0 takes the sensor's sampler value.
         spot : int, optional
             Laser spot to render (NLOS sensors only).
+        spots : sequence of int, optional
+            A group of laser spots to render together (NLOS array captures,
+            see ``spad_array.spot_groups``); a list of results is returned.
         progress : callable, optional
             ``progress(done_paths, total_paths)`` after every kernel launch.
 
@@ -136,9 +139,13 @@ class TransientPath(mi.CppADIntegrator):
         if spp < 1:
             raise PluginParameterError(f"{self.NAME}: spp={spp} must be >= 1")
         if hasattr(sensor, "nlos_estimator"):
+            if spots is not None:
+                results = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spots=spots, progress=progress)
+                film.set_result(results[-1])
+                return results
             result = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spot=spot, progress=progress)
         else:
-            if spot not in (None, 0):
+            if spot not in (None, 0) or spots not in (None, [0]):
                 raise PluginParameterError(f"{self.NAME}: spot={spot} given, but the sensor is a camera")
             result = self._render_camera(scene, sensor, seed, spp, progress)
         film.set_result(result)

@@ -81,6 +81,13 @@ class SpadArray(mi.Sensor):
            directly by the pixel whose patch contains it) is in the capture
            (default true). Skipping it saves nothing in rendering time but
            keeps the huge direct peak out of the data.
+       * - ``pixel_sampling``
+         - string
+         - ``area`` (default): each pixel integrates over its whole wall
+           patch. ``center``: only the light leaving the patch centre is
+           traced, multiplied by the patch's solid angle (the point
+           approximation used by mitransient and y-tal; faster to converge,
+           not the patch integral).
 
     Errors (raised while the scene loads or before rendering starts):
     detector or laser behind the wall, zero-size footprint or aperture, a
@@ -112,6 +119,7 @@ class SpadArray(mi.Sensor):
         self.capture = get_choice(props, name, "capture", "array", ("array", "confocal"))
         self.include_first_last = get_bool(props, name, "include_first_last", True)
         self.include_wall_return = get_bool(props, name, "include_wall_return", True)
+        self.pixel_sampling = get_choice(props, name, "pixel_sampling", "area", ("area", "center"))
         film = self.film()
         if not hasattr(film, "is_transient"):
             raise PluginParameterError(f"{name}: needs a transient_film (or spad_film) child, got {type(film).__name__}")
@@ -141,15 +149,39 @@ class SpadArray(mi.Sensor):
             "laser": s.laser.laser_info(),
         }
 
-    def nlos_estimator(self, integrator, scene, *, seed: int, spp: int, spot: int | None = None, progress=None):
-        """Render one laser spot (array) or the confocal capture; returns a ``TransientResult``."""
-        from transient_mi.integrators._nlos import render_spot
+    def nlos_estimator(self, integrator, scene, *, seed: int, spp: int, spot: int | None = None, spots=None,
+                       progress=None):
+        """Render one laser spot (``spot``), a group of spots (``spots``) or the confocal capture.
+
+        Returns a ``TransientResult`` for ``spot``, a list of them for ``spots``.
+        """
+        from transient_mi.integrators._nlos import render_spots
 
         options = dict(getattr(integrator, "nlos_options", {}) or {})
         options.setdefault("max_depth", getattr(integrator, "max_depth_param", -1))
         options.setdefault("rr_depth", getattr(integrator, "rr_depth", 5))
-        return render_spot(self.nlos_setup(scene), scene, self.film(), options, seed=seed, spp=spp,
-                           spot=0 if spot is None else int(spot), progress=progress)
+        group = [0 if spot is None else int(spot)] if spots is None else [int(j) for j in spots]
+        res = render_spots(self.nlos_setup(scene), scene, self.film(), options, seed=seed, spp=spp, spots=group,
+                           progress=progress)
+        return res if spots is not None else res[0]
+
+    def spot_groups(self, scene, spp: int) -> list[list[int]]:
+        """The groups of laser spots the render pipeline renders together (fixed for a configuration).
+
+        Array captures: consecutive spots in scan order, as many per group as
+        the histogram memory budget allows (see
+        :func:`~transient_mi.integrators._nlos.group_layout`); the spots of a
+        group share the detector-side sub-paths. Confocal: ``[[0]]``.
+        """
+        from transient_mi.integrators._nlos import group_layout
+
+        s = self.nlos_setup(scene)
+        if s.capture == "confocal":
+            return [[0]]
+        film = self.film()
+        pad = len(film.kernel_taps()) // 2
+        _, g = group_layout(s.width * s.height, spp, film.n_bins + 2 * pad, s.n_spots)
+        return [list(range(a, min(a + g, s.n_spots))) for a in range(0, s.n_spots, g)]
 
     # ------------------------------------------ Mitsuba interface (debugging)
 
@@ -182,4 +214,5 @@ class SpadArray(mi.Sensor):
         return (f"SpadArray[origin={tuple(self.origin.tolist())}, target={tuple(self.target.tolist())}, "
                 f"pixels={f.width}x{f.height}, pixel_footprint_m={self.pixel_footprint_m:g}, "
                 f"aperture_diameter_m={self.aperture_diameter_m:g}, capture={self.capture}, "
-                f"include_first_last={self.include_first_last}, include_wall_return={self.include_wall_return}]")
+                f"include_first_last={self.include_first_last}, include_wall_return={self.include_wall_return}, "
+                f"pixel_sampling={self.pixel_sampling}]")
