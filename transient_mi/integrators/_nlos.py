@@ -463,15 +463,17 @@ class _Consts:
 #: Histogram floats held per kernel launch when an array capture renders a group of spots at once.
 GROUP_HIST_FLOATS = 1 << 26
 #: Most laser spots rendered together (sharing the detector-side sub-paths).
-MAX_GROUP = 32
+MAX_GROUP = 64
 #: Lanes to aim for (enough to keep every CPU thread's SIMD units busy).
-GROUP_TARGET_LANES = 1 << 14
+GROUP_TARGET_LANES = 1 << 11
 
 
 def group_layout(n_pixels: int, spp: int, n_bins_ext: int, n_spots: int) -> tuple[int, int]:
     """``(streams K, spots per group)`` for an array capture; depends only on the configuration.
 
-    Lanes ``n_pixels * K`` aim at :data:`GROUP_TARGET_LANES`; a group holds as
+    Lanes ``n_pixels * K`` aim at :data:`GROUP_TARGET_LANES` (few lanes keep
+    the per-lane histograms, which are zeroed and summed for every launch,
+    small; each lane loops over many samples); a group holds as
     many spots as fit ``GROUP_HIST_FLOATS`` histogram values (at most
     :data:`MAX_GROUP`). Every group shares the detector-side sub-path of each
     sample (patch point, hidden vertex, further bounces) between its spots.
@@ -576,10 +578,7 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
     pad = len(taps) // 2
     axis = film.time_axis()
     G = len(spots)
-    if confocal:
-        K = choose_streams(W * H, spp, axis.n_bins + 2 * pad)
-    else:
-        K, _ = group_layout(W * H, spp, axis.n_bins + 2 * pad, setup.n_spots)
+    K, _ = group_layout(W * H, spp, axis.n_bins + 2 * pad, 1 if confocal else setup.n_spots)
     layout = LaneLayout(W * H, spp, K)
     hist = _GroupHistogram(layout, axis, pad, G)
     rng = seed_rng(seed, layout.n_lanes)
@@ -626,9 +625,10 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
         ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.full(G, Lo[i])) for i in range(3)]),
                        mi.Vector3f(*[mi.Float(d[:, i]) for i in range(3)]))
         si_g = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
-        bsdf_g = si_g.bsdf()
-        dr.eval(si_g, bsdf_g)
-        group = (si_g, bsdf_g)
+        # what a BSDF evaluation at the spot needs (gathered per connection: keep it small)
+        group = (si_g.p, si_g.n, si_g.sh_frame.s, si_g.sh_frame.t, si_g.sh_frame.n, si_g.uv, si_g.wi, si_g.t,
+                 si_g.shape, si_g.bsdf())
+        dr.eval(*group)
 
     total = layout.n_pixels * spp
     for j0, j1 in layout.passes():
@@ -683,8 +683,17 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
         if dr.hint(group is None, mode="scalar"):
             si_s, bsdf_s = spot
         else:
-            si_s = dr.gather(mi.SurfaceInteraction3f, group[0], b)
-            bsdf_s = dr.gather(mi.BSDFPtr, group[1], b)
+            si_s = dr.zeros(mi.SurfaceInteraction3f)
+            si_s.p = dr.gather(mi.Point3f, group[0], b)
+            si_s.n = dr.gather(mi.Normal3f, group[1], b)
+            si_s.sh_frame = mi.Frame3f(dr.gather(mi.Vector3f, group[2], b), dr.gather(mi.Vector3f, group[3], b),
+                                       dr.gather(mi.Normal3f, group[4], b))
+            si_s.uv = dr.gather(mi.Point2f, group[5], b)
+            si_s.wi = dr.gather(mi.Vector3f, group[6], b)
+            si_s.t = dr.gather(mi.Float, group[7], b)
+            si_s.shape = dr.gather(mi.ShapePtr, group[8], b)
+            si_s.wavelengths = si.wavelengths
+            bsdf_s = dr.gather(mi.BSDFPtr, group[9], b)
         spot_p = si_s.p
         to_s = spot_p - si.p
         dist_s = dr.norm(to_s)
