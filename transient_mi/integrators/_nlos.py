@@ -503,23 +503,20 @@ class _GroupHistogram(LaneHistogram):
         LaneHistogram.record(self, slot, opl_m, value, active)
 
     def collect_all(self, taps):
-        """Per spot of the group: ``(hist[n_pixels, n_bins], steady[n_pixels], dropped, fraction)``."""
+        """Yield per spot of the group: ``(hist[n_pixels, n_bins], steady[n_pixels], dropped, fraction)``."""
         L = self.layout
         T = self.n_bins_ext
         data = np.asarray(self.data.numpy(), dtype=np.float32).reshape(L.n_pixels, L.streams, self.n_sub, T)
-        hist = data.sum(axis=1, dtype=np.float64) / L.spp  # [P, G, T]
-        del data
         steady = np.asarray(self.steady.numpy()).reshape(L.n_pixels, L.streams, self.n_sub).sum(
             axis=1, dtype=np.float64) / L.spp
         dropped = np.asarray(self.dropped.numpy(), dtype=np.uint64).reshape(L.n_pixels, L.streams, self.n_sub)
         dropped = dropped.sum(axis=(0, 1))
-        out = []
-        for g in range(self.n_sub):
-            h = apply_kernel(hist[:, g], taps) if len(taps) > 1 else hist[:, g]
+        for g in range(self.n_sub):  # one spot at a time: no float64 copy of the whole group
+            h = data[:, :, g, :].sum(axis=1, dtype=np.float64) / L.spp
+            h = apply_kernel(h, taps) if len(taps) > 1 else h
             total = float(steady[:, g].sum())
             frac = 0.0 if total <= 0 else max(0.0, (total - float(h.sum())) / total)
-            out.append((h, steady[:, g], int(dropped[g]), frac))
-        return out
+            yield h, steady[:, g], int(dropped[g]), frac
 
 
 def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spot: int, progress=None):
