@@ -78,6 +78,21 @@ array's current spot, or in confocal mode the spot on patch ``k``):
   ``max_depth`` path segments (detector to laser, Mitsuba's meaning:
   ``max_depth = 4`` records up to three-bounce light ``D-p-X-S-L``,
   ``2`` only the wall return), Russian roulette from ``rr_depth`` on.
+* **Planar relay wall:** the connection from a vertex on the wall to the
+  spot (on the same plane) has ``cos(theta_S) = 0`` exactly and is skipped.
+* **Randomised QMC:** the patch point and the five numbers used at the
+  patch point (strategy, hidden shape, point on it, BSDF direction) come
+  from an R_d Kronecker sequence over the pixel's samples with a uniform
+  random shift per pixel (Cranley-Patterson rotation): every sample is
+  still uniformly distributed (unbiased); the error falls faster than
+  ``1/sqrt(spp)``. Deeper dimensions use PCG32 streams.
+* **Spot groups (array captures):** :func:`render_spots` renders several
+  spots together; they share each sample's detector-side sub-path and
+  differ only in the final spot connection (each estimate unbiased).
+* **Patch centres only** (``pixel_sampling="center"``): the wall point is
+  the patch centre (the point approximation of mitransient/y-tal); in
+  confocal captures it is the laser spot itself, so the segment back to
+  the spot is the one just traced and needs no shadow ray.
 
 The *relay wall* is the shape hit by the ray from the detector to the
 array's ``target``; *hidden geometry* is every other shape. Other emitters
