@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import os
 import platform
-import shutil
 import sys
 import tempfile
 import time
@@ -75,8 +74,10 @@ def _check_output(out_dir: Path, resume: bool) -> None:
     parent = out_dir.parent if out_dir.parent != Path("") else Path(".")
     if not parent.is_dir():
         raise UserInputError(f"-o {out_dir}: parent directory {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise UserInputError(f"-o {out_dir}: parent directory {parent} is not writable")
+    try:  # a real probe: permission bits say little for root or read-only mounts
+        os.rmdir(tempfile.mkdtemp(dir=parent, prefix=".transient-mi-probe-"))
+    except OSError as e:
+        raise UserInputError(f"-o {out_dir}: cannot create a directory in {parent} ({e.strerror})") from None
     if out_dir.exists() and not resume and any(out_dir.iterdir()):
         raise UserInputError(f"-o {out_dir}: directory exists and is not empty (use --resume to continue it, "
                              "or choose another output)")
@@ -117,6 +118,9 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
 
     if variant:
         tm.set_variant(variant)
+    if not tm.variant().startswith(("llvm_", "cuda_")):
+        raise UserInputError(f"variant {tm.variant()!r} cannot render: use an llvm_* or cuda_* variant "
+                             "(scalar_* variants only load scenes, for debugging)")
     if spp < 0:
         raise UserInputError(f"--spp {spp}: must be >= 1 (or 0 for the scene's value)")
     if not 0 <= seed < 2**32:
@@ -138,7 +142,10 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         raise UserInputError(f"{scene_file}: the sensor's film must be a transient_film or spad_film")
     spp = spp or int(sensor.sampler().sample_count())
     layout = sensor.capture_layout(scene) if hasattr(sensor, "capture_layout") else _camera_layout(sensor)
-    detect_kwargs = film.detect_kwargs() if hasattr(film, "detect_kwargs") else None
+    detect_kwargs = film.detect_kwargs(render_seed=seed) if hasattr(film, "detect_kwargs") else None
+    if detect_kwargs is not None and layout["quantity"] != "photons_per_pulse":
+        raise UserInputError(f"{scene_file}: a spad_film needs an NLOS sensor (spad_array) that records "
+                             "photons per laser pulse; under a camera use transient_film")
 
     axis = film.time_axis()
     config = {
@@ -304,22 +311,14 @@ def _remove_stale_temporaries(d: Path) -> None:
 
 
 def _detect_into(job: RenderJob, ideal_dir: Path) -> Path:
-    """Run the film's detector model on the ideal capture; counts land in ``job.out_dir``."""
+    """Run the film's detector model on the ideal capture; counts land in ``job.out_dir``.
+
+    (``detect_stack`` writes into a temporary sibling and moves the files in
+    with the manifest last, keeping ``ideal/``.)
+    """
     from transient_mi.detector import detect_stack
 
-    out = job.out_dir
-    tmp = Path(tempfile.mkdtemp(dir=out, prefix=".counts-"))
-    shutil.rmtree(tmp)
-    try:
-        detect_stack(ideal_dir, tmp, **job.detect_kwargs)
-        names = sorted(p.name for p in tmp.iterdir())
-        for name in names:  # manifest last: the capture is valid only once it is there
-            if name != stack.MANIFEST_NAME:
-                os.replace(tmp / name, out / name)
-        os.replace(tmp / stack.MANIFEST_NAME, out / stack.MANIFEST_NAME)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return out
+    return detect_stack(ideal_dir, job.out_dir, progress=True, **job.detect_kwargs)
 
 
 def render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int = 0, variant: str | None = None,

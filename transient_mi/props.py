@@ -22,10 +22,7 @@ class PluginParameterError(UserInputError):
 
 
 def _has(props, name: str) -> bool:
-    try:
-        return props.has_property(name)
-    except AttributeError:  # plain dict (tests)
-        return name in props
+    return name in props
 
 
 def get_int(props, plugin: str, name: str, default: int | None, *, min_value: int | None = None,

@@ -72,13 +72,17 @@ class TimeAxis:
 def gaussian_kernel_taps(sigma_ps: float, bin_width_ps: float) -> np.ndarray:
     """Discrete temporal kernel for a Gaussian of standard deviation ``sigma_ps``.
 
-    Tap ``m`` (``m = -pad .. pad``) is the probability that an arrival
-    distributed uniformly inside a bin, then displaced by a Gaussian with
-    standard deviation ``sigma_ps``, lands ``m`` bins away: with
-    ``s = sigma_ps / bin_width_ps`` and ``G(u) = u Phi(u) + phi(u)``,
-    ``w_m = s [G((m+1)/s) - 2 G(m/s) + G((m-1)/s)]``. Taps are truncated at
-    ``KERNEL_HALF_WIDTH_SIGMA`` standard deviations plus one bin and
-    renormalised to sum to exactly 1, so the kernel conserves energy.
+    Tap ``m`` (``m = -pad .. pad``) is the Gaussian's integral over the bin
+    ``m`` bins away from a contribution at a bin centre:
+    ``w_m = Phi((m + 1/2) / s) - Phi((m - 1/2) / s)`` with
+    ``s = sigma_ps / bin_width_ps`` (the usual discretisation of an
+    instrument response). Taps are truncated at ``KERNEL_HALF_WIDTH_SIGMA``
+    standard deviations plus one bin and renormalised to sum to exactly 1,
+    so the kernel conserves energy. Convolving a histogram with them adds
+    ``sum_m w_m (m bin_width_ps)^2`` (= ``sigma_ps^2 + bin_width_ps^2 / 12``
+    for ``s >~ 1``) to the variance of the arrival times; blurring every
+    contribution exactly would add ``sigma_ps^2``: the difference is
+    negligible when bins are much finer than ``sigma_ps``.
 
     Returns
     -------
@@ -89,11 +93,7 @@ def gaussian_kernel_taps(sigma_ps: float, bin_width_ps: float) -> np.ndarray:
     s = sigma_ps / bin_width_ps
     pad = int(math.ceil(KERNEL_HALF_WIDTH_SIGMA * s)) + 1
     m = np.arange(-pad, pad + 1, dtype=np.float64)
-
-    def G(u):
-        return u * ndtr(u) + np.exp(-0.5 * u * u) / math.sqrt(2.0 * math.pi)
-
-    w = s * (G((m + 1) / s) - 2.0 * G(m / s) + G((m - 1) / s))
+    w = ndtr((m + 0.5) / s) - ndtr((m - 0.5) / s)
     w = np.clip(w, 0.0, None)
     return w / w.sum()
 

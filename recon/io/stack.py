@@ -385,15 +385,23 @@ def write_spot(directory: str | os.PathLike, index: int, data: np.ndarray, manif
     return path
 
 
-def _open_exr(path: Path, header_only: bool):
+def _open_exr(path: Path, header_only: bool) -> tuple[dict, dict | None]:
+    """``(header, channels)`` of an EXR file (``channels`` None when header_only).
+
+    Every OpenEXR failure (missing, truncated, corrupt) becomes a StackError
+    naming the file.
+    """
     import OpenEXR
 
     if not path.is_file():
         raise StackError(f"{path}: missing")
     try:
-        return OpenEXR.File(str(path), header_only=header_only)
+        f = OpenEXR.File(str(path), header_only=header_only)
+        header = f.header()
+        channels = None if header_only else f.channels()
     except Exception as e:  # OpenEXR raises RuntimeError/ValueError/OSError
-        raise StackError(f"{path}: not a readable EXR file ({e})") from None
+        raise StackError(f"{path}: not a readable EXR file, truncated or corrupt ({e})") from None
+    return header, channels
 
 
 def _check_header(path: Path, hdr: dict, manifest: dict, index: int) -> None:
@@ -434,8 +442,8 @@ def spot_is_complete(directory: str | os.PathLike, index: int, manifest: dict) -
     if not path.is_file():
         return False
     try:
-        f = _open_exr(path, header_only=True)
-        _check_header(path, f.header(), manifest, index)
+        header, _ = _open_exr(path, header_only=True)
+        _check_header(path, header, manifest, index)
     except StackError:
         return False
     return True
@@ -455,12 +463,8 @@ def read_spot(directory: str | os.PathLike, index: int, manifest: dict | None = 
     d = Path(directory)
     m = read_manifest(d) if manifest is None else manifest
     path = spot_path(d, index)
-    f = _open_exr(path, header_only=False)
-    _check_header(path, f.header(), m, index)
-    try:
-        chans = f.channels()
-    except Exception as e:
-        raise StackError(f"{path}: pixel data unreadable ({e})") from None
+    header, chans = _open_exr(path, header_only=False)
+    _check_header(path, header, m, index)
     names = channel_names(m["time"]["n_bins"])
     if set(chans) != set(names):
         missing = sorted(set(names) - set(chans))[:3]

@@ -75,10 +75,11 @@ class TransientFilm(mi.Film):
        * - ``kernel_sigma_ps``
          - float
          - Standard deviation (ps) of an optional Gaussian temporal kernel
-           applied to every contribution, >= 0 (default 0: none). Taps are
-           the Gaussian integrated over source and target bins, renormalised
-           to sum to 1, so the kernel conserves energy; contributions up to
-           5 sigma outside the time range still blur into it.
+           applied along time, >= 0 (default 0: none). Taps are the
+           Gaussian integrated over each bin, renormalised to sum to 1, so
+           the kernel conserves energy (it adds ``sigma^2 + bin_width^2/12``
+           to the arrival-time variance); contributions up to 5 sigma outside
+           the time range still blur into it.
 
     Pixels use a box reconstruction filter (each sample counts for the pixel
     it falls in); an ``rfilter`` child is ignored. Contributions arriving
@@ -119,7 +120,7 @@ class TransientFilm(mi.Film):
 
     # --------------------------------------------------------------- results
 
-    def set_result(self, result: TransientResult) -> None:
+    def set_result(self, result: TransientResult | None) -> None:
         """Store the result of the last render (called by the integrator)."""
         self.result = result
 

@@ -8,7 +8,8 @@ would not give the same bytes. Instead every SIMD lane owns one histogram
 slot: lane ``l = pixel * K + k`` (``K`` sample streams per pixel) traces the
 samples ``k, k + K, k + 2K, ... < spp`` of its pixel one after another and
 adds them into its own slot, so each slot sees one writer in a fixed order.
-At the end the ``K`` slots of a pixel are summed in float64 in a fixed order.
+At the end the ``K`` slots of a pixel are summed in a fixed order (one
+output element per lane of a gather kernel).
 ``K`` depends only on the film size, ``spp`` and the backend (never on the
 number of threads), so results are byte-identical across runs and machines
 with the same backend.
@@ -96,7 +97,7 @@ class LaneLayout:
 
 
 class LaneHistogram:
-    """Per-lane time histograms, steady totals and dropped-contribution counters.
+    """Per-lane time histograms, lost energy and dropped-contribution counters.
 
     ``record`` is called from traced (symbolic-loop) code; its scatters are
     side effects that each lane applies to its own slot only.
@@ -109,7 +110,8 @@ class LaneHistogram:
         self.n_bins_ext = axis.n_bins + 2 * pad
         n = layout.n_lanes
         self.data = dr.zeros(mi.Float, n * self.n_bins_ext)
-        self.steady = dr.zeros(mi.Float, n)
+        # Energy outside the padded range (not in ``data``): steady = sum(data) + lost.
+        self.lost = dr.zeros(mi.Float, n)
         self.dropped = dr.zeros(mi.UInt32, n)
         F64 = dr.float64_array_t(mi.Float)
         # Opaque: true IEEE divisions below, and one compiled kernel for any time axis.
@@ -140,13 +142,33 @@ class LaneHistogram:
         idx = mi.UInt32(lane) * mi.UInt32(self._n_ext) + mi.UInt32(dr.maximum(b_ext, 0))
         dr.scatter_reduce(dr.ReduceOp.Add, self.data, value, idx, active & valid,
                           mode=dr.ReduceMode.NoConflicts)
-        dr.scatter_reduce(dr.ReduceOp.Add, self.steady, value, lane, active,
+        dr.scatter_reduce(dr.ReduceOp.Add, self.lost, value, lane, active & ~valid,
                           mode=dr.ReduceMode.NoConflicts)
         dr.scatter_reduce(dr.ReduceOp.Add, self.dropped, mi.UInt32(1), lane, active & ~in_range,
                           mode=dr.ReduceMode.NoConflicts)
 
-    def evaluate(self):
-        dr.eval(self.data, self.steady, self.dropped)
+    def evaluate(self, *loop_outputs):
+        """Run the pending pass. Pass the loop's other outputs (the RNG state)
+        here too: evaluating them separately would execute the loop twice."""
+        dr.eval(self.data, self.lost, self.dropped, *loop_outputs)
+
+    def _per_pixel(self):
+        """Sum the K stream slots of each pixel in a fixed order (one drjit kernel).
+
+        Returns a flat ``mi.Float`` of ``n_pixels * n_bins_ext`` values.
+        """
+        L, T = self.layout, self.n_bins_ext
+        if L.streams == 1:
+            return self.data
+        idx = dr.arange(mi.UInt32, L.n_pixels * T)
+        pixel = idx // T
+        b = idx - pixel * T
+        base = pixel * (L.streams * T) + b
+        out = dr.zeros(mi.Float, L.n_pixels * T)
+        for k in range(L.streams):  # unrolled: fixed summation order
+            out += dr.gather(mi.Float, self.data, base + k * T)
+        dr.eval(out)
+        return out
 
     def collect(self, taps: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, float]:
         """Sum streams per pixel, average over spp, apply the temporal kernel.
@@ -156,13 +178,19 @@ class LaneHistogram:
         """
         L = self.layout
         T = self.n_bins_ext
-        data = np.asarray(self.data.numpy(), dtype=np.float32).reshape(L.n_pixels, L.streams, T)
-        hist = data.sum(axis=1, dtype=np.float64) / L.spp
-        del data
-        steady = np.asarray(self.steady.numpy()).reshape(L.n_pixels, L.streams).sum(axis=1, dtype=np.float64) / L.spp
-        hist = apply_kernel(hist, taps) if len(taps) > 1 else hist
-        dropped = int(np.asarray(self.dropped.numpy(), dtype=np.uint64).sum())
+        summed = self._per_pixel()
+        lost = np.asarray(self.lost).reshape(L.n_pixels, L.streams).sum(axis=1, dtype=np.float64)
+        self.data = None  # free the lane slots before copying out
+        # np.asarray is a writeable zero-copy view of drjit's memory (it keeps
+        # the drjit array alive): scale in place, no second full-size buffer.
+        hist = np.asarray(summed).reshape(L.n_pixels, T)
+        del summed
+        hist *= np.float32(1.0 / L.spp)
+        steady = hist.sum(axis=1, dtype=np.float64) + lost / L.spp
+        if len(taps) > 1:
+            hist = apply_kernel(hist, taps).astype(np.float32)
+        dropped = int(np.asarray(self.dropped).sum(dtype=np.uint64))
         total = float(steady.sum())
-        in_hist = float(hist.sum())
+        in_hist = float(hist.sum(dtype=np.float64))
         frac = 0.0 if total <= 0 else max(0.0, (total - in_hist) / total)
-        return hist.astype(np.float32), steady.astype(np.float32), dropped, frac
+        return hist, steady.astype(np.float32), dropped, frac

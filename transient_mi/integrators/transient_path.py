@@ -65,6 +65,12 @@ class TransientPath(mi.CppADIntegrator):
     Determinism: each SIMD lane accumulates its own histogram slot (see
     :mod:`transient_mi.integrators._lanes`), so the same seed gives the same
     bytes.
+
+    Variants: renders need a JIT variant (``llvm_*``, ``cuda_*``).
+    ``scalar_*`` variants load scenes and construct the plug-ins (to debug
+    XML and parameters). To inspect the integrator's intermediate values,
+    use an ``llvm_*`` variant with ``dr.set_flag(dr.JitFlag.SymbolicLoops,
+    False)`` (evaluated loops whose variables can be printed).
     """
 
     NAME = "transient_path"
@@ -133,8 +139,13 @@ class TransientPath(mi.CppADIntegrator):
             raise PluginParameterError(
                 f"{self.NAME}: the sensor's film is {type(film).__name__}; use a transient_film or spad_film"
             )
+        if not mi.variant().startswith(("llvm_", "cuda_")):
+            raise PluginParameterError(
+                f"{self.NAME}: rendering needs a JIT variant (llvm_* or cuda_*), not {mi.variant()}; "
+                "scalar_* variants load scenes and construct plug-ins for debugging only")
         if not 0 <= seed < 2**32:
             raise PluginParameterError(f"{self.NAME}: seed={seed} must be in [0, 2**32)")
+        film.set_result(None)  # release the previous render's histogram before allocating
         spp = spp or int(sensor.sampler().sample_count())
         if spp < 1:
             raise PluginParameterError(f"{self.NAME}: spp={spp} must be >= 1")
@@ -170,8 +181,7 @@ class TransientPath(mi.CppADIntegrator):
         done = 0
         for j0, j1 in layout.passes():
             rng = self._camera_pass(scene, sensor, hist, rng, layout, j0, j1, W, H, center)
-            hist.evaluate()
-            dr.eval(rng)
+            hist.evaluate(rng)
             done = min(total, layout.n_pixels * min(spp, j1 * K))
             if progress is not None:
                 progress(done, total)
