@@ -144,3 +144,30 @@ def test_spot_groups_estimate_the_same_as_single_spots():
     assert dof >= 50
     assert p > 1e-3, f"groups vs single spots: chi2 p-value {p:.2g}"
     assert sensor.spot_groups(sc, 64) == [[0, 1, 2, 3]]
+
+
+def test_laser_is_invisible_to_mitsuba_and_does_not_break_camera_renders():
+    """A pulsed_laser alive in the process must not disturb other renders (Dr.Jit traces every emitter)."""
+    import mitsuba as mi
+
+    nlos = nlos_scene(width=2, height=2, hidden=[square((0.0, 0.0, 0.4), 0.1, 0.7)], t0_ps=9000.0, bin_width_ps=50.0)
+    assert render(nlos, seed=0, spp=4).sum() > 0
+    # Mitsuba's own path tracer neither hits nor samples the laser: a black image
+    img = mi.render(mi.load_dict({
+        "type": "scene", "integrator": {"type": "path"},
+        "laser": {"type": "pulsed_laser", "origin": [0, 0, 2], "target": [0, 0, 0]},
+        "wall": {"type": "rectangle"},
+        "cam": {"type": "perspective", "to_world": mi.ScalarTransform4f().look_at([0, 0, 3], [0, 0, 0], [0, 1, 0]),
+                "film": {"type": "hdrfilm", "width": 8, "height": 8}},
+    }, optimize=False), spp=4)
+    assert float(np.asarray(img).max()) == 0.0
+    # a camera render with the transient integrator in the same process
+    cam = mi.load_dict({
+        "type": "scene", "integrator": {"type": "transient_path", "max_depth": 3},
+        "light": {"type": "point", "position": [0, 0, 1], "intensity": {"type": "rgb", "value": [1, 1, 1]}},
+        "plane": {"type": "rectangle"},
+        "cam": {"type": "perspective", "to_world": mi.ScalarTransform4f().look_at([0, 0, 3], [0, 0, 0], [0, 1, 0]),
+                "film": {"type": "transient_film", "width": 4, "height": 4, "n_bins": 50, "bin_width_ps": 1000.0}},
+    })
+    res = cam.integrator().render_transient(cam, cam.sensors()[0], seed=0, spp=4)
+    assert res.histogram.sum() > 0

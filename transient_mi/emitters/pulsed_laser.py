@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -157,37 +158,36 @@ class PulsedLaser(mi.Emitter):
         }
 
     # ---------------------------- Mitsuba interface: nothing to hit or sample
+    # Dr.Jit traces every registered emitter when a kernel calls emitters indirectly (also for scenes
+    # without this laser), so every method returns fully initialised (zero) values.
 
     def sample_ray(self, time, sample1, sample2, sample3, active=True):
-        return dr_zero_ray(), mi.Spectrum(0.0)
+        return dr.zeros(mi.Ray3f), dr.zeros(mi.Spectrum)
 
     def sample_direction(self, it, sample, active=True):
-        ds = mi.DirectionSample3f()
-        ds.pdf = mi.Float(0.0)
+        ds = dr.zeros(mi.DirectionSample3f)
         ds.delta = mi.Bool(True)
-        return ds, mi.Spectrum(0.0)
+        return ds, dr.zeros(mi.Spectrum)
 
     def pdf_direction(self, it, ds, active=True):
-        return mi.Float(0.0)
+        return dr.zeros(mi.Float)
 
     def eval_direction(self, it, ds, active=True):
-        return mi.Spectrum(0.0)
+        return dr.zeros(mi.Spectrum)
 
     def eval(self, si, active=True):
-        return mi.Spectrum(0.0)
+        return dr.zeros(mi.Spectrum)
 
     def sample_position(self, time, sample, active=True):
-        ps = mi.PositionSample3f()
-        ps.p = mi.Point3f(*[float(c) for c in self.origin])
-        ps.pdf = mi.Float(0.0)
+        ps = dr.zeros(mi.PositionSample3f)
         ps.delta = mi.Bool(True)
-        return ps, mi.Float(0.0)
+        return ps, dr.zeros(mi.Float)
 
     def pdf_position(self, ps, active=True):
-        return mi.Float(0.0)
+        return dr.zeros(mi.Float)
 
     def sample_wavelengths(self, si, sample, active=True):
-        return mi.Spectrum(0.0), mi.Spectrum(0.0)
+        return dr.zeros(type(si.wavelengths)), dr.zeros(mi.Spectrum)
 
     def bbox(self):
         p = mi.ScalarPoint3f(*[float(c) for c in self.origin])
@@ -200,7 +200,3 @@ class PulsedLaser(mi.Emitter):
         return (f"PulsedLaser[origin={tuple(self.origin.tolist())}, target={tuple(self.target.tolist())}, "
                 f"spots={self.spots_x}x{self.spots_y}, spot_spacing_m={self.spot_spacing_m:g}, "
                 f"pulse_energy_j={self.pulse_energy_j:g}, wavelength_nm={self.wavelength_nm:g}]")
-
-
-def dr_zero_ray():
-    return mi.Ray3f(mi.Point3f(0.0), mi.Vector3f(0.0, 0.0, 1.0))
