@@ -502,14 +502,14 @@ def group_layout(n_pixels: int, spp: int, n_bins_ext: int, n_spots: int) -> tupl
 
 
 class _GroupHistogram(LaneHistogram):
-    """Lane histograms with one sub-slot per spot of the group (slot = ``[spot, bin]``)."""
+    """Lane histograms with one sub-slot per spot of the group (slot = ``lane * G + spot``)."""
 
     def __init__(self, layout: LaneLayout, axis, pad: int, n_sub: int):
-        self.n_sub = n_sub
         super().__init__(layout, axis, pad)
+        self.n_sub = n_sub
         n = layout.n_lanes * n_sub
         self.data = dr.zeros(mi.Float, n * self.n_bins_ext)
-        self.steady = dr.zeros(mi.Float, n)
+        self.lost = dr.zeros(mi.Float, n)
         self.dropped = dr.zeros(mi.UInt32, n)
         self._nsub = dr.opaque(mi.UInt32, n_sub)
 
@@ -518,20 +518,24 @@ class _GroupHistogram(LaneHistogram):
         LaneHistogram.record(self, slot, opl_m, value, active)
 
     def collect_all(self, taps):
-        """Yield per spot of the group: ``(hist[n_pixels, n_bins], steady[n_pixels], dropped, fraction)``."""
+        """Yield per spot of the group ``(hist[n_pixels, n_bins], steady[n_pixels], dropped, fraction)``.
+
+        The ``K`` stream slots of a pixel are summed in float64 in a fixed order.
+        """
         L = self.layout
         T = self.n_bins_ext
-        data = np.asarray(self.data.numpy(), dtype=np.float32).reshape(L.n_pixels, L.streams, self.n_sub, T)
-        steady = np.asarray(self.steady.numpy()).reshape(L.n_pixels, L.streams, self.n_sub).sum(
-            axis=1, dtype=np.float64) / L.spp
-        dropped = np.asarray(self.dropped.numpy(), dtype=np.uint64).reshape(L.n_pixels, L.streams, self.n_sub)
-        dropped = dropped.sum(axis=(0, 1))
-        for g in range(self.n_sub):  # one spot at a time: no float64 copy of the whole group
+        G = self.n_sub
+        data = np.asarray(self.data).reshape(L.n_pixels, L.streams, G, T)  # zero-copy view
+        lost = np.asarray(self.lost).reshape(L.n_pixels, L.streams, G).sum(axis=1, dtype=np.float64)
+        dropped = np.asarray(self.dropped).reshape(L.n_pixels, L.streams, G).sum(axis=(0, 1), dtype=np.uint64)
+        for g in range(G):  # one spot at a time: no float64 copy of the whole group
             h = data[:, :, g, :].sum(axis=1, dtype=np.float64) / L.spp
+            steady = h.sum(axis=1) + lost[:, g] / L.spp
             h = apply_kernel(h, taps) if len(taps) > 1 else h
-            total = float(steady[:, g].sum())
+            total = float(steady.sum())
             frac = 0.0 if total <= 0 else max(0.0, (total - float(h.sum())) / total)
-            yield h, steady[:, g], int(dropped[g]), frac
+            yield h, steady, int(dropped[g]), frac
+        self.data = None
 
 
 def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spot: int, progress=None):
@@ -630,11 +634,13 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
     # the laser spots of the group (array captures): one ray each, evaluated once
     group = None
     if not confocal:
-        tg = setup.spot_targets[spots]
+        # (padded to >= 2 entries: Dr.Jit treats size-1 arrays as scalars, which must not reach a kernel
+        # compiled for a gather from a real array)
+        tg = setup.spot_targets[spots + [spots[-1]] * max(0, 2 - G)]
         Lo = setup.laser_origin
         d = tg - Lo
         d = d / np.linalg.norm(d, axis=1, keepdims=True)
-        ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.full(G, Lo[i])) for i in range(3)]),
+        ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.full(len(tg), Lo[i])) for i in range(3)]),
                        mi.Vector3f(*[mi.Float(d[:, i]) for i in range(3)]))
         si_g = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
         # what a BSDF evaluation at the spot needs (gathered per connection: keep it small)
@@ -645,8 +651,7 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
     total = layout.n_pixels * spp
     for j0, j1 in layout.passes():
         rng = _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr, group)
-        hist.evaluate()
-        dr.eval(rng)
+        hist.evaluate(rng)  # one evaluation of the loop (evaluating rng separately would run it twice)
         if progress is not None:
             progress(min(total, layout.n_pixels * min(spp, j1 * K)), total)
 
@@ -695,17 +700,19 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
         if dr.hint(group is None, mode="scalar"):
             si_s, bsdf_s = spot
         else:
+            g_ok = active_nee & (b < c.n_group)
             si_s = dr.zeros(mi.SurfaceInteraction3f)
-            si_s.p = dr.gather(mi.Point3f, group[0], b)
-            si_s.n = dr.gather(mi.Normal3f, group[1], b)
-            si_s.sh_frame = mi.Frame3f(dr.gather(mi.Vector3f, group[2], b), dr.gather(mi.Vector3f, group[3], b),
-                                       dr.gather(mi.Normal3f, group[4], b))
-            si_s.uv = dr.gather(mi.Point2f, group[5], b)
-            si_s.wi = dr.gather(mi.Vector3f, group[6], b)
-            si_s.t = dr.gather(mi.Float, group[7], b)
-            si_s.shape = dr.gather(mi.ShapePtr, group[8], b)
+            si_s.p = dr.gather(mi.Point3f, group[0], b, g_ok)
+            si_s.n = dr.gather(mi.Normal3f, group[1], b, g_ok)
+            si_s.sh_frame = mi.Frame3f(dr.gather(mi.Vector3f, group[2], b, g_ok),
+                                       dr.gather(mi.Vector3f, group[3], b, g_ok),
+                                       dr.gather(mi.Normal3f, group[4], b, g_ok))
+            si_s.uv = dr.gather(mi.Point2f, group[5], b, g_ok)
+            si_s.wi = dr.gather(mi.Vector3f, group[6], b, g_ok)
+            si_s.t = dr.gather(mi.Float, group[7], b, g_ok)
+            si_s.shape = dr.gather(mi.ShapePtr, group[8], b, g_ok)
             si_s.wavelengths = si.wavelengths
-            bsdf_s = dr.gather(mi.BSDFPtr, group[9], b)
+            bsdf_s = dr.gather(mi.BSDFPtr, group[9], b, g_ok)
         spot_p = si_s.p
         to_s = spot_p - si.p
         dist_s = dr.norm(to_s)
