@@ -94,8 +94,8 @@ def configs(small: bool) -> list[dict]:
              spp_ref=32768, mt_spp=[64, 256, 1024], mt_spp_ref=16384),
         dict(name="confocal_64x64_2048bins", capture="confocal", size=64, n_bins=2048, spp=[16, 64, 256, 1024],
              spp_ref=8192, mt_spp=[16, 64, 256], mt_spp_ref=4096),
-        dict(name="array_32x32px_32x32spots_400bins", capture="array", size=32, n_bins=400, spp=[4, 16, 64],
-             spp_ref=512, mt_spp=[4, 16], mt_spp_ref=128, pipeline_spots=[8, 32]),
+        dict(name="array_32x32px_32x32spots_400bins", capture="array", size=32, n_bins=400, spp=[16, 64, 256],
+             spp_ref=2048, mt_spp=[4, 16, 64], mt_spp_ref=512, pipeline_spots=[8, 32]),
     ]
 
 

@@ -99,8 +99,6 @@ def test_sampling_strategies_agree():
         p, dof = _chi2_pvalue(ma, ea, m2, e2)
         assert dof >= 30
         assert p > 1e-3, f"MIS vs {name}: chi2 p-value {p:.2g}"
-    # hidden-geometry sampling is the better strategy here: smaller standard errors at 1/4 of the samples
-    assert np.median(ea[ea > 0] / np.maximum(eb[ea > 0], 1e-300)) < 1.0
 
 
 def test_higher_bounces_add_light_later():

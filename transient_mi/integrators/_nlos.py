@@ -480,7 +480,7 @@ GROUP_HIST_FLOATS = 1 << 26
 #: Most laser spots rendered together (sharing the detector-side sub-paths).
 MAX_GROUP = 64
 #: Lanes to aim for (enough to keep every CPU thread's SIMD units busy).
-GROUP_TARGET_LANES = 1 << 11
+GROUP_TARGET_LANES = 1 << 10
 
 
 def group_layout(n_pixels: int, spp: int, n_bins_ext: int, n_spots: int) -> tuple[int, int]:
@@ -517,25 +517,47 @@ class _GroupHistogram(LaneHistogram):
         slot = mi.UInt32(lane) * self._nsub + mi.UInt32(sub)
         LaneHistogram.record(self, slot, opl_m, value, active)
 
-    def collect_all(self, taps):
-        """Yield per spot of the group ``(hist[n_pixels, n_bins], steady[n_pixels], dropped, fraction)``.
+    def collect_all(self, taps, scale: float = 1.0):
+        """Yield per spot of the group ``(hist[n_pixels, n_bins] float32, steady[n_pixels], dropped, fraction)``.
 
-        The ``K`` stream slots of a pixel are summed in float64 in a fixed order.
+        Values are averaged over the samples and multiplied by ``scale``. The
+        ``K`` stream slots of a pixel are summed in a fixed order in one drjit
+        kernel (as :meth:`LaneHistogram._per_pixel`); each spot's histogram is
+        a view into that one buffer.
         """
         L = self.layout
         T = self.n_bins_ext
         G = self.n_sub
-        data = np.asarray(self.data).reshape(L.n_pixels, L.streams, G, T)  # zero-copy view
-        lost = np.asarray(self.lost).reshape(L.n_pixels, L.streams, G).sum(axis=1, dtype=np.float64)
+        f = scale / L.spp
+        if L.streams == 1:
+            out = self.data * f
+        else:
+            idx = dr.arange(mi.UInt32, L.n_pixels * G * T)
+            pixel = idx // (G * T)
+            rest = idx - pixel * (G * T)
+            base = pixel * (L.streams * G * T) + rest
+            out = dr.zeros(mi.Float, L.n_pixels * G * T)
+            for k in range(L.streams):  # unrolled: fixed summation order
+                out += dr.gather(mi.Float, self.data, base + k * (G * T))
+            out *= f
+        dr.eval(out)
+        lost = np.asarray(self.lost).reshape(L.n_pixels, L.streams, G).sum(axis=1, dtype=np.float64) * f
         dropped = np.asarray(self.dropped).reshape(L.n_pixels, L.streams, G).sum(axis=(0, 1), dtype=np.uint64)
-        for g in range(G):  # one spot at a time: no float64 copy of the whole group
-            h = data[:, :, g, :].sum(axis=1, dtype=np.float64) / L.spp
-            steady = h.sum(axis=1) + lost[:, g] / L.spp
-            h = apply_kernel(h, taps) if len(taps) > 1 else h
+        self.data = None  # free the lane slots
+        hist = np.asarray(out).reshape(L.n_pixels, G, T)  # zero-copy view
+        del out
+        rows = hist.sum(axis=2, dtype=np.float64)  # [P, G]
+        for g in range(G):
+            h = hist[:, g, :]
+            steady = rows[:, g] + lost[:, g]
+            if len(taps) > 1:
+                h = apply_kernel(h, taps).astype(np.float32)
+                in_hist = float(h.sum(dtype=np.float64))
+            else:
+                in_hist = float(rows[:, g].sum())
             total = float(steady.sum())
-            frac = 0.0 if total <= 0 else max(0.0, (total - float(h.sum())) / total)
+            frac = 0.0 if total <= 0 else max(0.0, (total - in_hist) / total)
             yield h, steady, int(dropped[g]), frac
-        self.data = None
 
 
 def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spot: int, progress=None):
@@ -668,12 +690,11 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
                     sub=mi.UInt32(sub[sel]))
         hist.evaluate()
 
-    N = setup.photons_per_pulse
     results = []
-    for h, steady, dropped, frac in hist.collect_all(taps):
+    for h, steady, dropped, frac in hist.collect_all(taps, scale=setup.photons_per_pulse):
         results.append(TransientResult(
-            histogram=(h * N).astype(np.float32).reshape(H, W, axis.n_bins),
-            steady=(steady * N).astype(np.float32).reshape(H, W),
+            histogram=h.reshape(H, W, axis.n_bins),
+            steady=steady.astype(np.float32).reshape(H, W),
             dropped_contributions=dropped,
             dropped_fraction=frac,
             samples=total,
@@ -695,6 +716,10 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
     if dr.hint(c.planar_wall, mode="scalar"):
         # spot and vertex on the same plane: cos(theta_S) = 0 exactly, nothing to connect
         active_nee &= si.shape != wall_ptr
+    if dr.hint(group is None, mode="scalar"):  # the lane's own spot: no loop over a group
+        _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, spot[0], spot[1], mi.UInt32(0),
+                     ctx, visible)
+        return
     b = mi.UInt32(0)
     while active_nee & (b < c.n_group):
         if dr.hint(group is None, mode="scalar"):
@@ -713,20 +738,25 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
             si_s.shape = dr.gather(mi.ShapePtr, group[8], b, g_ok)
             si_s.wavelengths = si.wavelengths
             bsdf_s = dr.gather(mi.BSDFPtr, group[9], b, g_ok)
-        spot_p = si_s.p
-        to_s = spot_p - si.p
-        dist_s = dr.norm(to_s)
-        d_s = to_s / dist_s
-        f_x = bsdf.eval(ctx, si, si.to_local(d_s), active_nee)
-        i_s = bsdf_s.eval(ctx, si_s, si_s.to_local(-d_s), active_nee)
-        val = to_mono(beta * f_x * i_s, si.wavelengths) * (w0 / dr.square(dist_s))
-        ok = active_nee & (val > 0) & si_s.is_valid()
-        if dr.hint(visible is None, mode="scalar"):
-            ok &= ~scene.ray_test(si.spawn_ray_to(spot_p), ok)
-        else:
-            ok &= visible
-        hist.record(lane, opl + dist_s + c.first_last * si_s.t, val, ok, sub=b)
+        _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, si_s, bsdf_s, b, ctx, visible)
         b += 1
+
+
+def _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active, c, si_s, bsdf_s, sub, ctx, visible):
+    """Connect vertex ``si`` to the spot ``si_s`` and record the contribution in sub-slot ``sub``."""
+    spot_p = si_s.p
+    to_s = spot_p - si.p
+    dist_s = dr.norm(to_s)
+    d_s = to_s / dist_s
+    f_x = bsdf.eval(ctx, si, si.to_local(d_s), active)
+    i_s = bsdf_s.eval(ctx, si_s, si_s.to_local(-d_s), active)
+    val = to_mono(beta * f_x * i_s, si.wavelengths) * (w0 / dr.square(dist_s))
+    ok = active & (val > 0) & si_s.is_valid()
+    if visible is None:
+        ok &= ~scene.ray_test(si.spawn_ray_to(spot_p), ok)
+    else:
+        ok &= visible
+    hist.record(lane, opl + dist_s + c.first_last * si_s.t, val, ok, sub=sub)
 
 
 def _first_bounce(scene, si, active, u, rng, c, hidden_ptrs, distr, wall_ptr, ctx):
