@@ -95,7 +95,7 @@ def configs(small: bool) -> list[dict]:
         dict(name="confocal_64x64_2048bins", capture="confocal", size=64, n_bins=2048, spp=[16, 64, 256, 1024],
              spp_ref=8192, mt_spp=[16, 64, 256], mt_spp_ref=4096),
         dict(name="array_32x32px_32x32spots_400bins", capture="array", size=32, n_bins=400, spp=[16, 64, 256],
-             spp_ref=2048, mt_spp=[4, 16, 64], mt_spp_ref=512, pipeline_spots=[8, 32]),
+             spp_ref=2048, mt_spp=[4, 16, 64], mt_spp_ref=512, pipeline_spots=[8, 16, 32]),
     ]
 
 
@@ -202,9 +202,9 @@ def ours_worker(cfg_path: str) -> None:
                "max_rss_mb": peak_rss_mb()}
         json.dump(res, open(job["result"], "w"))
         return
-    import mitsuba as mi
+    import transient_mi  # noqa: F401  (first: it points drjit at an LLVM >= 17)
 
-    import transient_mi  # noqa: F401
+    import mitsuba as mi
 
     scene = mi.load_dict(ours_scene_dict(cfg), optimize=False)
     sensor = scene.sensors()[0]

@@ -280,7 +280,7 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Pa
                 dropped_n += res.dropped_contributions
                 frac_sum += res.dropped_fraction
                 if preview_data is None:
-                    preview_data = (j, res.histogram)
+                    preview_data = (j, np.array(res.histogram))  # a copy: frees the group buffer
                 if on_spot is not None:
                     on_spot(j)
             del results
