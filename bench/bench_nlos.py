@@ -471,6 +471,35 @@ def _pipeline(cfg, tmp: Path) -> dict:
     return out
 
 
+def markdown_table(report: dict) -> str:
+    """The benchmark table (markdown) of a report produced by :func:`main`."""
+    rows = ["| Configuration | transient-mi: rel. RMSE @ spp (time) | mitransient: rel. RMSE @ spp (time) | "
+            "fitted exponent beta (ours / mitransient) | time to rel. RMSE 0.1 (ours / mitransient) | "
+            "speed-up at equal RMSE 0.2 / 0.1 / 0.05 | peak RSS (ours / mitransient) |",
+            "| --- | --- | --- | --- | --- | --- | --- |"]
+    for c in report["configs"]:
+        o, m = c["ours"], c.get("mitransient")
+
+        def runs(x):
+            return "; ".join(f"{q['rel_rmse']:.3f} @ {q['spp']} ({q.get('time_full_capture_s', q['time_s']):.3g} s)"
+                             for q in x["runs"])
+
+        if c["capture"] == "array" and c.get("ours_pipeline"):
+            rss_o = f"{max(v['peak_rss_mb'] for v in c['ours_pipeline'].values()):.0f} MB (streamed render)"
+        else:
+            rss_o = f"{o['peak_rss_mb']:.0f} MB"
+        if m is None:
+            rows.append(f"| {c['name']} | {runs(o)} | - | {o['error_model']['beta']:.2f} / - | "
+                        f"{o['time_to_rel_rmse_s']['0.1']:.3g} s / - | - | {rss_o} / - |")
+            continue
+        sp = c["speedup_time_to_equal_error"]
+        rows.append(f"| {c['name']} | {runs(o)} | {runs(m)} | {o['error_model']['beta']:.2f} / "
+                    f"{m['error_model']['beta']:.2f} | {o['time_to_rel_rmse_s']['0.1']:.3g} s / "
+                    f"{m['time_to_rel_rmse_s']['0.1']:.3g} s | {sp['0.2']:.1f}x / {sp['0.1']:.1f}x / {sp['0.05']:.1f}x | "
+                    f"{rss_o} / {m['peak_rss_mb']:.0f} MB |")
+    return "\n".join(rows)
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--small", action="store_true", help="tiny sizes (CI)")
@@ -482,8 +511,12 @@ def main(argv=None) -> dict:
                     help="transient-mi's pixel_sampling for the comparison (center = mitransient's estimand)")
     ap.add_argument("--hidden-geometry-prob", type=float, default=1.0,
                     help="transient-mi's hidden_geometry_prob (1 is unbiased on a planar relay wall)")
+    ap.add_argument("--table", default=None, metavar="JSON", help="print the markdown table of a saved report")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.table:
+        print(markdown_table(json.loads(Path(args.table).read_text())))
+        return {}
     if args.worker:
         ours_worker(args.worker)
         return {}
