@@ -111,8 +111,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from recon.units import C_M_PER_PS
-from transient_mi.integrators._lanes import LaneHistogram, LaneLayout, choose_streams, seed_rng, to_mono
+from transient_mi.integrators._lanes import LaneHistogram, LaneLayout, seed_rng, to_mono
 from transient_mi.time_axis import apply_kernel
 from transient_mi.props import PluginParameterError
 from transient_mi.wall import WallFrame, ray_plane_point
