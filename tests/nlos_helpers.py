@@ -36,7 +36,7 @@ def square(center, side, albedo, *, normal_z=-1.0, id_="target"):
 def nlos_scene(*, width=4, height=4, footprint=0.05, capture="array", spots=(1, 1), spacing=0.0,
                laser_target=(0.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), include_first_last=True,
                include_wall_return=True, max_depth=4, n_bins=256, bin_width_ps=10.0, t0_ps=0.0,
-               hidden=None, laser=LASER, detector=DETECTOR, spp=64, hidden_geometry_prob=None):
+               hidden=None, laser=LASER, detector=DETECTOR, spp=64, hidden_geometry_prob=None, pitch=None):
     """Load an NLOS scene: 1 m x 1 m relay wall at z = 0 plus ``hidden`` shapes (dicts)."""
     import mitsuba as mi
 
@@ -51,6 +51,7 @@ def nlos_scene(*, width=4, height=4, footprint=0.05, capture="array", spots=(1, 
                   "spot_spacing_m": spacing, "pulse_energy_j": PULSE_ENERGY_J, "wavelength_nm": WAVELENGTH_NM},
         "sensor": {"type": "spad_array", "origin": mi.ScalarPoint3f(*detector),
                    "target": mi.ScalarPoint3f(*target), "pixel_footprint_m": footprint,
+                   **({} if pitch is None else {"pixel_pitch_m": pitch}),
                    "aperture_diameter_m": APERTURE_DIAMETER_M, "capture": capture,
                    "include_first_last": include_first_last, "include_wall_return": include_wall_return,
                    "film": {"type": "transient_film", "width": width, "height": height, "n_bins": n_bins,

@@ -89,22 +89,33 @@ class WallFrame:
         vv, uu = np.meshgrid(v, u, indexing="ij")
         return self.to_world(uu, vv)
 
-    def grid_corners(self, nx: int, ny: int, spacing: float, shrink: float = 0.0) -> np.ndarray:
+    def grid_corners(self, nx: int, ny: int, spacing: float, shrink: float = 0.0,
+                     cell: float | None = None) -> np.ndarray:
         """Corners of every cell of the grid, pulled ``shrink`` (fraction of a cell) inwards.
 
-        Returns shape ``(ny, nx, 4, 3)``.
+        ``cell`` is the side of each square cell (default ``spacing``: cells
+        tile the grid). Returns shape ``(ny, nx, 4, 3)``.
         """
         c = self.grid(nx, ny, spacing)
-        h = 0.5 * spacing * (1.0 - 2.0 * shrink)
+        h = 0.5 * (spacing if cell is None else cell) * (1.0 - 2.0 * shrink)
         offs = np.array([[-h, -h], [h, -h], [h, h], [-h, h]])
         return c[:, :, None, :] + offs[:, 0, None] * self.ex + offs[:, 1, None] * self.ey
 
-    def cell_of(self, points, nx: int, ny: int, spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Grid cell ``(ix, iy)`` containing each point's projection, and whether it is inside the grid."""
+    def cell_of(self, points, nx: int, ny: int, spacing: float,
+                cell: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Grid cell ``(ix, iy)`` containing each point's projection, and whether it is inside one.
+
+        ``cell``: side of each square cell centred on its grid point (default
+        ``spacing``); with ``cell < spacing`` points between cells are outside.
+        """
         u, v, _ = self.to_wall(points)
         ix = np.floor(u / spacing + nx / 2.0).astype(np.int64)
         iy = np.floor(v / spacing + ny / 2.0).astype(np.int64)
         inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+        if cell is not None and cell < spacing:
+            du = u - (ix - (nx - 1) / 2.0) * spacing
+            dv = v - (iy - (ny - 1) / 2.0) * spacing
+            inside &= (np.abs(du) < 0.5 * cell) & (np.abs(dv) < 0.5 * cell)
         return ix, iy, inside
 
     def as_dict(self) -> dict:

@@ -172,6 +172,8 @@ class NLOSSetup:
         Wall frame centred on the array's ``target``.
     footprint_m : float
         Side of a pixel's square wall patch.
+    pitch_m : float
+        Distance between neighbouring patch centres (>= footprint_m).
     detector, aperture_normal : ndarray (3,)
         Detector position and the unit normal of its aperture (towards ``target``).
     aperture_area_m2 : float
@@ -193,6 +195,7 @@ class NLOSSetup:
     height: int
     frame: WallFrame
     footprint_m: float
+    pitch_m: float
     detector: np.ndarray
     aperture_normal: np.ndarray
     aperture_area_m2: float
@@ -246,6 +249,7 @@ class NLOSSetup:
         frame = sensor.frame
         D = sensor.origin
         fp = sensor.pixel_footprint_m
+        pitch = sensor.pixel_pitch_m
 
         # ---- relay wall: the shape hit at the array's target
         si_t = _intersect(scene, D[None], (sensor.target - D)[None])
@@ -274,7 +278,7 @@ class NLOSSetup:
                 "the laser must be on the hidden-space side (> 0)")
 
         # ---- patches must lie on the relay wall: test every patch corner
-        corners = frame.grid_corners(W, H, fp, shrink=1e-4).reshape(-1, 3)
+        corners = frame.grid_corners(W, H, pitch, shrink=1e-4, cell=fp).reshape(-1, 3)
         hit = _intersect(scene, np.broadcast_to(D, corners.shape), corners - D)
         on_wall = hit["valid"] & _same_shape(hit["shape"], wall)
         if not on_wall.all():
@@ -288,11 +292,11 @@ class NLOSSetup:
                     f"origin={_fmt(D)} by another shape{' (' + repr(sid) + ')' if sid else ''}; "
                     "move the detector or the occluding object")
             raise PluginParameterError(
-                f"{name}: the {W} x {H} pixel array with pixel_footprint_m={fp:g} "
-                f"({W * fp:.4g} m x {H * fp:.4g} m centred on target={_fmt(sensor.target)}) is larger than the "
-                f"relay wall: the patch of pixel (x={ix}, y={iy}) extends beyond it; "
-                "use fewer pixels or a smaller pixel_footprint_m")
-        centers_plane = frame.grid(W, H, fp).reshape(-1, 3)
+                f"{name}: the {W} x {H} pixel array with pixel_pitch_m={pitch:g} "
+                f"({(W - 1) * pitch + fp:.4g} m x {(H - 1) * pitch + fp:.4g} m centred on target="
+                f"{_fmt(sensor.target)}) is larger than the relay wall: the patch of pixel (x={ix}, y={iy}) "
+                "extends beyond it; use fewer pixels or a smaller pixel_pitch_m/pixel_footprint_m")
+        centers_plane = frame.grid(W, H, pitch).reshape(-1, 3)
         hc = _intersect(scene, np.broadcast_to(D, centers_plane.shape), centers_plane - D)
         pixel_centers = hc["p"].reshape(H, W, 3)
         pixel_normals = hc["n"].reshape(H, W, 3)
@@ -325,7 +329,7 @@ class NLOSSetup:
         hidden_area = float(sum(float(s.surface_area()[0]) for s in hidden))
 
         setup = cls(
-            capture=sensor.capture, width=W, height=H, frame=frame, footprint_m=fp, detector=D,
+            capture=sensor.capture, width=W, height=H, frame=frame, footprint_m=fp, pitch_m=pitch, detector=D,
             aperture_normal=aperture_normal,
             aperture_area_m2=math.pi * (sensor.aperture_diameter_m / 2.0) ** 2,
             aperture_diameter_m=sensor.aperture_diameter_m,
@@ -346,7 +350,7 @@ class NLOSSetup:
         n = len(S)
         D = self.detector
         ix, iy, inside = self.frame.cell_of(ray_plane_point(D, S, self.frame), self.width, self.height,
-                                            self.footprint_m)
+                                            self.pitch_m, cell=self.footprint_m)
         pixel = np.where(inside, iy * self.width + ix, -1)
         if self.capture == "confocal":  # pixel k is recorded with spot k only
             pixel = np.where(pixel == np.arange(n), pixel, -1)
@@ -387,6 +391,7 @@ class NLOSSetup:
             "wall_frame": self.frame.as_dict(),
             "wall_size_m": list(self.wall_size_m),
             "pixel_footprint_m": self.footprint_m,
+            "pixel_pitch_m": self.pitch_m,
             "aperture_diameter_m": self.aperture_diameter_m,
             "aperture_normal": self.aperture_normal.tolist(),
             "include_wall_return": self.include_wall_return,
@@ -452,8 +457,10 @@ class _Consts:
 
     D: object
     c00: object
-    step_x: object
+    step_x: object  # between patch centres (pitch)
     step_y: object
+    patch_x: object  # across one patch (footprint)
+    patch_y: object
     n_plane: object
     n_ap: object
     a_pix: object
@@ -621,13 +628,14 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
     rng = seed_rng(seed, layout.n_lanes)
 
     fr = setup.frame
-    c00 = fr.grid(W, H, setup.footprint_m)[0, 0]
+    c00 = fr.grid(W, H, setup.pitch_m)[0, 0]
     max_depth = options.get("max_depth", -1)
     alpha = float(options.get("hidden_geometry_prob", 0.8)) if setup.hidden_shapes else 0.0
     center = setup.pixel_sampling == "center"
     c = _Consts(
-        D=_opt(setup.detector), c00=_opt(c00), step_x=_ovec(fr.ex * setup.footprint_m),
-        step_y=_ovec(fr.ey * setup.footprint_m), n_plane=_ovec(fr.normal), n_ap=_ovec(setup.aperture_normal),
+        D=_opt(setup.detector), c00=_opt(c00), step_x=_ovec(fr.ex * setup.pitch_m),
+        step_y=_ovec(fr.ey * setup.pitch_m), patch_x=_ovec(fr.ex * setup.footprint_m),
+        patch_y=_ovec(fr.ey * setup.footprint_m), n_plane=_ovec(fr.normal), n_ap=_ovec(setup.aperture_normal),
         a_pix=_of(setup.footprint_m ** 2), a_ap=_of(setup.aperture_area_m2), laser_origin=_opt(setup.laser_origin),
         first_last=_of(1.0 if setup.include_first_last else 0.0),
         alpha=_of(alpha), hidden_area=_of(max(setup.hidden_area_m2, 1e-30)),
@@ -854,7 +862,7 @@ def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr
             w0 = w0_c
             opl = opl_c
         else:
-            q = centre + (u[0] - 0.5) * c.step_x + (u[1] - 0.5) * c.step_y
+            q = centre + (u[0] - 0.5) * c.patch_x + (u[1] - 0.5) * c.patch_y
             to_q = q - c.D
             dist_q = dr.norm(to_q)
             d0 = to_q / dist_q

@@ -22,8 +22,9 @@ class SpadArray(mi.Sensor):
 
     Pixel ``(x, y)`` of a ``width`` x ``height`` array (from the
     ``transient_film`` child) is focused on a square wall patch of side
-    ``pixel_footprint_m``; the patches tile a grid centred on ``target`` in
-    the wall plane, x along the wall's x axis (frame of
+    ``pixel_footprint_m``; the patch centres form a grid of spacing
+    ``pixel_pitch_m`` (default: the footprint, patches tiling the wall)
+    centred on ``target`` in the wall plane, x along the wall's x axis (frame of
     :mod:`transient_mi.wall`), pixel (0, 0) at the smallest wall
     coordinates. Each pixel integrates the light leaving its whole patch
     towards the detector's aperture. The values recorded are the expected
@@ -63,6 +64,13 @@ class SpadArray(mi.Sensor):
          - float
          - Side of the square wall patch one pixel sees, metres, > 0
            (default 0.01).
+       * - ``pixel_pitch_m``
+         - float
+         - Distance between neighbouring patch centres on the wall, metres,
+           >= ``pixel_footprint_m`` (default: the footprint, so the patches
+           tile the wall). A larger pitch spreads small patches over a large
+           wall area, as in a focused SPAD array whose pixels each see
+           1 cm^2 of a 1 m wall.
        * - ``aperture_diameter_m``
          - float
          - Diameter of the collecting lens, metres, > 0 (default 0.0254);
@@ -114,6 +122,12 @@ class SpadArray(mi.Sensor):
                 "must be on the hidden-space side (height > 0)")
         self.pixel_footprint_m = get_float(props, name, "pixel_footprint_m", DEFAULT_PIXEL_FOOTPRINT_M,
                                            min_value=0.0, min_exclusive=True)
+        self.pixel_pitch_m = get_float(props, name, "pixel_pitch_m", self.pixel_footprint_m,
+                                       min_value=0.0, min_exclusive=True)
+        if self.pixel_pitch_m < self.pixel_footprint_m * (1 - 1e-9):
+            raise PluginParameterError(
+                f"{name}: pixel_pitch_m={self.pixel_pitch_m:g} is smaller than pixel_footprint_m="
+                f"{self.pixel_footprint_m:g}; neighbouring patches would overlap (pitch must be >= footprint)")
         self.aperture_diameter_m = get_float(props, name, "aperture_diameter_m", DEFAULT_APERTURE_DIAMETER_M,
                                              min_value=0.0, min_exclusive=True)
         self.capture = get_choice(props, name, "capture", "array", ("array", "confocal"))
@@ -189,10 +203,10 @@ class SpadArray(mi.Sensor):
         """A ray from the detector to the point ``sample2`` (film coordinates in [0, 1]^2) of the array's wall area."""
         film = self.film()
         W, H = film.width, film.height
-        fp = self.pixel_footprint_m
+        pitch = self.pixel_pitch_m
         fr = self.frame
-        u = (sample2.x - 0.5) * (W * fp)
-        v = (sample2.y - 0.5) * (H * fp)
+        u = (sample2.x - 0.5) * (W * pitch)
+        v = (sample2.y - 0.5) * (H * pitch)
         o = mi.Point3f(*[float(c) for c in self.origin])
         q = mi.Point3f(*[float(c) for c in fr.origin]) + u * mi.Vector3f(*fr.ex.tolist()) + \
             v * mi.Vector3f(*fr.ey.tolist())
@@ -213,6 +227,7 @@ class SpadArray(mi.Sensor):
         f = self.film()
         return (f"SpadArray[origin={tuple(self.origin.tolist())}, target={tuple(self.target.tolist())}, "
                 f"pixels={f.width}x{f.height}, pixel_footprint_m={self.pixel_footprint_m:g}, "
+                f"pixel_pitch_m={self.pixel_pitch_m:g}, "
                 f"aperture_diameter_m={self.aperture_diameter_m:g}, capture={self.capture}, "
                 f"include_first_last={self.include_first_last}, include_wall_return={self.include_wall_return}, "
                 f"pixel_sampling={self.pixel_sampling}]")
