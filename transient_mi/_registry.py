@@ -1,7 +1,9 @@
 """Discovery and registration of transient-mi's Mitsuba plug-ins.
 
-Every module in the sub-packages ``films``, ``integrators``, ``sensors`` and
-``emitters`` that defines ``PLUGIN = (kind, name, class_name)`` is a plug-in.
+Every module in the sub-packages ``films``, ``integrators``, ``sensors``,
+``emitters`` and ``shapes`` that defines ``PLUGIN = (kind, name, class_name)``
+is a plug-in (``class_name`` may also name a factory function taking the
+``mi.Properties``).
 Plug-in classes derive from variant-specific Mitsuba base classes
 (``mi.Film`` of the active variant, ...), so on a variant change every module
 of those sub-packages is dropped from ``sys.modules`` and imported afresh
@@ -19,12 +21,13 @@ import sys
 
 import mitsuba as mi
 
-_SUBPACKAGES = ("films", "sensors", "emitters", "integrators")
+_SUBPACKAGES = ("films", "sensors", "emitters", "integrators", "shapes")
 _REGISTER = {
     "film": "register_film",
     "sensor": "register_sensor",
     "emitter": "register_emitter",
     "integrator": "register_integrator",
+    "shape": "register_shape",
 }
 _registered: dict[str, tuple[str, str]] = {}
 

@@ -1,0 +1,1 @@
+"""transient-mi shapes."""
