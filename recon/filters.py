@@ -38,12 +38,15 @@ _THRESHOLD_HELP = "allowed: none, otsu, rel:F (0 < F <= 1), abs:V (V >= 0)"
 
 
 def negative_laplacian_of_gaussian(raw: np.ndarray, grid: VoxelGrid, sigma_m: float | None = None) -> np.ndarray:
-    """``-Laplacian(G_sigma * raw)`` in 1/m^2 (voxel sizes from ``grid``), float32.
+    """``-Laplacian(G_sigma * raw)`` in units of ``raw`` per m^2, float32.
 
-    ``sigma_m`` is the Gaussian's standard deviation in metres (default: one
-    voxel along each axis).
+    The Gaussian (standard deviation ``sigma_m`` metres; default one voxel
+    along each axis) is applied first, then the Laplacian as the sum over
+    axes of the central second difference ``(f[i-1] - 2 f[i] + f[i+1]) / d^2``
+    with the voxel size ``d`` of that axis (exact for quadratics). Borders
+    repeat the edge voxel. Axes with fewer than 3 voxels contribute nothing.
     """
-    from scipy.ndimage import gaussian_filter
+    from scipy.ndimage import correlate1d, gaussian_filter
 
     vs = np.array([grid.voxel_size_m[2], grid.voxel_size_m[1], grid.voxel_size_m[0]])  # z, y, x
     vs = np.where(np.isfinite(vs), vs, 1.0)
@@ -53,15 +56,15 @@ def negative_laplacian_of_gaussian(raw: np.ndarray, grid: VoxelGrid, sigma_m: fl
         if not (isinstance(sigma_m, (int, float)) and math.isfinite(sigma_m) and sigma_m > 0):
             raise UserInputError(f"sigma_m={sigma_m!r} must be a positive number (metres)")
         sig = sigma_m / vs
-    a = np.asarray(raw, dtype=np.float32)
-    out = np.zeros(a.shape, dtype=np.float32)
+    a = np.asarray(raw, dtype=np.float64)
+    sig = np.where(np.array(a.shape) >= 3, sig, 0.0)
+    smooth = gaussian_filter(a, sig, mode="nearest", truncate=4.0)
+    out = np.zeros(a.shape, dtype=np.float64)
     for axis in range(3):
         if a.shape[axis] < 3:
-            continue  # no curvature along a (nearly) flat axis
-        order = [0, 0, 0]
-        order[axis] = 2
-        out -= gaussian_filter(a, sig, order=order, mode="nearest", truncate=4.0) / np.float32(vs[axis] ** 2)
-    return out
+            continue
+        out -= correlate1d(smooth, [1.0, -2.0, 1.0], axis=axis, mode="nearest") / vs[axis] ** 2
+    return out.astype(np.float32)
 
 
 def parse_threshold(spec) -> tuple[str, float | None]:

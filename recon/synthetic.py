@@ -207,7 +207,10 @@ def to_counts(capture: Capture, n_pulses: int, seed: int, detector: dict | None 
     if not n_pulses > 0:
         raise UserInputError(f"n_pulses={n_pulses!r} must be > 0")
     rng = np.random.default_rng(seed)
-    counts = rng.poisson(capture.data.astype(np.float64) * n_pulses).astype(np.uint32)
+    lam = capture.data.astype(np.float64) * n_pulses
+    if lam.size and lam.max() > 2 ** 31:
+        raise UserInputError(f"n_pulses={n_pulses!r}: expected counts up to {lam.max():.3g} overflow uint32 counts")
+    counts = rng.poisson(lam).astype(np.uint32)
     det = {"model": "poisson", "pulses": int(n_pulses), "seed": int(seed)}
     det.update(detector or {})
     m = capture.manifest

@@ -21,7 +21,7 @@ def _captures():
         "confocal": point_capture(POINT, mode="confocal", pixels=(4, 5), sigma_ps=15, include_first_last=True),
         "exhaustive": point_capture(POINT, mode="array", pixels=(4, 5), spots=spots, spot_grid=(2, 3), sigma_ps=15),
         "single": point_capture(POINT, mode="array", pixels=(3, 2), sigma_ps=15, bin_width_ps=7.3),
-        "counts": to_counts(point_capture(POINT, mode="array", pixels=(3, 2), sigma_ps=15), 10 ** 12, seed=1),
+        "counts": to_counts(point_capture(POINT, mode="array", pixels=(3, 2), sigma_ps=15), 10 ** 8, seed=1),
     }
 
 
@@ -39,6 +39,10 @@ def test_round_trip_exact(tmp_path, name):
     for attr in ("mode", "kind", "t0_ps", "bin_width_ps", "n_bins", "include_first_last", "n_files", "spot_grid"):
         assert getattr(c2, attr) == getattr(c1, attr), attr
     assert c2.manifest == c1.manifest
+    if name == "counts":  # counts above 2^24 are not exact in float32: stored as float64
+        assert c1.data.max() >= 2 ** 24
+        with h5py.File(tmp_path / "x.h5") as f:
+            assert f["H"].dtype == np.float64
     # and back to a stack: same bytes of data
     stack.write_stack(tmp_path / "stack2", c2.manifest, c2.data)
     np.testing.assert_array_equal(stack.read_stack(tmp_path / "stack2")[1], cap.data)
