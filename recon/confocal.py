@@ -110,19 +110,29 @@ def _to_voxels(vol: np.ndarray, z_samples: np.ndarray, wall, grid: VoxelGrid, z_
 # ----------------------------------------------------------------------------- LCT
 
 
-def _lct_psf(n_v: int, ny: int, nx: int, spacing2_over_dv: float) -> np.ndarray:
-    """The kernel ``delta(dv - (dx^2 + dy^2))`` on the padded grid ``(2 n_v, 2 ny, 2 nx)``, float32.
+def _padded(n: int) -> int:
+    """A fast FFT length of at least ``2 n`` (zero padding against wrap-around)."""
+    import scipy.fft as sfft
+
+    return sfft.next_fast_len(2 * n, real=True)
+
+
+def _lct_psf(shape: tuple[int, int, int], spacing2_over_dv: float, n_v: int) -> np.ndarray:
+    """The kernel ``delta(dv - (dx^2 + dy^2))`` on the padded grid ``shape = (Lv, Ly, Lx)``, float32.
 
     Lateral offsets wrap around (negative offsets at the end); each offset's
     unit weight is split linearly between the two nearest ``v`` samples.
+    Offsets ``dv >= n_v`` are left out: in the linear convolution they only
+    reach outputs beyond the ``n_v`` kept samples (and would wrap around).
     """
-    psf = np.zeros((2 * n_v, 2 * ny, 2 * nx), dtype=np.float32)
-    oy = np.fft.fftfreq(2 * ny, 1.0 / (2 * ny))  # integer offsets with wrap
-    ox = np.fft.fftfreq(2 * nx, 1.0 / (2 * nx))
+    Lv, Ly, Lx = shape
+    psf = np.zeros(shape, dtype=np.float32)
+    oy = np.fft.fftfreq(Ly, 1.0 / Ly)  # integer offsets with wrap
+    ox = np.fft.fftfreq(Lx, 1.0 / Lx)
     s = (oy[:, None] ** 2 + ox[None, :] ** 2) * spacing2_over_dv  # in v samples
     i0 = np.floor(s).astype(np.int64)
     f = (s - i0).astype(np.float32)
-    Y, X = np.nonzero(i0 < 2 * n_v - 1)
+    Y, X = np.nonzero(i0 < n_v - 1)
     np.add.at(psf, (i0[Y, X], Y, X), 1 - f[Y, X])
     np.add.at(psf, (i0[Y, X] + 1, Y, X), f[Y, X])
     return psf
@@ -161,10 +171,11 @@ def lct(capture, grid: VoxelGrid, snr: float = LCT_DEFAULT_SNR) -> Reconstructio
     i1 = np.clip(i0 + 1, 0, M - 1)
     f = np.clip(pos - np.floor(pos), 0, 1).astype(np.float32)
     f[pos < 0] = 0
-    data = np.zeros((2 * n_v, 2 * ny, 2 * nx), dtype=np.float32)
+    shape = (_padded(n_v), _padded(ny), _padded(nx))
+    data = np.zeros(shape, dtype=np.float32)
     data[:n_v, :ny, :nx] = ((1 - f)[:, None, None] * tau[i0] + f[:, None, None] * tau[i1]) \
         * (v ** 1.5).astype(np.float32)[:, None, None]
-    psf = _lct_psf(n_v, ny, nx, wall.dx_m ** 2 / dv)
+    psf = _lct_psf(shape, wall.dx_m ** 2 / dv, n_v)
     w = _workers()
     K = sfft.rfftn(psf, workers=w)
     del psf
@@ -173,7 +184,7 @@ def lct(capture, grid: VoxelGrid, snr: float = LCT_DEFAULT_SNR) -> Reconstructio
     del data
     D *= np.conj(K) / (np.abs(K) ** 2 + np.float32(1.0 / snr))
     del K
-    R = sfft.irfftn(D, s=(2 * n_v, 2 * ny, 2 * nx), workers=w)[:n_v, :ny, :nx]
+    R = sfft.irfftn(D, s=shape, workers=w)[:n_v, :ny, :nx]
     del D
     rho = (R * np.sqrt(v).astype(np.float32)[:, None, None]).astype(np.float32)
     raw = _to_voxels(rho, v, wall, grid, z_is_u=True)
@@ -199,15 +210,17 @@ def fk_migration(capture, grid: VoxelGrid) -> Reconstruction:
     tau, dr, wall = confocal_time_volume(capture, grid, "fk")
     M, ny, nx = tau.shape
     r = ((np.arange(M) + 0.5) * dr).astype(np.float32)
-    psi = np.zeros((2 * M, 2 * ny, 2 * nx), dtype=np.float32)
+    Lr = 2 * sfft.next_fast_len(M)   # even: the real transform along r has Lr/2 + 1 rows
+    Ly, Lx = sfft.next_fast_len(2 * ny), sfft.next_fast_len(2 * nx)
+    psi = np.zeros((Lr, Ly, Lx), dtype=np.float32)
     psi[:M, :ny, :nx] = np.sqrt(np.maximum(tau, 0)) * r[:, None, None]
     w = _workers()
-    S = sfft.rfftn(psi, axes=(1, 2, 0), workers=w)  # real transform along r (axis 0): (M+1, 2ny, 2nx)
+    S = sfft.rfftn(psi, axes=(1, 2, 0), workers=w)  # real transform along r (axis 0): (Lr/2 + 1, Ly, Lx)
     del psi
-    dk = 1.0 / (2 * M * dr)          # cycles per metre along r and z
-    ky = sfft.fftfreq(2 * ny, wall.dy_m)
-    kx = sfft.fftfreq(2 * nx, wall.dx_m)
-    out = np.zeros((2 * M, 2 * ny, 2 * nx), dtype=np.complex64)
+    dk = 1.0 / (Lr * dr)             # cycles per metre along r and z
+    ky = sfft.fftfreq(Ly, wall.dy_m)
+    kx = sfft.fftfreq(Lx, wall.dx_m)
+    out = np.zeros((Lr, Ly, Lx), dtype=np.complex64)
     _kernels.stolt(S, ky, kx, dk, out)
     del S
     rho = sfft.ifftn(out, workers=w, overwrite_x=True)[:M, :ny, :nx]

@@ -61,7 +61,8 @@ def resample_time_axis(capture: Capture, t0_ps: float, n_bins: int | None = None
     # new index of old bin b: b + (t0_old - off - t0_new) / w
     shifts = [(capture.t0_ps - o - t0_ps) / w for o in offs_ps]
     if n_bins is None:
-        n_bins = int(math.ceil(max(float(s.max()) for s in shifts) + capture.n_bins)) + 1
+        # bin T-1 shifted by s ends in bin ceil(T - 1 + s) (or floor(T - 1 + s) for whole shifts)
+        n_bins = int(math.ceil(max(float(s.max()) for s in shifts) + capture.n_bins - 1e-9))
     if n_bins < 1:
         raise UserInputError(f"the resampled time axis from {t0_ps:g} ps would hold no bin of this capture")
 
