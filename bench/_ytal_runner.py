@@ -25,8 +25,8 @@ def main() -> None:
     from tal.enums import CameraSystem, VolumeFormat
 
     tal.set_log_level(tal.LogLevel.WARNING)
-    if spec.get("cpu_processes", 1) > 1:
-        tal.set_resources(cpu_processes=spec["cpu_processes"])
+    if spec.get("cpu_processes", 1) > 1 or spec.get("downscale"):
+        tal.set_resources(cpu_processes=spec.get("cpu_processes", 1), downscale=spec.get("downscale"))
     data = tal.io.read_capture(h5)
     x, y, z = (np.asarray(spec[k], dtype=np.float32) for k in ("x_m", "y_m", "z_m"))
     V = np.stack(np.meshgrid(x, y, z, indexing="ij"), axis=-1)          # (X, Y, Z, 3)
@@ -37,9 +37,11 @@ def main() -> None:
         vol = tal.reconstruct.bp.solve(data, volume_xyz=V, volume_format=VolumeFormat.X_Y_Z_3,
                                        camera_system=CameraSystem.DIRECT_LIGHT, progress=False)
     elif method == "phasor":
+        # nt must be given explicitly in 0.20.0 (its default None is used in arithmetic)
         vol = tal.reconstruct.pf_dev.solve(data, wl_mean=spec["wavelength_m"], wl_sigma=spec["pulse_sigma_m"],
                                            volume_xyz=V, volume_format=VolumeFormat.X_Y_Z_3,
-                                           camera_system=CameraSystem.DIRECT_LIGHT, progress=False)
+                                           camera_system=CameraSystem.DIRECT_LIGHT, progress=False,
+                                           nt=data.H.shape[0])
     elif method == "fk":
         vol = tal.reconstruct.fk.solve(data)
     elif method == "lct":

@@ -23,9 +23,11 @@ child's peak resident set (Python, numpy, scipy, numba included);
 
 ``--with-ytal`` also runs y-tal 0.20.0 (GPL; installed on demand in its own
 virtual environment, default ``~/.cache/transient-mi-bench/ytal``) on the same
-HDF5 file and the same voxel centres, with ``tal.set_resources(cpu_processes=2)``
-and an address-space limit (``--ytal-memory-gb``) so that it fails instead of
-swapping. y-tal's f-k reconstructs on its own grid; y-tal 0.20.0 has no LCT.
+HDF5 file and the same voxel centres, with
+``tal.set_resources(cpu_processes=2, downscale=16)`` (y-tal's knob to process
+the data in chunks and bound its memory; ``--ytal-downscale``) and an
+address-space limit (``--ytal-memory-gb``, default 14) so that it fails
+instead of swapping. y-tal's f-k reconstructs on its own grid; y-tal 0.20.0 has no LCT.
 
 Prints one JSON document on stdout.
 """
@@ -154,7 +156,7 @@ def ensure_ytal(venv: Path) -> Path:
 
 
 def run_ytal(py: Path, case: str, h5: Path, n: int, pitch: float, bin_m: float, tmp: Path, timeout: int,
-             memory_gb: float) -> dict:
+             memory_gb: float, downscale: int) -> dict:
     import numpy as np
 
     sys.path.insert(0, str(ROOT))
@@ -164,7 +166,7 @@ def run_ytal(py: Path, case: str, h5: Path, n: int, pitch: float, bin_m: float, 
     grid = VoxelGrid.from_bounds(BOUNDS, voxels=n)
     lam = max(4 * pitch, 4 * bin_m)
     spec = {"method": CASES[case][1], "x_m": grid.x_m.tolist(), "y_m": grid.y_m.tolist(), "z_m": grid.z_m.tolist(),
-            "wavelength_m": lam, "pulse_sigma_m": lam, "cpu_processes": 2}
+            "wavelength_m": lam, "pulse_sigma_m": lam, "cpu_processes": 2, "downscale": downscale}
     sp = tmp / f"{case}.json"
     sp.write_text(json.dumps(spec))
     limit = int(memory_gb * 2 ** 30)
@@ -192,7 +194,10 @@ def main(argv=None) -> int:
     ap.add_argument("--small", action="store_true", help="tiny sizes (CI)")
     ap.add_argument("--with-ytal", action="store_true", help="also run y-tal 0.20.0 (own virtual environment)")
     ap.add_argument("--ytal-venv", type=Path, default=YTAL_VENV)
-    ap.add_argument("--ytal-memory-gb", type=float, default=20.0)
+    ap.add_argument("--ytal-memory-gb", type=float, default=14.0,
+                    help="address-space limit of the y-tal process (GB)")
+    ap.add_argument("--ytal-downscale", type=int, default=16,
+                    help="y-tal's tal.set_resources(downscale=...): process the data in this many chunks")
     ap.add_argument("--cases", default=",".join(CASES), help="comma-separated subset of " + ",".join(CASES))
     ap.add_argument("--timeout", type=int, default=1800, help="seconds per case and implementation")
     ap.add_argument("--child", help=argparse.SUPPRESS)
@@ -239,7 +244,7 @@ def main(argv=None) -> int:
 
                 bin_ps = s["bin_ps"] if cap_name == "single" else s["conf_bin_ps"]
                 row["ytal"] = run_ytal(ytal_py, case, h5, n, inputs["pitch"][cap_name], bin_ps * C_M_PER_PS, tmp,
-                                       a.timeout, a.ytal_memory_gb)
+                                       a.timeout, a.ytal_memory_gb, a.ytal_downscale)
                 y, o = row["ytal"], row["ours"]
                 if y.get("status") == "ok" and o.get("status") == "ok":
                     row["speedup"] = y["time_s"] / o["time_s"]

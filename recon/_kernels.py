@@ -54,12 +54,10 @@ def bp_one_spot(hist, ck, dxp, dyp, dzp, dxs, dys, dzs, inv_w, out):  # pragma: 
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def bp_paired(hist, ck, dxp, dyp, dzp, dxs, dys, dzs, same, inv_w, out):  # pragma: no cover - compiled
-    """Accumulate paired (spot k, pixel k) histograms into ``out`` (confocal captures).
+def bp_confocal(hist, ck, dxp, dyp, dzp, inv_w, out):  # pragma: no cover - compiled
+    """Accumulate confocal histograms (spot k = pixel k's patch) into ``out``: the path is ``2 |v - P_k|``.
 
-    As :func:`bp_one_spot` but the spot tables are per pair: ``dxs`` (K, nx),
-    ``dys`` (K, ny), ``dzs`` (K, nz). With ``same`` the spot of pair k is its
-    pixel's patch and the path is twice the pixel distance.
+    Arguments as :func:`bp_one_spot` without the spot tables.
     """
     K, T = hist.shape
     nz, ny, nx = out.shape
@@ -71,18 +69,37 @@ def bp_paired(hist, ck, dxp, dyp, dzp, dxs, dys, dzs, same, inv_w, out):  # prag
         for k in range(K):
             dyz = dyp[k, iy] + dzp[k, iz]
             c = ck[k]
-            if same:
-                for ix in range(nx):
-                    d = math.sqrt(dxp[k, ix] + dyz)
-                    r = (d + d + c) * inv_w
-                    if r >= 0.0 and r < Tf:
-                        acc[ix] += hist[k, int(r)]
-            else:
-                syz = dys[k, iy] + dzs[k, iz]
-                for ix in range(nx):
-                    r = (math.sqrt(dxs[k, ix] + syz) + math.sqrt(dxp[k, ix] + dyz) + c) * inv_w
-                    if r >= 0.0 and r < Tf:
-                        acc[ix] += hist[k, int(r)]
+            for ix in range(nx):
+                d = math.sqrt(dxp[k, ix] + dyz)
+                r = (d + d + c) * inv_w
+                if r >= 0.0 and r < Tf:
+                    acc[ix] += hist[k, int(r)]
+        for ix in range(nx):
+            out[iz, iy, ix] += acc[ix]
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def bp_paired(hist, ck, dxp, dyp, dzp, dxs, dys, dzs, inv_w, out):  # pragma: no cover - compiled
+    """Accumulate paired (spot k, pixel k) histograms into ``out`` when spot k is not pixel k's patch.
+
+    As :func:`bp_one_spot` but the spot tables are per pair: ``dxs`` (K, nx),
+    ``dys`` (K, ny), ``dzs`` (K, nz).
+    """
+    K, T = hist.shape
+    nz, ny, nx = out.shape
+    Tf = float(T)
+    for row in prange(nz * ny):
+        iz = row // ny
+        iy = row - iz * ny
+        acc = np.zeros(nx, dtype=out.dtype)
+        for k in range(K):
+            dyz = dyp[k, iy] + dzp[k, iz]
+            syz = dys[k, iy] + dzs[k, iz]
+            c = ck[k]
+            for ix in range(nx):
+                r = (math.sqrt(dxs[k, ix] + syz) + math.sqrt(dxp[k, ix] + dyz) + c) * inv_w
+                if r >= 0.0 and r < Tf:
+                    acc[ix] += hist[k, int(r)]
         for ix in range(nx):
             out[iz, iy, ix] += acc[ix]
 

@@ -38,6 +38,8 @@ __all__ = ["backprojection", "filtered_backprojection", "backproject", "fbp_time
 
 #: Bytes of per-pixel distance tables per chunk of pixels.
 _TABLE_BYTES = 64 * 2 ** 20
+#: Voxel-pair updates per kernel call (about a second on one core): the progress bar's tick.
+_SLAB_WORK = 2e9
 
 
 def _tables(points: np.ndarray, grid: VoxelGrid):
@@ -75,14 +77,19 @@ def backproject(capture, grid: VoxelGrid, transform: Callable[[int, np.ndarray],
     K = H * W
     hdtype = np.complex64 if complex_values else np.float32
     out = np.zeros(grid.shape, dtype=np.complex128 if complex_values else np.float64)
+    nz = grid.shape[0]
     inv_w = 1.0 / capture.bin_width_m
     t0c = capture.t0_m
     per_pixel = 8 * (len(grid.x_m) + len(grid.y_m) + len(grid.z_m))
     paired = capture.mode == "confocal"
     chunk = max(1, _TABLE_BYTES // (per_pixel * (2 if paired else 1)))
+    n_chunks = math.ceil(K / chunk)
+    # z slabs: progress ticks of about _SLAB_WORK voxel-pair updates each
+    n_slabs = int(min(nz, max(1, round(min(K, chunk) * out.size / _SLAB_WORK))))
+    slabs = np.linspace(0, nz, n_slabs + 1).round().astype(int)
     P = capture.pixel_centers.reshape(K, 3)
-    with progress_bar(description, capture.n_files * math.ceil(K / chunk)) as advance:
-        pix_tables = _tables(P, grid) if (K <= chunk and not paired) else None
+    with progress_bar(description, capture.n_files * n_chunks * n_slabs) as advance:
+        pix_tables = _tables(P, grid) if (n_chunks == 1) else None
         for j in range(capture.n_files):
             hist = capture.spot(j)
             if transform is not None:
@@ -99,12 +106,18 @@ def backproject(capture, grid: VoxelGrid, transform: Callable[[int, np.ndarray],
                 h = np.ascontiguousarray(hist[sl], dtype=hdtype)
                 c = np.ascontiguousarray(ck[sl], dtype=np.float64)
                 dxp, dyp, dzp = pix_tables if pix_tables is not None else _tables(P[sl], grid)
-                if paired:
-                    sx, sy, sz = (dxp, dyp, dzp) if same else _tables(S[sl], grid)
-                    _kernels.bp_paired(h, c, dxp, dyp, dzp, sx, sy, sz, same, inv_w, out)
-                else:
-                    _kernels.bp_one_spot(h, c, dxp, dyp, dzp, dxs, dys, dzs, inv_w, out)
-                advance(1)
+                if paired and not same:
+                    sx, sy, sz = _tables(S[sl], grid)
+                for z0, z1 in zip(slabs[:-1], slabs[1:]):
+                    o = out[z0:z1]
+                    dzp_s = np.ascontiguousarray(dzp[:, z0:z1])
+                    if paired and same:
+                        _kernels.bp_confocal(h, c, dxp, dyp, dzp_s, inv_w, o)
+                    elif paired:
+                        _kernels.bp_paired(h, c, dxp, dyp, dzp_s, sx, sy, np.ascontiguousarray(sz[:, z0:z1]), inv_w, o)
+                    else:
+                        _kernels.bp_one_spot(h, c, dxp, dyp, dzp_s, dxs, dys, dzs[z0:z1], inv_w, o)
+                    advance(1)
     return out
 
 
