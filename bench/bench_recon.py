@@ -157,14 +157,11 @@ def ensure_ytal(venv: Path) -> Path:
 
 def run_ytal(py: Path, case: str, h5: Path, n: int, pitch: float, bin_m: float, tmp: Path, timeout: int,
              memory_gb: float, downscale: int) -> dict:
-    import numpy as np
-
     sys.path.insert(0, str(ROOT))
     from recon.grid import VoxelGrid
-    from recon.phasor import default_wavelength_m  # noqa: F401 (documents the choice below)
 
     grid = VoxelGrid.from_bounds(BOUNDS, voxels=n)
-    lam = max(4 * pitch, 4 * bin_m)
+    lam = max(4 * pitch, 4 * bin_m)   # recon.phasor.default_wavelength_m: the same virtual wave for both
     spec = {"method": CASES[case][1], "x_m": grid.x_m.tolist(), "y_m": grid.y_m.tolist(), "z_m": grid.z_m.tolist(),
             "wavelength_m": lam, "pulse_sigma_m": lam, "cpu_processes": 2, "downscale": downscale}
     sp = tmp / f"{case}.json"

@@ -161,25 +161,43 @@ def stolt(S, ky, kx, dk, out):  # pragma: no cover - compiled
     S : (M+1, NY, NX) complex64, spectrum of the wall field, real FFT along r
         (sample i at k_r = i * dk cycles/m), full FFT along y, x.
     ky, kx : (NY,), (NX,) lateral frequencies (cycles/m).
-    out : (2M, NY, NX) complex64, zeroed; filled for kz = i * dk, i = 1..M, with
-        ``S(ky, kx, k) * kz / k``, ``k = sqrt(kx^2 + ky^2 + kz^2)`` (linear in k).
+    out : (M+1, NY, NX) complex64, zeroed; row i is kz = i * dk, filled for
+        i = 1..M with ``S(k, ky, kx) * kz / k``, ``k = sqrt(kx^2 + ky^2 + kz^2)``
+        (linear interpolation in k).
     """
     M1, NY, NX = S.shape
     M = M1 - 1
-    for iyx in prange(NY * NX):
-        y = iyx // NX
-        x = iyx - y * NX
-        kl2 = ky[y] * ky[y] + kx[x] * kx[x]
-        for i in range(1, M + 1):
-            kz = i * dk
-            k = math.sqrt(kl2 + kz * kz)
-            p = k / dk
-            j = int(p)
-            if j >= M:
-                continue
-            f = p - j
-            v = S[j, y, x] * (1.0 - f) + S[j + 1, y, x] * f
-            out[i, y, x] = v * (kz / k)
+    for i in prange(1, M + 1):
+        kz = i * dk
+        for y in range(NY):
+            kyz2 = ky[y] * ky[y] + kz * kz
+            for x in range(NX):
+                k = math.sqrt(kyz2 + kx[x] * kx[x])
+                p = k / dk
+                j = int(p)
+                if j >= M:
+                    continue
+                f = p - j
+                out[i, y, x] = (S[j, y, x] * (1.0 - f) + S[j + 1, y, x] * f) * (kz / k)
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def wiener_apply(D, K, inv_snr):  # pragma: no cover - compiled
+    """In place ``D <- D conj(K') / (|K'|^2 + inv_snr)`` with ``K' = K / max|K|`` (complex64 arrays, same shape)."""
+    Kf = K.ravel()
+    Df = D.ravel()
+    n = Kf.shape[0]
+    m2 = 0.0
+    for i in range(n):
+        a = Kf[i].real * Kf[i].real + Kf[i].imag * Kf[i].imag
+        if a > m2:
+            m2 = a
+    m = math.sqrt(m2)
+    reg = inv_snr * m2
+    for i in prange(n):
+        k = Kf[i]
+        p = k.real * k.real + k.imag * k.imag
+        Df[i] = Df[i] * (k.conjugate() * (m / (p + reg)))
 
 
 @njit(cache=True, nogil=True)

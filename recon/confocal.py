@@ -171,21 +171,28 @@ def lct(capture, grid: VoxelGrid, snr: float = LCT_DEFAULT_SNR) -> Reconstructio
     i1 = np.clip(i0 + 1, 0, M - 1)
     f = np.clip(pos - np.floor(pos), 0, 1).astype(np.float32)
     f[pos < 0] = 0
+    from . import _kernels
+
     shape = (_padded(n_v), _padded(ny), _padded(nx))
-    data = np.zeros(shape, dtype=np.float32)
-    data[:n_v, :ny, :nx] = ((1 - f)[:, None, None] * tau[i0] + f[:, None, None] * tau[i1]) \
+    Lv, Ly, Lx = shape
+    data = ((1 - f)[:, None, None] * tau[i0] + f[:, None, None] * tau[i1]) \
         * (v ** 1.5).astype(np.float32)[:, None, None]
-    psf = _lct_psf(shape, wall.dx_m ** 2 / dv, n_v)
     w = _workers()
-    K = sfft.rfftn(psf, workers=w)
-    del psf
-    K /= np.abs(K).max()
-    D = sfft.rfftn(data, workers=w)
+    # Pruned FFTs: the data fill only [:n_v, :ny, :nx] of the padded grid and the kernel only [:n_v],
+    # so transform the small axes first and pad as each axis is transformed.
+    D = sfft.fft(sfft.fft(sfft.rfft(data, n=Lx, axis=2, workers=w), n=Ly, axis=1, workers=w, overwrite_x=True),
+                 n=Lv, axis=0, workers=w, overwrite_x=True)
     del data
-    D *= np.conj(K) / (np.abs(K) ** 2 + np.float32(1.0 / snr))
+    psf = _lct_psf((n_v, Ly, Lx), wall.dx_m ** 2 / dv, n_v)
+    K = sfft.fft(sfft.fft(sfft.rfft(psf, axis=2, workers=w), axis=1, workers=w, overwrite_x=True),
+                 n=Lv, axis=0, workers=w, overwrite_x=True)
+    del psf
+    _kernels.wiener_apply(D, K, 1.0 / snr)                      # D <- D conj(K') / (|K'|^2 + 1/snr), K' = K / max|K|
     del K
-    R = sfft.irfftn(D, s=shape, workers=w)[:n_v, :ny, :nx]
+    R = sfft.ifft(D, axis=0, workers=w, overwrite_x=True)[:n_v]
     del D
+    R = sfft.ifft(R, axis=1, workers=w)[:, :ny]
+    R = sfft.irfft(R, n=Lx, axis=2, workers=w)[:, :, :nx]
     rho = (R * np.sqrt(v).astype(np.float32)[:, None, None]).astype(np.float32)
     raw = _to_voxels(rho, v, wall, grid, z_is_u=True)
     return Reconstruction(raw=raw, grid=grid, method="lct",
@@ -212,18 +219,22 @@ def fk_migration(capture, grid: VoxelGrid) -> Reconstruction:
     r = ((np.arange(M) + 0.5) * dr).astype(np.float32)
     Lr = 2 * sfft.next_fast_len(M)   # even: the real transform along r has Lr/2 + 1 rows
     Ly, Lx = sfft.next_fast_len(2 * ny), sfft.next_fast_len(2 * nx)
-    psi = np.zeros((Lr, Ly, Lx), dtype=np.float32)
-    psi[:M, :ny, :nx] = np.sqrt(np.maximum(tau, 0)) * r[:, None, None]
+    psi = np.sqrt(np.maximum(tau, 0)) * r[:, None, None]
     w = _workers()
-    S = sfft.rfftn(psi, axes=(1, 2, 0), workers=w)  # real transform along r (axis 0): (Lr/2 + 1, Ly, Lx)
+    # pruned FFTs (zero padding applied axis by axis): real transform along r, then y and x
+    S = sfft.rfft(psi, n=Lr, axis=0, workers=w)                        # (Lr/2 + 1, ny, nx)
     del psi
+    S = sfft.fft(sfft.fft(S, n=Ly, axis=1, workers=w, overwrite_x=True), n=Lx, axis=2, workers=w,
+                 overwrite_x=True)
     dk = 1.0 / (Lr * dr)             # cycles per metre along r and z
     ky = sfft.fftfreq(Ly, wall.dy_m)
     kx = sfft.fftfreq(Lx, wall.dx_m)
-    out = np.zeros((Lr, Ly, Lx), dtype=np.complex64)
+    out = np.zeros(S.shape, dtype=np.complex64)                        # kz = i dk >= 0 only
     _kernels.stolt(S, ky, kx, dk, out)
     del S
-    rho = sfft.ifftn(out, workers=w, overwrite_x=True)[:M, :ny, :nx]
+    rho = sfft.ifft(out, axis=2, workers=w, overwrite_x=True)[:, :, :nx]
+    rho = sfft.ifft(rho, axis=1, workers=w)[:, :ny]
+    rho = sfft.ifft(rho, n=Lr, axis=0, workers=w)[:M]
     raw = (rho.real ** 2 + rho.imag ** 2).astype(np.float32)
     z = (np.arange(M) + 0.5) * dr
     vol = _to_voxels(raw, z, wall, grid)

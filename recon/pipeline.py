@@ -2,11 +2,8 @@
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
-
-import numpy as np
 
 from .capture import Capture, load_capture
 from .errors import UserInputError
