@@ -16,7 +16,8 @@ bp64_confocal         same confocal capture -> 64^3                           (y
 Every case runs in a fresh child process that reads the capture from the
 same y-tal HDF5 file (written once with :func:`recon.io.ytal.write_ytal`), so
 peak RSS (``ru_maxrss``) is per case. ``time_s`` times the reconstruction
-call only, after one warm-up call on a tiny capture (numba kernels loaded);
+call only (the fastest of ``--repeat`` calls, default 3), after one warm-up
+call on a tiny capture (numba kernels loaded);
 ``first_call_s`` is that warm-up (JIT compile or cache load). Memory is the
 child's peak resident set (Python, numpy, scipy, numba included);
 ``rss_before_mb`` is the resident set just before the timed call.
@@ -80,7 +81,7 @@ def rss_mb() -> float:
 # ----------------------------------------------------------------------------- child (ours)
 
 
-def child(case: str, h5: str, n: int) -> dict:
+def child(case: str, h5: str, n: int, repeat: int = 1) -> dict:
     sys.path.insert(0, str(ROOT))
     import numpy as np
 
@@ -99,15 +100,18 @@ def child(case: str, h5: str, n: int) -> dict:
     cap = load_capture(h5)
     grid = VoxelGrid.from_bounds(BOUNDS, voxels=n)
     before = rss_mb()
-    t = time.perf_counter()
-    rec = reconstruct(cap, method, grid, filter="none")
-    elapsed = time.perf_counter() - t
+    times = []
+    for _ in range(max(1, repeat)):
+        t = time.perf_counter()
+        rec = reconstruct(cap, method, grid, filter="none")
+        times.append(time.perf_counter() - t)
+    elapsed = min(times)
     t = time.perf_counter()
     from recon.filters import paper_filter
 
     paper_filter(rec, threshold="rel:0.3")
     t_filter = time.perf_counter() - t
-    return {"status": "ok", "time_s": elapsed, "paper_filter_s": t_filter, "first_call_s": first,
+    return {"status": "ok", "time_s": elapsed, "times_s": times, "paper_filter_s": t_filter, "first_call_s": first,
             "peak_rss_mb": rss_mb(), "rss_before_mb": before, "shape_zyx": list(rec.raw.shape),
             "argmax_m": [round(float(v), 4) for v in rec.argmax_m("raw")], "params": rec.params}
 
@@ -132,8 +136,9 @@ def make_inputs(tmp: Path, small: bool) -> dict:
             "pitch": {"single": single.pixel_pitch_m()[0], "confocal": conf.pixel_pitch_m()[0]}}
 
 
-def run_ours(case: str, h5: Path, n: int, timeout: int) -> dict:
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", case, "--h5", str(h5), "--n", str(n)]
+def run_ours(case: str, h5: Path, n: int, timeout: int, repeat: int) -> dict:
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", case, "--h5", str(h5), "--n", str(n),
+           "--repeat", str(repeat)]
     env = dict(os.environ, TRANSIENT_MI_PROGRESS="0", PYTHONPATH=str(ROOT))
     try:
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
@@ -186,6 +191,41 @@ def run_ytal(py: Path, case: str, h5: Path, n: int, pitch: float, bin_m: float, 
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+def _fmt(r: dict | None) -> tuple[str, str]:
+    if not r:
+        return "-", "-"
+    if r.get("status") != "ok":
+        why = r.get("reason") or r["status"]
+        if r.get("status") == "out of memory":
+            why = f"out of memory (> {r.get('memory_limit_gb'):g} GB limit)"
+        return why, "-"
+    return f"{r['time_s']:.3g} s", f"{r['peak_rss_mb'] / 1024:.2f} GB"
+
+
+def markdown_table(result: dict) -> str:
+    """Markdown table of a benchmark result."""
+    lines = ["| case | capture | voxels | recon time | recon peak RSS | goal | y-tal 0.20.0 time | y-tal peak RSS |"
+             " speed-up |", "|---|---|---|---|---|---|---|---|---|"]
+    for c in result["cases"]:
+        t, m = _fmt(c["ours"])
+        yt, ym = _fmt(c.get("ytal"))
+        g = c.get("goal")
+        goal = "-" if not g else " / ".join([f"<= {g['time_s']:g} s"] + ([f"<= {g['peak_rss_gb']:g} GB"]
+                                                                          if "peak_rss_gb" in g else []))
+        if g:
+            goal += " (met)" if c.get("meets_goal") else " (missed)"
+        sp = f"{c['speedup']:.0f}x" if "speedup" in c else "-"
+        cap = ", ".join(p.strip() for p in result["captures"][c["capture"]].split(",")[:2])
+        lines.append(f"| {c['case']} | {cap} | {'x'.join(map(str, c['voxels']))} | {t} | {m} | {goal} | {yt} | {ym} |"
+                     f" {sp} |")
+    la, lb = result.get("load_average_start"), result.get("load_average_end")
+    if la and lb:
+        lines.append("")
+        lines.append(f"Machine: {result['machine']['cpus']} CPUs; 1-minute load average {la[0]:.1f} at the start and "
+                     f"{lb[0]:.1f} at the end of the run.")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--small", action="store_true", help="tiny sizes (CI)")
@@ -197,12 +237,19 @@ def main(argv=None) -> int:
                     help="y-tal's tal.set_resources(downscale=...): process the data in this many chunks")
     ap.add_argument("--cases", default=",".join(CASES), help="comma-separated subset of " + ",".join(CASES))
     ap.add_argument("--timeout", type=int, default=1800, help="seconds per case and implementation")
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="timed calls per case (in one process); time_s is the fastest (robust on a shared machine)")
+    ap.add_argument("--table", type=Path, metavar="JSON",
+                    help="print a Markdown table of a saved result (this script's output) and exit")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--h5", help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.child:
-        print(json.dumps(child(a.child, a.h5, a.n)))
+        print(json.dumps(child(a.child, a.h5, a.n, a.repeat)))
+        return 0
+    if a.table:
+        print(markdown_table(json.loads(a.table.read_text())))
         return 0
     cases = [c for c in a.cases.split(",") if c]
     bad = [c for c in cases if c not in CASES]
@@ -228,7 +275,7 @@ def main(argv=None) -> int:
             h5 = inputs["paths"][cap_name]
             print(f"[bench] {case}: ours", file=sys.stderr)
             row = {"case": case, "method": method, "capture": cap_name, "voxels": [n, n, n],
-                   "ours": run_ours(case, h5, n, a.timeout)}
+                   "ours": run_ours(case, h5, n, a.timeout, 1 if a.small else a.repeat)}
             goal = GOALS.get(case)
             if goal and not a.small:
                 row["goal"] = goal
