@@ -7,9 +7,9 @@ first imported), the command line's ``--variant``, or :func:`set_variant`.
 
 - ``llvm_*``: CPU; need LLVM >= 17 (see :mod:`transient_mi._llvm`).
 - ``cuda_*``: NVIDIA GPU.
-- ``scalar_*``: one sample at a time, for stepping through plug-ins in a
-  debugger; the transient integrators need a JIT (``llvm_*``/``cuda_*``)
-  variant to render.
+- ``scalar_*``: scenes load and plug-ins are constructed (to debug XML and
+  plug-in parameters in a debugger); rendering needs a JIT (``llvm_*`` or
+  ``cuda_*``) variant.
 """
 
 from __future__ import annotations
@@ -20,7 +20,10 @@ DEFAULT_VARIANT = "llvm_ad_mono"
 ENV_VAR = "TRANSIENT_MI_VARIANT"
 
 
-class VariantError(ValueError):
+from recon.errors import UserInputError
+
+
+class VariantError(UserInputError):
     """An unknown or unusable Mitsuba variant was requested."""
 
 

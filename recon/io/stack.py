@@ -240,6 +240,13 @@ def manifest_path(directory: str | os.PathLike) -> Path:
     return Path(directory) / MANIFEST_NAME
 
 
+def _umask_mode() -> int:
+    """Permissions a normally created file gets (0o666 minus the umask)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
@@ -247,6 +254,7 @@ def _atomic_write_bytes(path: Path, data: bytes) -> None:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, _umask_mode())
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -366,6 +374,7 @@ def write_spot(directory: str | os.PathLike, index: int, data: np.ndarray, manif
         OpenEXR.File(_header(manifest, index), channels).write(tmp)
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
+        os.chmod(tmp, _umask_mode())
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -376,15 +385,23 @@ def write_spot(directory: str | os.PathLike, index: int, data: np.ndarray, manif
     return path
 
 
-def _open_exr(path: Path, header_only: bool):
+def _open_exr(path: Path, header_only: bool) -> tuple[dict, dict | None]:
+    """``(header, channels)`` of an EXR file (``channels`` None when header_only).
+
+    Every OpenEXR failure (missing, truncated, corrupt) becomes a StackError
+    naming the file.
+    """
     import OpenEXR
 
     if not path.is_file():
         raise StackError(f"{path}: missing")
     try:
-        return OpenEXR.File(str(path), header_only=header_only)
+        f = OpenEXR.File(str(path), header_only=header_only)
+        header = f.header()
+        channels = None if header_only else f.channels()
     except Exception as e:  # OpenEXR raises RuntimeError/ValueError/OSError
-        raise StackError(f"{path}: not a readable EXR file ({e})") from None
+        raise StackError(f"{path}: not a readable EXR file, truncated or corrupt ({e})") from None
+    return header, channels
 
 
 def _check_header(path: Path, hdr: dict, manifest: dict, index: int) -> None:
@@ -425,8 +442,8 @@ def spot_is_complete(directory: str | os.PathLike, index: int, manifest: dict) -
     if not path.is_file():
         return False
     try:
-        f = _open_exr(path, header_only=True)
-        _check_header(path, f.header(), manifest, index)
+        header, _ = _open_exr(path, header_only=True)
+        _check_header(path, header, manifest, index)
     except StackError:
         return False
     return True
@@ -446,12 +463,8 @@ def read_spot(directory: str | os.PathLike, index: int, manifest: dict | None = 
     d = Path(directory)
     m = read_manifest(d) if manifest is None else manifest
     path = spot_path(d, index)
-    f = _open_exr(path, header_only=False)
-    _check_header(path, f.header(), m, index)
-    try:
-        chans = f.channels()
-    except Exception as e:
-        raise StackError(f"{path}: pixel data unreadable ({e})") from None
+    header, chans = _open_exr(path, header_only=False)
+    _check_header(path, header, m, index)
     names = channel_names(m["time"]["n_bins"])
     if set(chans) != set(names):
         missing = sorted(set(names) - set(chans))[:3]

@@ -1,0 +1,184 @@
+"""The detector step of dataset items.
+
+``test_detector_step_wiring`` runs everywhere: it stands in a recording
+``transient_mi.detector`` (same signature as the real ``detect_stack``) and
+checks what the item worker asks of it and where the counts land.
+``test_detector_step_with_the_real_detector`` runs the real model on a tiny
+NLOS capture; it needs ``transient_mi.detector`` and the shipped NLOS scenes,
+and is skipped (with the reason) in an installation without them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from recon.io import stack
+from transient_mi.dataset import expand_items, item_status, parse_spec
+from transient_mi.dataset.index import item_row
+from transient_mi.dataset.worker import build_item
+
+SMALL = {"width": 8, "height": 8, "n_bins": 50, "bin_width_ps": 600}
+
+
+def _fake_detector_module(calls: list) -> types.ModuleType:
+    @dataclasses.dataclass(frozen=True)
+    class DetectorParams:
+        pde: float = 0.7
+        dark_count_rate_cps: float = 25.0
+
+        def validate(self):
+            if not 0 <= self.pde <= 1:
+                from recon.errors import UserInputError
+
+                raise UserInputError(f"pde={self.pde!r}: allowed in [0, 1]")
+            return self
+
+        @classmethod
+        def from_dict(cls, d):
+            return cls(**d)
+
+    def detect_stack(ideal_dir, out_dir, params=None, *, pulses=None, exposure_s=None, seed=0, engine="auto",
+                     progress=True, overwrite=False):
+        ideal_dir, out_dir = Path(ideal_dir), Path(out_dir)
+        calls.append(dict(ideal_dir=ideal_dir, out_dir=out_dir, params=params, pulses=pulses, exposure_s=exposure_s,
+                          seed=seed, engine=engine, progress=progress))
+        m, data = stack.read_stack(ideal_dir)
+        rng = np.random.default_rng(seed)
+        counts = rng.poisson(np.clip(data, 0, None) * params.pde * pulses).astype(np.uint32)
+        cm = dict(m, kind="counts", quantity="counts", status="incomplete",
+                  detector={"pde": params.pde, "pulses": pulses, "seed": seed}, source_ideal="ideal")
+        for j in range(m["n_files"]):
+            stack.write_spot(out_dir, j, counts[j], cm)
+        stack.write_manifest(out_dir, dict(cm, status="complete"))
+        return out_dir
+
+    mod = types.ModuleType("transient_mi.detector")
+    mod.DetectorParams = DetectorParams
+    mod.detect_stack = detect_stack
+    return mod
+
+
+def test_detector_step_wiring(tmp_path, monkeypatch):
+    calls: list = []
+    monkeypatch.setitem(sys.modules, "transient_mi.detector", _fake_detector_module(calls))
+    spec = parse_spec({"scene": "cornell_box", "seed": 4, "spp": 2, "defines": SMALL,
+                       "detector": {"pulses": 1000, "engine": "analytic"},
+                       "grid": {"detector.pde": [0.3, 0.9]}})
+    items = expand_items(spec, variant="llvm_ad_mono", scene_sha256="0" * 64)
+    items_dir = tmp_path / "items"
+    items_dir.mkdir()
+    for it in items:
+        res = build_item({"record": it.record, "items_dir": str(items_dir), "scene_file": str(spec.scene_file),
+                          "threads": None})
+        assert res["status"] == "built"
+    assert [c["params"].pde for c in calls] == [0.3, 0.9]
+    for it, call in zip(items, calls):
+        d = items_dir / it.name
+        assert call["pulses"] == 1000 and call["exposure_s"] is None and call["engine"] == "analytic"
+        assert call["seed"] == it.record["detector"]["seed"] and call["progress"] is False
+        # the layout of `transient-mi render` with a spad_film: counts in capture/, ideal in capture/ideal/
+        assert call["ideal_dir"].name == "ideal" and call["ideal_dir"].parent == call["out_dir"]
+        assert call["out_dir"].name == "capture" and call["out_dir"].parent.name.startswith(".tmp-" + it.name)
+        mc, counts = stack.read_stack(d / "capture")
+        mi_, ideal = stack.read_stack(d / "capture" / "ideal")
+        assert mc["kind"] == "counts" and counts.dtype == np.uint32 and mi_["kind"] == "ideal"
+        assert counts.sum() > 0
+        assert item_status(d, it.params_sha256) == "valid"
+        row = item_row(d, tmp_path)
+        assert row["kind"] == "counts" and row["detector_seed"] == it.record["detector"]["seed"]
+        assert row["capture"] == f"items/{it.name}/capture" and row["ideal"] == f"items/{it.name}/capture/ideal"
+        assert row["detector.pde"] == call["params"].pde and row["detector.pulses"] == 1000
+        rec = json.loads((d / "params.json").read_text())
+        assert rec["commands"][-1].split(" -o ")[1].startswith("capture/ideal ")
+    assert calls[0]["seed"] != calls[1]["seed"]
+
+
+def _real_detector_available() -> str | None:
+    try:
+        from transient_mi.detector import DetectorParams, detect_stack  # noqa: F401
+    except ImportError:
+        return "transient_mi.detector is not installed"
+    from transient_mi.scenes import SCENES_DIR
+
+    if not (SCENES_DIR / "nlos_point_targets.xml").is_file():
+        return "the NLOS scene nlos_point_targets.xml is not shipped"
+    return None
+
+
+_MISSING = _real_detector_available()
+
+
+@pytest.mark.skipif(_MISSING is not None, reason=f"needs the real detector and NLOS scenes: {_MISSING}")
+def test_detector_step_with_the_real_detector(tmp_path):
+    spec = parse_spec({"scene": "nlos_point_targets", "seed": 2, "spp": 4,
+                       "defines": {"width": 4, "height": 4, "spots_x": 2, "spots_y": 2, "n_bins": 128,
+                                   "bin_width_ps": 64},
+                       "detector": {"pulses": 100000},
+                       "grid": {"detector.pde": [0.35, 0.7]}})
+    items = expand_items(spec, variant="llvm_ad_mono", scene_sha256="0" * 64)
+    items_dir = tmp_path / "items"
+    items_dir.mkdir()
+    for it in items:
+        build_item({"record": it.record, "items_dir": str(items_dir), "scene_file": str(spec.scene_file),
+                    "threads": None})
+    c = []
+    for it in items:
+        d = items_dir / it.name
+        m, counts = stack.read_stack(d / "capture")
+        assert m["kind"] == "counts" and counts.dtype == np.uint32 and counts.shape == (4, 4, 4, 128)
+        assert m["detector"]["pde"] == it.record["detector"]["params"]["pde"]
+        assert m["detector"]["seed"] == it.record["detector"]["seed"] and m["detector"]["pulses"] == 100000
+        assert stack.read_manifest(d / "capture" / "ideal")["kind"] == "ideal"
+        assert item_status(d, it.params_sha256) == "valid"
+        c.append(int(counts.sum()))
+    assert c[1] > c[0] > 0  # twice the detection efficiency, more counts
+
+
+def _spad_film_scene(tmp_path: Path) -> Path:
+    """nlos_point_targets.xml with its transient_film turned into a spad_film (the detector in the scene)."""
+    from transient_mi.scenes import scene_path
+
+    text = scene_path("nlos_point_targets").read_text()
+    assert text.count('<film type="transient_film">') == 1
+    text = text.replace('<film type="transient_film">',
+                        '<film type="spad_film">\n            <integer name="pulses" value="100000"/>')
+    p = tmp_path / "spad_scene.xml"
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.skipif(_MISSING is not None, reason=f"needs the real detector and NLOS scenes: {_MISSING}")
+def test_scene_with_a_spad_film_gives_counts_items(tmp_path):
+    from transient_mi.dataset.runner import validate_scene
+
+    scene = _spad_film_scene(tmp_path)
+    spec = parse_spec({"scene": str(scene), "seed": 2, "spp": 4,
+                       "defines": {"width": 4, "height": 4, "spots_x": 2, "spots_y": 2, "n_bins": 128,
+                                   "bin_width_ps": 64}})
+    (it,) = expand_items(spec, variant="llvm_ad_mono", scene_sha256="0" * 64)
+    validate_scene(spec, [it])
+    items_dir = tmp_path / "items"
+    items_dir.mkdir()
+    build_item({"record": it.record, "items_dir": str(items_dir), "scene_file": str(spec.scene_file),
+                "threads": None})
+    d = items_dir / it.name
+    m, counts = stack.read_stack(d / "capture")
+    assert m["kind"] == "counts" and counts.dtype == np.uint32
+    assert stack.read_manifest(d / "capture" / "ideal")["kind"] == "ideal"
+    row = item_row(d, tmp_path)
+    assert row["kind"] == "counts" and row["ideal"] == f"items/{it.name}/capture/ideal"
+    assert row["detector_seed"] == m["detector"]["seed"] is not None
+    # detector settings in the spec as well would detect twice: refused before any work
+    both = parse_spec({"scene": str(scene), "spp": 4, "defines": {"width": 4, "height": 4},
+                       "detector": {"pulses": 1000}})
+    from recon.errors import UserInputError
+
+    with pytest.raises(UserInputError, match="has a spad_film, which runs the detector itself"):
+        validate_scene(both, expand_items(both, variant="llvm_ad_mono", scene_sha256="0" * 64))

@@ -1,0 +1,105 @@
+"""The per-item worker, in-process: item layout, skips, a lost race, one-thread scene loading."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from transient_mi.dataset import expand_items, item_status, parse_spec
+from transient_mi.dataset import worker as w
+
+ROOT = Path(__file__).resolve().parents[1]
+MESH_SCENE = ROOT / "tests" / "data" / "dataset_mesh_scene.xml"
+
+
+@pytest.fixture()
+def mannequin_item(tmp_path):
+    spec = parse_spec({"scene": str(MESH_SCENE), "seed": 8, "spp": 2, "object": {"kind": "mannequin", "detail": 8}})
+    (item,) = expand_items(spec, variant="llvm_ad_mono", scene_sha256="0" * 64)
+    items_dir = tmp_path / "items"
+    items_dir.mkdir()
+    task = {"record": item.record, "items_dir": str(items_dir), "scene_file": str(spec.scene_file), "threads": 2}
+    return item, items_dir, task
+
+
+def test_item_layout_and_skip(mannequin_item):
+    item, items_dir, task = mannequin_item
+    assert w.build_item(task)["status"] == "built"
+    d = items_dir / item.name
+    res = json.loads((d / "result.json").read_text())
+    assert sorted(res["files"]) == ["capture/manifest.json", "capture/preview.png", "capture/spot_00000.exr",
+                                    "mesh.ply", "params.json"]
+    assert json.loads((d / "params.json").read_text()) == item.record
+    assert item_status(d, item.params_sha256) == "valid"
+    assert item_status(d, "f" * 64) == "other"
+    before = {p: p.stat().st_mtime_ns for p in d.rglob("*")}
+    assert w.build_item(task)["status"] == "existed"
+    assert {p: p.stat().st_mtime_ns for p in d.rglob("*")} == before
+    assert [p.name for p in items_dir.iterdir()] == [item.name]
+
+
+def test_losing_a_race_keeps_the_finished_item(mannequin_item, monkeypatch):
+    """A second attempt of a finished item (a worker thought dead was not) leaves the first one in place."""
+    item, items_dir, task = mannequin_item
+    w.build_item(task)
+    d = items_dir / item.name
+    first = (d / "capture" / "spot_00000.exr").stat().st_ino
+    real = w.item_status
+    calls = []
+
+    def blind_once(path, sha=None):  # the second attempt does not see the finished item at its start
+        calls.append(path)
+        return "missing" if len(calls) == 1 else real(path, sha)
+
+    monkeypatch.setattr(w, "item_status", blind_once)
+    assert w.build_item(task)["status"] == "existed"
+    assert len(calls) == 2  # it built, failed to rename onto the finished item, and checked it
+    assert (d / "capture" / "spot_00000.exr").stat().st_ino == first
+    assert [p.name for p in items_dir.iterdir()] == [item.name]  # its temporary directory is gone
+
+
+def test_failure_leaves_no_item_and_no_temporary(mannequin_item, monkeypatch):
+    item, items_dir, task = mannequin_item
+    import transient_mi.pipeline as pipeline
+
+    def broken(*a, **k):
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr(pipeline, "run_render", broken)
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        w.build_item(task)
+    assert list(items_dir.iterdir()) == []
+
+
+def test_scene_loads_on_one_thread_and_renders_on_all(mannequin_item, monkeypatch):
+    """Mitsuba's vertex normals of a normal-less PLY differ in the last bits when computed on several
+    threads (parallel float adds); items load their scene on one thread so the same item gives the same bytes."""
+    import drjit as dr
+
+    import mitsuba as mi
+
+    import transient_mi.pipeline as pipeline
+    import transient_mi.scene_io as scene_io
+
+    item, items_dir, task = mannequin_item
+    seen = {}
+    real_load, real_run = mi.load_file, pipeline.run_render
+
+    def load(*a, **k):
+        seen["load"] = dr.thread_count()
+        return real_load(*a, **k)
+
+    def run(*a, **k):
+        seen["render"] = dr.thread_count()
+        return real_run(*a, **k)
+
+    monkeypatch.setattr(scene_io.mi, "load_file", load)
+    monkeypatch.setattr(pipeline, "run_render", run)
+    monkeypatch.delenv(w.THREADS_ENV, raising=False)
+    try:
+        w.build_item(task)
+    finally:
+        w._THREADS_SET = None
+    assert seen == {"load": 1, "render": 2}

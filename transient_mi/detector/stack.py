@@ -1,0 +1,222 @@
+"""``detect_stack``: an ideal capture directory -> a counts capture directory, spot by spot.
+
+Everything is validated before any work (parameters, budget, gate, time axis
+against the laser period, jitter against the bin width, the output path).
+Spots are read, detected and written one at a time (memory bounded by one
+spot), into a temporary sibling directory that is renamed into place at the
+end, so a failed or interrupted run leaves no counts capture behind. Each
+spot uses its own random stream, ``SeedSequence(seed, spawn_key=(spot,))``,
+so a spot's counts do not depend on the others.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from recon._progress import progress_bar
+from recon.errors import UserInputError
+from recon.io.stack import (MANIFEST_NAME, StackError, missing_spots, new_manifest, read_manifest,
+                            read_spot, spot_filename, write_manifest, write_spot)
+
+from .budget import resolve_budget
+from .detect import check_engine, check_ideal, run_spot, to_uint32
+from .gate import auto_gate
+from .model import build_model
+from .params import DetectorParams
+
+#: Version of the detector model recorded in counts manifests.
+MODEL_VERSION = 1
+_STANDARD_KEYS = {"format", "format_version", "status", "kind", "capture", "quantity", "width", "height",
+                  "n_files", "time", "include_first_last", "geometry", "laser", "detector", "render",
+                  "source_ideal"}
+
+
+def spot_rng(seed: int, spot: int) -> np.random.Generator:
+    """The random stream of one spot: ``default_rng(SeedSequence(seed, spawn_key=(spot,)))``."""
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(spot),)))
+
+
+def _check_seed(seed) -> int:
+    import numbers
+
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
+        raise UserInputError(f"seed={seed!r}: must be a whole number >= 0")
+    return int(seed)
+
+
+def _check_output(out: Path, ideal: Path, overwrite: bool) -> None:
+    if out.resolve() == ideal.resolve():
+        raise UserInputError(f"output {out} is the ideal capture itself: choose another directory")
+    if ideal.resolve() in out.resolve().parents:
+        raise UserInputError(f"output {out} lies inside the ideal capture {ideal}: choose another directory")
+    if out.exists():
+        if not out.is_dir():
+            raise UserInputError(f"output {out} exists and is not a directory")
+        if (out / MANIFEST_NAME).exists() and not overwrite:
+            raise UserInputError(f"output {out} already holds a capture: choose another directory "
+                                 "(or overwrite it explicitly)")
+    if not out.parent.is_dir():
+        raise UserInputError(f"output {out}: parent directory {out.parent} does not exist")
+    if not os.access(out.parent, os.W_OK):
+        raise UserInputError(f"output {out}: cannot write in {out.parent}")
+
+
+def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pulses: int | None = None,
+                 exposure_s: float | None = None, seed: int = 0, engine: str = "auto", progress: bool = True,
+                 overwrite: bool = False) -> Path:
+    """Detect a whole ideal capture and write the counts capture.
+
+    Parameters
+    ----------
+    ideal_dir : path
+        An ideal capture (``kind="ideal"``, ``quantity="photons_per_pulse"``,
+        complete).
+    out_dir : path
+        Where to write the counts capture. It may exist if it holds no capture
+        (e.g. a render output directory containing ``ideal/``); its other
+        files are kept.
+    params : DetectorParams, optional
+        Detector model (default: the paper's).
+    pulses, exposure_s : optional
+        Photon budget per laser spot (one of them; default 1e6 pulses), see
+        :func:`~transient_mi.detector.budget.resolve_budget`.
+    seed : int
+        Master seed; spot ``j`` uses :func:`spot_rng` ``(seed, j)``.
+    engine : {"auto", "analytic", "exact"}
+    progress : bool
+        Draw a progress bar (when stderr is a terminal, see ``recon._progress``).
+    overwrite : bool
+        Replace an existing counts capture in ``out_dir``.
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+
+    The counts manifest has ``kind="counts"``, ``quantity="counts"``, the
+    ideal capture's geometry, time axis and render provenance, the laser block
+    with any overrides applied, ``source_ideal`` (path relative to ``out_dir``
+    when inside it, else absolute), and under ``detector`` every parameter as
+    given plus ``pulses``, ``exposure_s``, ``seed``, ``engine`` and
+    ``resolved`` (repetition rate, photon scale, gate times, engine used per
+    spot, whether every draw was exact).
+    """
+    params = (params if params is not None else DetectorParams()).validate()
+    check_engine(engine)
+    seed = _check_seed(seed)
+    ideal = Path(ideal_dir)
+    out = Path(out_dir)
+    m = read_manifest(ideal)
+    if m["kind"] != "ideal":
+        raise UserInputError(f"{ideal}: kind={m['kind']!r}; detect needs an ideal capture (kind 'ideal')")
+    if m["quantity"] != "photons_per_pulse":
+        raise UserInputError(f"{ideal}: quantity={m['quantity']!r}; detect needs expected photons per pulse "
+                             "(quantity 'photons_per_pulse', as NLOS captures store)")
+    missing = missing_spots(ideal, m)
+    if missing or m["status"] != "complete":
+        raise StackError(f"{ideal}: the capture is incomplete ({len(missing)} of {m['n_files']} spot files "
+                         f"missing, status {m['status']!r}); finish the render first (--resume)")
+    budget = resolve_budget(params, m.get("laser"), pulses=pulses, exposure_s=exposure_s)
+    run_params = params
+    gate_source = "none"
+    if params.auto_gate:
+        g_open, g_close = auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
+                                    params.auto_gate_depth_max_m)
+        run_params = params.replace(gate_open_ps=g_open, gate_close_ps=g_close, auto_gate=False)
+        gate_source = "auto"
+    elif params.gate_open_ps is not None:
+        gate_source = "explicit"
+    if params.crosstalk_prob > 0 and m["capture"] == "confocal":
+        raise UserInputError(f"crosstalk_prob={params.crosstalk_prob!r}: a confocal capture's pixels were "
+                             "recorded under different laser spots, so neighbour crosstalk cannot be modelled; "
+                             "use crosstalk_prob=0")
+    t = m["time"]
+    H, W, T = m["height"], m["width"], t["n_bins"]
+    model = build_model(run_params, bin_width_ps=t["bin_width_ps"], n_bins=T, t0_ps=t["t0_ps"],
+                        repetition_rate_hz=budget.repetition_rate_hz)
+    _check_output(out, ideal, overwrite)
+
+    src = ideal.resolve()
+    dst = out.resolve()
+    source_ideal = os.path.relpath(src, dst) if dst in src.parents else str(src)
+    detector = {
+        "model": "transient-mi SPAD+TCSPC",
+        "model_version": MODEL_VERSION,
+        **params.to_dict(),
+        "pulses": budget.n_pulses,
+        "exposure_s": budget.exposure_s,
+        "pulses_requested": pulses,
+        "exposure_s_requested": exposure_s,
+        "seed": seed,
+        "engine": engine,
+    }
+    resolved = {
+        "repetition_rate_hz": budget.repetition_rate_hz,
+        "period_ps": budget.period_ps,
+        "photon_scale": budget.photon_scale,
+        "gate": gate_source,
+        "gate_open_ps": run_params.gate_open_ps,
+        "gate_close_ps": run_params.gate_close_ps,
+        "gate_transition_ps": run_params.gate_transition_ps,
+        "spad_dead_time_ps": model.spad_dead_time_ps,
+        "tcspc_dead_time_ps": model.tcspc_dead_time_ps,
+    }
+    extra = {k: v for k, v in m.items() if k not in _STANDARD_KEYS}
+    manifest = new_manifest(
+        kind="counts", capture=m["capture"], width=W, height=H, n_files=m["n_files"], t0_ps=t["t0_ps"],
+        bin_width_ps=t["bin_width_ps"], n_bins=T, quantity="counts",
+        include_first_last=m["include_first_last"], geometry=m.get("geometry"), laser=budget.laser,
+        detector=dict(detector, resolved=resolved), render=m.get("render"), source_ideal=source_ideal, **extra)
+
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+    except OSError as e:
+        raise UserInputError(f"output {out}: cannot create a directory in {out.parent} ({e.strerror})") from None
+    try:
+        write_manifest(tmp, manifest)
+        engines_used, exact, regimes = [], True, {}
+        N = budget.n_pulses
+        with progress_bar(f"detect {ideal.name}", total=m["n_files"] * N,
+                          disable=None if progress else True) as advance:
+            for j in range(m["n_files"]):
+                data = read_spot(ideal, j, m)
+                arr = check_ideal(data, where=f"{ideal / spot_filename(j)}")
+                if budget.photon_scale != 1.0:
+                    arr = arr * budget.photon_scale
+                counts, info = run_spot(model, arr.reshape(H * W, T), N, spot_rng(seed, j), engine, (H, W),
+                                        advance=advance)
+                write_spot(tmp, j, to_uint32(counts, where=spot_filename(j)).reshape(H, W, T), manifest)
+                engines_used.append(info["engine"])
+                exact = exact and bool(info["exact"])
+                for k, v in info.get("pixels_by_regime", {}).items():
+                    regimes[k] = regimes.get(k, 0) + v
+        resolved.update(engines_used=engines_used, exact=exact, analytic_pixels_by_regime=regimes or None)
+        manifest["detector"]["resolved"] = resolved
+        manifest["status"] = "complete"
+        write_manifest(tmp, manifest)
+        _move_into_place(tmp, out, m["n_files"])
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+def _move_into_place(tmp: Path, out: Path, n_files: int) -> None:
+    """Rename ``tmp`` to ``out``; into an existing ``out``, move spots first and the manifest last."""
+    if not out.exists():
+        os.rename(tmp, out)
+        return
+    old = out / MANIFEST_NAME
+    if old.exists():
+        old.unlink()  # from here on, out is not a capture until the new manifest lands
+    for f in out.glob("spot_*.exr"):
+        f.unlink()
+    for j in range(n_files):
+        os.replace(tmp / spot_filename(j), out / spot_filename(j))
+    os.replace(tmp / MANIFEST_NAME, out / MANIFEST_NAME)
+    shutil.rmtree(tmp, ignore_errors=True)

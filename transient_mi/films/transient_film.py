@@ -1,0 +1,143 @@
+"""Film ``transient_film``: a time-binned image (one histogram per pixel)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mitsuba as mi
+import numpy as np
+
+from transient_mi.props import PluginParameterError, get_float, get_int
+from transient_mi.time_axis import TimeAxis, gaussian_kernel_taps
+
+PLUGIN = ("film", "transient_film", "TransientFilm")
+
+
+@dataclass
+class TransientResult:
+    """What a transient render produced for one laser spot (or a camera view).
+
+    Attributes
+    ----------
+    histogram : ndarray of float32, shape ``(height, width, n_bins)``
+        Per-pixel histogram over time. Camera renders: radiance integrated
+        over each bin (summing the bins gives the steady-state radiance).
+        NLOS captures: expected photons per laser pulse per bin.
+    steady : ndarray of float32, shape ``(height, width)``
+        Time-integrated value of every contribution, including those
+        outside the film's time range.
+    dropped_contributions : int
+        Number of path contributions whose arrival time fell outside
+        ``[t0_ps, t0_ps + n_bins * bin_width_ps)`` (or was undefined, for
+        infinitely distant emitters); they are not in ``histogram``.
+    dropped_fraction : float
+        Their share of the steady-state total (0 when the total is 0).
+    samples : int
+        Paths traced (pixels x samples per pixel).
+    """
+
+    histogram: np.ndarray
+    steady: np.ndarray
+    dropped_contributions: int
+    dropped_fraction: float
+    samples: int
+
+
+class TransientFilm(mi.Film):
+    r"""Transient film (``transient_film``).
+
+    Stores, for every pixel, a histogram of the light arriving over time.
+    Works under any sensor: a perspective camera gives a transient video, a
+    ``spad_array`` an NLOS capture. Render it with the ``transient_path``
+    integrator.
+
+    .. list-table::
+       :header-rows: 1
+
+       * - Parameter
+         - Type
+         - Description
+       * - ``width``, ``height``
+         - integer
+         - Pixels (default 64 x 64).
+       * - ``n_bins``
+         - integer
+         - Number of time bins, >= 1 (default 1024).
+       * - ``bin_width_ps``
+         - float
+         - Width of one bin in picoseconds, > 0 (default 10).
+       * - ``t0_ps``
+         - float
+         - Start of bin 0, picoseconds after the light left the emitter
+           (default 0). Bin ``b`` covers
+           ``[t0_ps + b bin_width_ps, t0_ps + (b + 1) bin_width_ps)``; an
+           arrival exactly on a boundary goes to the later bin.
+       * - ``kernel_sigma_ps``
+         - float
+         - Standard deviation (ps) of an optional Gaussian temporal kernel
+           applied along time, >= 0 (default 0: none). Taps are the
+           Gaussian integrated over each bin, renormalised to sum to 1, so
+           the kernel conserves energy (it adds ``sigma^2 + bin_width^2/12``
+           to the arrival-time variance); contributions up to 5 sigma outside
+           the time range still blur into it.
+
+    Pixels use a box reconstruction filter (each sample counts for the pixel
+    it falls in); an ``rfilter`` child is ignored. Contributions arriving
+    outside the time range are dropped and counted
+    (:attr:`TransientResult.dropped_contributions`).
+
+    Axis order of the developed data: ``[pixel_y, pixel_x, time]``.
+    """
+
+    NAME = "transient_film"
+
+    def __init__(self, props: mi.Properties):
+        super().__init__(props)
+        name = self.NAME
+        self.n_bins = get_int(props, name, "n_bins", 1024, min_value=1, max_value=1 << 20)
+        self.bin_width_ps = get_float(props, name, "bin_width_ps", 10.0, min_value=0.0, min_exclusive=True)
+        self.t0_ps = get_float(props, name, "t0_ps", 0.0)
+        self.kernel_sigma_ps = get_float(props, name, "kernel_sigma_ps", 0.0, min_value=0.0)
+        size = self.size()
+        self.width, self.height = int(size[0]), int(size[1])
+        if self.width < 1 or self.height < 1:
+            raise PluginParameterError(f"{name}: width={self.width}, height={self.height} must be >= 1")
+        self.result: TransientResult | None = None
+
+    # ------------------------------------------------------------------ queries
+
+    def time_axis(self) -> TimeAxis:
+        """The film's :class:`~transient_mi.time_axis.TimeAxis`."""
+        return TimeAxis(self.t0_ps, self.bin_width_ps, self.n_bins)
+
+    def kernel_taps(self) -> np.ndarray:
+        """Taps of the temporal kernel (``[1.0]`` when there is none)."""
+        return gaussian_kernel_taps(self.kernel_sigma_ps, self.bin_width_ps)
+
+    def is_transient(self) -> bool:
+        """Marker used by the integrators (robust to plug-in reloading)."""
+        return True
+
+    # --------------------------------------------------------------- results
+
+    def set_result(self, result: TransientResult | None) -> None:
+        """Store the result of the last render (called by the integrator)."""
+        self.result = result
+
+    def develop(self, raw: bool = False):
+        """The last render's histograms as ``mi.TensorXf [height, width, n_bins]``."""
+        if self.result is None:
+            raise RuntimeError(f"{self.NAME}: nothing rendered yet (render with the transient_path integrator)")
+        return mi.TensorXf(self.result.histogram)
+
+    # Mitsuba's C++ integrators would call these; they cannot fill a transient film.
+    def prepare(self, aovs):
+        raise RuntimeError(
+            f"{self.NAME} must be rendered with the transient_path integrator "
+            "(Mitsuba's own integrators do not record path lengths)"
+        )
+
+    def to_string(self):
+        return (f"TransientFilm[size={self.width}x{self.height}, n_bins={self.n_bins}, "
+                f"bin_width_ps={self.bin_width_ps:g}, t0_ps={self.t0_ps:g}, "
+                f"kernel_sigma_ps={self.kernel_sigma_ps:g}]")

@@ -1,0 +1,196 @@
+"""Deterministic time-binned accumulation shared by the transient integrators.
+
+Why lanes own their histograms
+------------------------------
+Adding floats with atomics from several threads makes the result depend on
+thread scheduling (float addition is not associative), so the same seed
+would not give the same bytes. Instead every SIMD lane owns one histogram
+slot: lane ``l = pixel * K + k`` (``K`` sample streams per pixel) traces the
+samples ``k, k + K, k + 2K, ... < spp`` of its pixel one after another and
+adds them into its own slot, so each slot sees one writer in a fixed order.
+At the end the ``K`` slots of a pixel are summed in a fixed order (one
+output element per lane of a gather kernel).
+``K`` depends only on the film size, ``spp`` and the backend (never on the
+number of threads), so results are byte-identical across runs and machines
+with the same backend.
+
+Memory: ``lanes * n_bins_ext`` float32 values (``n_bins_ext`` = bins plus
+kernel padding); ``K`` is reduced to keep this under ``MAX_SLOT_FLOATS``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from recon.units import C_M_PER_PS
+from transient_mi.time_axis import TimeAxis, apply_kernel
+
+#: Lanes to aim for per launch (enough to keep every CPU thread's SIMD busy).
+TARGET_LANES_LLVM = 1 << 15
+TARGET_LANES_CUDA = 1 << 19
+#: Upper bound on the float32 values held in lane histograms (1 GiB).
+MAX_SLOT_FLOATS = 1 << 28
+#: Paths per kernel launch (one progress-bar step).
+PATHS_PER_PASS = 1 << 21
+
+
+def is_cuda() -> bool:
+    return mi.variant().startswith("cuda_")
+
+
+def choose_streams(n_pixels: int, spp: int, n_bins_ext: int) -> int:
+    """Sample streams ``K`` per pixel (a power of two, 1 <= K <= spp)."""
+    target = TARGET_LANES_CUDA if is_cuda() else TARGET_LANES_LLVM
+    k = 1
+    while k * 2 <= spp and n_pixels * k * 2 <= target and n_pixels * k * 2 * n_bins_ext <= MAX_SLOT_FLOATS:
+        k *= 2
+    if n_pixels * n_bins_ext > MAX_SLOT_FLOATS:
+        raise MemoryError(
+            f"film of {n_pixels} pixels x {n_bins_ext} bins needs {n_pixels * n_bins_ext * 4 / 2**30:.1f} GiB "
+            "of histogram memory; use fewer pixels or bins"
+        )
+    return k
+
+
+def seed_rng(seed: int, n_lanes: int):
+    """One PCG32 stream per lane, decorrelated with the TEA hash (as Mitsuba's samplers)."""
+    idx = dr.arange(mi.UInt32, n_lanes)
+    v0, v1 = mi.sample_tea_32(dr.opaque(mi.UInt32, seed & 0xFFFFFFFF), idx)
+    rng = mi.PCG32()
+    rng.seed(v0, v1)
+    return rng
+
+
+def to_mono(value, wavelengths=None):
+    """A spectrum as one float: itself (mono), luminance Y (RGB, spectral)."""
+    if mi.is_polarized:
+        value = mi.unpolarized_spectrum(value)
+    if mi.is_monochromatic:
+        return value[0]
+    if mi.is_spectral:
+        return mi.luminance(value, wavelengths)
+    return mi.luminance(value)
+
+
+@dataclass
+class LaneLayout:
+    """How pixels and samples map onto SIMD lanes."""
+
+    n_pixels: int
+    spp: int
+    streams: int  # K
+
+    @property
+    def n_lanes(self) -> int:
+        return self.n_pixels * self.streams
+
+    def passes(self) -> list[tuple[int, int]]:
+        """Per-lane sample ranges ``[j0, j1)`` (j-th sample of a lane is ``k + j K``)."""
+        per_lane = math.ceil(self.spp / self.streams)
+        step = max(1, PATHS_PER_PASS // self.n_lanes)
+        return [(j, min(per_lane, j + step)) for j in range(0, per_lane, step)]
+
+
+class LaneHistogram:
+    """Per-lane time histograms, lost energy and dropped-contribution counters.
+
+    ``record`` is called from traced (symbolic-loop) code; its scatters are
+    side effects that each lane applies to its own slot only.
+    """
+
+    def __init__(self, layout: LaneLayout, axis: TimeAxis, pad: int):
+        self.layout = layout
+        self.axis = axis
+        self.pad = pad
+        self.n_bins_ext = axis.n_bins + 2 * pad
+        n = layout.n_lanes
+        self.data = dr.zeros(mi.Float, n * self.n_bins_ext)
+        # Energy outside the padded range (not in ``data``): steady = sum(data) + lost.
+        self.lost = dr.zeros(mi.Float, n)
+        self.dropped = dr.zeros(mi.UInt32, n)
+        F64 = dr.float64_array_t(mi.Float)
+        # Opaque: true IEEE divisions below, and one compiled kernel for any time axis.
+        self._c = dr.opaque(F64, C_M_PER_PS)
+        self._t0 = dr.opaque(F64, axis.t0_ps)
+        self._bw = dr.opaque(F64, axis.bin_width_ps)
+        self._n_ext = dr.opaque(mi.Int32, self.n_bins_ext)
+        self._n = dr.opaque(mi.Int32, axis.n_bins)
+        self._pad = dr.opaque(mi.Int32, pad)
+
+    def bin_index(self, opl_m):
+        """(valid, in_range, bin_ext) for arrivals with optical path ``opl_m``."""
+        F64 = dr.float64_array_t(mi.Float)
+        pos = (F64(opl_m) / self._c - self._t0) / self._bw
+        finite = dr.isfinite(pos)
+        pos = dr.select(finite, pos, -1e9)
+        pos = dr.clip(pos, -1e9, 1e9)
+        b = mi.Int32(dr.floor(pos))
+        in_range = finite & (b >= 0) & (b < self._n)
+        b_ext = b + self._pad
+        valid = finite & (b_ext >= 0) & (b_ext < self._n_ext)
+        return valid, in_range, b_ext
+
+    def record(self, lane, opl_m, value, active):
+        """Add ``value`` (mi.Float) arriving after ``opl_m`` metres to ``lane``'s slot."""
+        active = mi.Bool(active) & (value != 0)
+        valid, in_range, b_ext = self.bin_index(opl_m)
+        idx = mi.UInt32(lane) * mi.UInt32(self._n_ext) + mi.UInt32(dr.maximum(b_ext, 0))
+        dr.scatter_reduce(dr.ReduceOp.Add, self.data, value, idx, active & valid,
+                          mode=dr.ReduceMode.NoConflicts)
+        dr.scatter_reduce(dr.ReduceOp.Add, self.lost, value, lane, active & ~valid,
+                          mode=dr.ReduceMode.NoConflicts)
+        dr.scatter_reduce(dr.ReduceOp.Add, self.dropped, mi.UInt32(1), lane, active & ~in_range,
+                          mode=dr.ReduceMode.NoConflicts)
+
+    def evaluate(self, *loop_outputs):
+        """Run the pending pass. Pass the loop's other outputs (the RNG state)
+        here too: evaluating them separately would execute the loop twice."""
+        dr.eval(self.data, self.lost, self.dropped, *loop_outputs)
+
+    def _per_pixel(self):
+        """Sum the K stream slots of each pixel in a fixed order (one drjit kernel).
+
+        Returns a flat ``mi.Float`` of ``n_pixels * n_bins_ext`` values.
+        """
+        L, T = self.layout, self.n_bins_ext
+        if L.streams == 1:
+            return self.data
+        idx = dr.arange(mi.UInt32, L.n_pixels * T)
+        pixel = idx // T
+        b = idx - pixel * T
+        base = pixel * (L.streams * T) + b
+        out = dr.zeros(mi.Float, L.n_pixels * T)
+        for k in range(L.streams):  # unrolled: fixed summation order
+            out += dr.gather(mi.Float, self.data, base + k * T)
+        dr.eval(out)
+        return out
+
+    def collect(self, taps: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, float]:
+        """Sum streams per pixel, average over spp, apply the temporal kernel.
+
+        Returns ``(hist[n_pixels, n_bins] float32, steady[n_pixels] float32,
+        dropped_contributions, dropped_fraction)``.
+        """
+        L = self.layout
+        T = self.n_bins_ext
+        summed = self._per_pixel()
+        lost = np.asarray(self.lost).reshape(L.n_pixels, L.streams).sum(axis=1, dtype=np.float64)
+        self.data = None  # free the lane slots before copying out
+        # np.asarray is a writeable zero-copy view of drjit's memory (it keeps
+        # the drjit array alive): scale in place, no second full-size buffer.
+        hist = np.asarray(summed).reshape(L.n_pixels, T)
+        del summed
+        hist *= np.float32(1.0 / L.spp)
+        steady = hist.sum(axis=1, dtype=np.float64) + lost / L.spp
+        if len(taps) > 1:
+            hist = apply_kernel(hist, taps).astype(np.float32)
+        dropped = int(np.asarray(self.dropped).sum(dtype=np.uint64))
+        total = float(steady.sum())
+        in_hist = float(hist.sum(dtype=np.float64))
+        frac = 0.0 if total <= 0 else max(0.0, (total - in_hist) / total)
+        return hist, steady.astype(np.float32), dropped, frac

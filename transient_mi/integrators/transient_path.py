@@ -1,0 +1,265 @@
+"""Integrator ``transient_path``: path tracing that records every contribution's time of flight."""
+
+from __future__ import annotations
+
+import time as _time
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_streams,
+                                             seed_rng, to_mono)
+from transient_mi.props import PluginParameterError, get_int
+
+PLUGIN = ("integrator", "transient_path", "TransientPath")
+
+
+def mis_weight(pdf_a, pdf_b):
+    """Power heuristic (as Mitsuba's ``path``)."""
+    a2 = dr.square(pdf_a)
+    w = a2 / (a2 + dr.square(pdf_b))
+    return dr.select(dr.isfinite(w), w, 0)
+
+
+class TransientPath(mi.CppADIntegrator):
+    r"""Transient path tracer (``transient_path``).
+
+    Unidirectional path tracing with next-event estimation and multiple
+    importance sampling (power heuristic), the estimator of Mitsuba's
+    ``path`` integrator, where every contribution is recorded in the
+    ``transient_film`` at its own optical path length: from the sensor
+    through every path vertex to the point on the emitter (for next-event
+    estimation, the sampled emitter point; for emitter hits, the hit point).
+    Summed over time the result equals Mitsuba's ``path`` image.
+
+    Time zero is when light leaves the emitter. The first segment is
+    measured from the sensor's position (a camera's centre of projection;
+    for a thin lens this is Fermat-equivalent to the path through the lens).
+    Infinitely distant emitters (environment, directional) have no time of
+    flight: their contributions are dropped and counted.
+
+    With a ``spad_array`` sensor the integrator uses the NLOS estimator of
+    that sensor (laser-spot and hidden-geometry sampling), see
+    :mod:`transient_mi.sensors.spad_array`.
+
+    .. list-table::
+       :header-rows: 1
+
+       * - Parameter
+         - Type
+         - Description
+       * - ``max_depth``
+         - integer
+         - Longest path, in Mitsuba's meaning: 1 = only directly visible
+           emitters, 2 = direct illumination, 3 = one indirect bounce ...;
+           -1 = unlimited (default).
+       * - ``rr_depth``
+         - integer
+         - Depth at which Russian roulette starts, >= 1 (default 5).
+
+    Determinism: each SIMD lane accumulates its own histogram slot (see
+    :mod:`transient_mi.integrators._lanes`), so the same seed gives the same
+    bytes.
+
+    Variants: renders need a JIT variant (``llvm_*``, ``cuda_*``).
+    ``scalar_*`` variants load scenes and construct the plug-ins (to debug
+    XML and parameters). To inspect the integrator's intermediate values,
+    use an ``llvm_*`` variant with ``dr.set_flag(dr.JitFlag.SymbolicLoops,
+    False)`` (evaluated loops whose variables can be printed).
+    """
+
+    NAME = "transient_path"
+
+    def __init__(self, props: mi.Properties):
+        super().__init__(props)
+        max_depth = get_int(props, self.NAME, "max_depth", -1, min_value=-1)
+        if max_depth == 0:
+            raise PluginParameterError(f"{self.NAME}: max_depth=0 records nothing; use -1 (unlimited) or >= 1")
+        self.max_depth_param = max_depth
+        self.max_depth = max_depth if max_depth != -1 else 0xFFFFFFFF
+        self.rr_depth = get_int(props, self.NAME, "rr_depth", 5, min_value=1)
+        self.nlos_options = self._read_nlos_options(props)
+
+    def _read_nlos_options(self, props) -> dict:
+        """Extra parameters used with NLOS sensors (none yet)."""
+        return {}
+
+    # ---------------------------------------------------------------- API
+
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True, progress=None):
+        """Render and return the histograms as ``mi.TensorXf [height, width, n_bins]``.
+
+        The film keeps the full :class:`~transient_mi.films.transient_film.TransientResult`.
+        """
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        result = self.render_transient(scene, sensor, seed=int(seed), spp=int(spp), progress=progress)
+        return mi.TensorXf(result.histogram)
+
+    def render_transient(self, scene, sensor, *, seed: int = 0, spp: int = 0, spot: int | None = None,
+                         progress=None):
+        """Render one transient image (or one laser spot of an NLOS capture).
+
+        Parameters
+        ----------
+        scene, sensor
+            Mitsuba scene and its sensor (whose film is a transient film).
+        seed : int
+            Seed of the random streams (0 <= seed < 2**32).
+        spp : int
+            Samples per pixel; 0 takes the sensor's sampler value.
+        spot : int, optional
+            Laser spot to render (NLOS sensors only).
+        progress : callable, optional
+            ``progress(done_paths, total_paths)`` after every kernel launch.
+
+        Returns
+        -------
+        TransientResult
+        """
+        film = sensor.film()
+        if not hasattr(film, "is_transient"):
+            raise PluginParameterError(
+                f"{self.NAME}: the sensor's film is {type(film).__name__}; use a transient_film or spad_film"
+            )
+        if not mi.variant().startswith(("llvm_", "cuda_")):
+            raise PluginParameterError(
+                f"{self.NAME}: rendering needs a JIT variant (llvm_* or cuda_*), not {mi.variant()}; "
+                "scalar_* variants load scenes and construct plug-ins for debugging only")
+        if not 0 <= seed < 2**32:
+            raise PluginParameterError(f"{self.NAME}: seed={seed} must be in [0, 2**32)")
+        film.set_result(None)  # release the previous render's histogram before allocating
+        spp = spp or int(sensor.sampler().sample_count())
+        if spp < 1:
+            raise PluginParameterError(f"{self.NAME}: spp={spp} must be >= 1")
+        if hasattr(sensor, "nlos_estimator"):
+            result = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spot=spot, progress=progress)
+        else:
+            if spot not in (None, 0):
+                raise PluginParameterError(f"{self.NAME}: spot={spot} given, but the sensor is a camera")
+            result = self._render_camera(scene, sensor, seed, spp, progress)
+        film.set_result(result)
+        return result
+
+    # ------------------------------------------------------------- camera
+
+    def _render_camera(self, scene, sensor, seed, spp, progress):
+        from transient_mi.films.transient_film import TransientResult
+
+        film = sensor.film()
+        W, H = film.width, film.height
+        taps = film.kernel_taps()
+        pad = len(taps) // 2
+        axis = film.time_axis()
+        K = choose_streams(W * H, spp, axis.n_bins + 2 * pad)
+        layout = LaneLayout(W * H, spp, K)
+        hist = LaneHistogram(layout, axis, pad)
+        rng = seed_rng(seed, layout.n_lanes)
+        center = mi.Point3f(sensor.world_transform().translation())
+        total = layout.n_pixels * spp
+        done = 0
+        for j0, j1 in layout.passes():
+            rng = self._camera_pass(scene, sensor, hist, rng, layout, j0, j1, W, H, center)
+            hist.evaluate(rng)
+            done = min(total, layout.n_pixels * min(spp, j1 * K))
+            if progress is not None:
+                progress(done, total)
+        h, steady, dropped, frac = hist.collect(taps)
+        return TransientResult(
+            histogram=h.reshape(H, W, axis.n_bins),
+            steady=steady.reshape(H, W),
+            dropped_contributions=dropped,
+            dropped_fraction=frac,
+            samples=total,
+        )
+
+    @dr.syntax
+    def _camera_pass(self, scene, sensor, hist, rng, layout, j0, j1, W, H, center):
+        K = layout.streams
+        lane = dr.arange(mi.UInt32, layout.n_lanes)
+        pixel = lane // K
+        k = lane - pixel * K
+        px = mi.Float(pixel % W)
+        py = mi.Float(pixel // W)
+        j = mi.UInt32(dr.opaque(mi.UInt32, j0))
+        j_end = dr.opaque(mi.UInt32, j1)
+        spp = dr.opaque(mi.UInt32, layout.spp)
+        inv_size = mi.Vector2f(1.0 / W, 1.0 / H)
+        needs_aperture = sensor.needs_aperture_sample()
+        while (j < j_end) & (k + j * K < spp):
+            pos = mi.Vector2f(px + rng.next_float32(), py + rng.next_float32()) * inv_size
+            aperture = mi.Point2f(rng.next_float32(), rng.next_float32()) if needs_aperture else mi.Point2f(0.5)
+            wav = rng.next_float32() if mi.is_spectral else mi.Float(0)
+            ray, ray_weight = sensor.sample_ray(mi.Float(0), wav, pos, aperture)
+            self._trace(scene, rng, hist, lane, ray, ray_weight, center)
+            j += 1
+        return rng
+
+    @dr.syntax
+    def _trace(self, scene, rng, hist, lane, ray, throughput, origin):
+        """Trace one path per lane and record every contribution at its path length.
+
+        ``origin``: where the first segment's length is measured from.
+        """
+        ctx = mi.BSDFContext()
+        wavelengths = ray.wavelengths
+        ray = mi.Ray3f(ray)
+        depth = mi.UInt32(0)
+        beta = mi.Spectrum(throughput)
+        eta = mi.Float(1)
+        active = mi.Bool(True)
+        prev_si = dr.zeros(mi.SurfaceInteraction3f)
+        prev_bsdf_pdf = mi.Float(1)
+        prev_bsdf_delta = mi.Bool(True)
+        si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
+        opl = dr.select(si.is_valid(), dr.norm(si.p - origin), dr.inf)
+        max_depth = self.max_depth
+        rr_depth = self.rr_depth
+
+        while active:
+            # ---- emitter hit (weighted against the previous vertex's NEE)
+            ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
+            em_pdf = scene.pdf_emitter_direction(prev_si, ds, ~prev_bsdf_delta)
+            Le = beta * mis_weight(prev_bsdf_pdf, em_pdf) * ds.emitter.eval(si, prev_bsdf_pdf > 0)
+            hist.record(lane, opl, to_mono(Le, wavelengths), active & (ds.emitter != None))  # noqa: E711
+
+            active_next = active & si.is_valid() & (depth + 1 < max_depth)
+            bsdf = si.bsdf(ray)
+
+            # ---- next-event estimation
+            active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+            ds, em_weight = scene.sample_emitter_direction(
+                si, mi.Point2f(rng.next_float32(), rng.next_float32()), True, active_em)
+            active_em &= ds.pdf != 0
+            wo = si.to_local(ds.d)
+            bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
+            mis_em = dr.select(ds.delta, 1, mis_weight(ds.pdf, bsdf_pdf))
+            Lr = beta * mis_em * bsdf_val * em_weight
+            hist.record(lane, opl + ds.dist, to_mono(Lr, wavelengths), active_em)
+
+            # ---- BSDF sampling
+            bs, bsdf_weight = bsdf.sample(ctx, si, rng.next_float32(),
+                                          mi.Point2f(rng.next_float32(), rng.next_float32()), active_next)
+            ray = si.spawn_ray(si.to_world(bs.wo))
+            eta *= bs.eta
+            beta *= bsdf_weight
+            prev_si = dr.detach(si, True)
+            prev_bsdf_pdf = bs.pdf
+            prev_bsdf_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+
+            # ---- Russian roulette (as Mitsuba's path)
+            depth[si.is_valid()] += 1
+            beta_max = dr.max(mi.unpolarized_spectrum(beta))
+            rr_prob = dr.minimum(beta_max * dr.square(eta), 0.95)
+            rr_active = depth >= rr_depth
+            rr_continue = rng.next_float32() < rr_prob
+            beta[rr_active] *= dr.rcp(rr_prob)
+            active = active_next & (~rr_active | rr_continue) & (beta_max != 0)
+
+            si_next = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
+            opl = dr.select(si_next.is_valid(), opl + dr.norm(si_next.p - si.p), dr.inf)
+            si = si_next
+
+    def to_string(self):
+        return f"TransientPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}]"

@@ -1,0 +1,297 @@
+"""Render a scene into an EXR histogram stack, one laser spot at a time.
+
+This is what ``transient-mi render`` runs. Everything that can be checked
+before rendering (scene, parameters, output location) is checked first, so bad
+input leaves no output directory behind. The capture directory then receives
+``manifest.json`` (status ``incomplete``), one ``spot_NNNNN.exr`` per laser
+spot as soon as it is rendered (atomic writes: a file with its final name is
+complete), and finally ``preview.png`` and the manifest with status
+``complete``. Peak memory is that of one spot, whatever the number of spots.
+
+``resume=True`` continues an interrupted capture: spots already written with
+the same configuration are kept, the others are rendered. Spot ``j`` is
+rendered with its own seed derived from ``(seed, j)``, so a resumed capture
+is byte-identical to an uninterrupted one.
+
+With a ``spad_film`` the ideal capture is rendered into ``OUT/ideal/`` and the
+detector model turns it into a counts capture in ``OUT/``.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from recon._progress import progress_bar
+from recon.errors import UserInputError
+from recon.io import stack
+
+from . import __version__
+from .scene_io import file_sha256, load_scene
+
+
+def spot_seed(seed: int, spot: int) -> int:
+    """Seed of laser spot ``spot``: a hash of ``(seed, spot)`` (spot 0 of a camera render uses ``seed``)."""
+    return int(np.random.SeedSequence([int(seed), int(spot)]).generate_state(1, dtype=np.uint32)[0])
+
+
+@dataclass
+class RenderJob:
+    """A validated render request (see :func:`prepare_render`)."""
+
+    scene_file: Path
+    out_dir: Path
+    defines: dict[str, str]
+    spp: int
+    seed: int
+    variant: str
+    resume: bool
+    scene: object = None
+    sensor: object = None
+    integrator: object = None
+    layout: dict = field(default_factory=dict)
+    manifest: dict = field(default_factory=dict)
+    detect_kwargs: dict | None = None
+
+    @property
+    def ideal_dir(self) -> Path:
+        return self.out_dir / "ideal" if self.detect_kwargs is not None else self.out_dir
+
+
+def _check_output(out_dir: Path, resume: bool) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserInputError(f"-o {out_dir}: exists and is not a directory")
+    parent = out_dir.parent if out_dir.parent != Path("") else Path(".")
+    if not parent.is_dir():
+        raise UserInputError(f"-o {out_dir}: parent directory {parent} does not exist")
+    try:  # a real probe: permission bits say little for root or read-only mounts
+        os.rmdir(tempfile.mkdtemp(dir=parent, prefix=".transient-mi-probe-"))
+    except OSError as e:
+        raise UserInputError(f"-o {out_dir}: cannot create a directory in {parent} ({e.strerror})") from None
+    if out_dir.exists() and not resume and any(out_dir.iterdir()):
+        raise UserInputError(f"-o {out_dir}: directory exists and is not empty (use --resume to continue it, "
+                             "or choose another output)")
+    if out_dir.exists() and not os.access(out_dir, os.W_OK | os.X_OK):
+        raise UserInputError(f"-o {out_dir}: directory is not writable")
+
+
+def _camera_layout(sensor) -> dict:
+    return {
+        "capture": "camera",
+        "n_files": 1,
+        "quantity": "radiance",
+        "include_first_last": True,
+        "geometry": None,
+        "laser": None,
+    }
+
+
+def _versions() -> dict:
+    import drjit as dr
+    import mitsuba as mi
+
+    return {"transient_mi": __version__, "mitsuba": mi.__version__, "drjit": dr.__version__,
+            "numpy": np.__version__, "python": platform.python_version()}
+
+
+def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int = 0,
+                   variant: str | None = None, resume: bool = False) -> RenderJob:
+    """Validate everything and load the scene; creates nothing on disk.
+
+    Raises
+    ------
+    UserInputError
+        For a missing or malformed scene, bad parameters, a bad variant or
+        an output location that cannot be used.
+    """
+    import transient_mi as tm
+
+    if variant:
+        tm.set_variant(variant)
+    if not tm.variant().startswith(("llvm_", "cuda_")):
+        raise UserInputError(f"variant {tm.variant()!r} cannot render: use an llvm_* or cuda_* variant "
+                             "(scalar_* variants only load scenes, for debugging)")
+    if spp < 0:
+        raise UserInputError(f"--spp {spp}: must be >= 1 (or 0 for the scene's value)")
+    if not 0 <= seed < 2**32:
+        raise UserInputError(f"--seed {seed}: must be in [0, 2**32)")
+    scene_file = Path(scene_file)
+    out_dir = Path(out_dir)
+    _check_output(out_dir, resume)
+    scene = load_scene(scene_file, defines)
+    sensors = scene.sensors()
+    if len(sensors) != 1:
+        raise UserInputError(f"{scene_file}: has {len(sensors)} sensors; transient-mi renders scenes with exactly one")
+    sensor = sensors[0]
+    integrator = scene.integrator()
+    if not hasattr(integrator, "render_transient"):
+        raise UserInputError(f"{scene_file}: integrator is {type(integrator).__name__}; "
+                             "use <integrator type=\"transient_path\"> for transient renders")
+    film = sensor.film()
+    if not hasattr(film, "is_transient"):
+        raise UserInputError(f"{scene_file}: the sensor's film must be a transient_film or spad_film")
+    spp = spp or int(sensor.sampler().sample_count())
+    layout = sensor.capture_layout(scene) if hasattr(sensor, "capture_layout") else _camera_layout(sensor)
+    detect_kwargs = film.detect_kwargs(render_seed=seed) if hasattr(film, "detect_kwargs") else None
+    if detect_kwargs is not None and layout["quantity"] != "photons_per_pulse":
+        raise UserInputError(f"{scene_file}: a spad_film needs an NLOS sensor (spad_array) that records "
+                             "photons per laser pulse; under a camera use transient_film")
+
+    axis = film.time_axis()
+    config = {
+        "scene_sha256": file_sha256(scene_file),
+        "defines": dict(sorted((defines or {}).items())),
+        "spp": spp,
+        "seed": seed,
+        "variant": tm.variant(),
+        "film": str(film),
+        "integrator": str(integrator),
+        "sensor": layout.get("geometry"),
+        "laser": layout.get("laser"),
+    }
+    render_info = {
+        "scene_file": str(scene_file.resolve()),
+        "scene_sha256": config["scene_sha256"],
+        "defines": config["defines"],
+        "spp": spp,
+        "seed": seed,
+        "variant": tm.variant(),
+        "integrator": str(integrator),
+        "film": str(film),
+        "kernel_sigma_ps": float(getattr(film, "kernel_sigma_ps", 0.0)),
+        "versions": _versions(),
+        "config_sha256": stack.config_digest(config),
+        "command": " ".join(sys.argv) if sys.argv else "",
+    }
+    manifest = stack.new_manifest(
+        kind="ideal",
+        capture=layout["capture"],
+        width=film.width,
+        height=film.height,
+        n_files=layout["n_files"],
+        t0_ps=axis.t0_ps,
+        bin_width_ps=axis.bin_width_ps,
+        n_bins=axis.n_bins,
+        quantity=layout["quantity"],
+        include_first_last=layout["include_first_last"],
+        geometry=layout.get("geometry"),
+        laser=layout.get("laser"),
+        detector=None,
+        render=render_info,
+        dropped={"contributions": 0, "fraction": 0.0},
+    )
+    job = RenderJob(scene_file, out_dir, dict(defines or {}), spp, seed, tm.variant(), resume,
+                    scene, sensor, integrator, layout, manifest, detect_kwargs)
+    if resume and job.ideal_dir.exists() and stack.manifest_path(job.ideal_dir).exists():
+        old = stack.read_manifest(job.ideal_dir)
+        _check_resumable(old, manifest, job.ideal_dir)
+    return job
+
+
+def _check_resumable(old: dict, new: dict, where: Path) -> None:
+    o, n = old.get("render") or {}, new["render"]
+    if o.get("config_sha256") == n["config_sha256"]:
+        return
+    diffs = []
+    for key in ("scene_sha256", "defines", "spp", "seed", "variant", "film", "integrator"):
+        if o.get(key) != n.get(key):
+            diffs.append(f"{key}: {o.get(key)!r} then, {n.get(key)!r} now")
+    if not diffs:
+        diffs.append("sensor/laser geometry differs")
+    raise UserInputError(f"--resume {where}: the existing capture was rendered with other settings ("
+                         + "; ".join(diffs) + "); use a new output directory")
+
+
+def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Path:
+    """Render every (missing) spot of ``job`` and write the capture.
+
+    Parameters
+    ----------
+    job : RenderJob
+        From :func:`prepare_render`.
+    progress : bool, optional
+        Force the progress bar on/off (default: on for terminals).
+    on_spot : callable, optional
+        ``on_spot(j)`` after spot ``j`` is written (used by tests to
+        interrupt a render).
+
+    Returns
+    -------
+    Path
+        The capture directory (for a ``spad_film``, the counts capture).
+    """
+    d = job.ideal_dir
+    d.mkdir(parents=True, exist_ok=True)
+    m = dict(job.manifest)
+    n_files = m["n_files"]
+    todo = [j for j in range(n_files) if not (job.resume and stack.spot_is_complete(d, j, m))]
+    if job.resume and stack.manifest_path(d).exists():
+        old = stack.read_manifest(d)
+        m["dropped"] = old.get("dropped", m["dropped"])
+        m["render"]["render_time_s"] = (old.get("render") or {}).get("render_time_s", 0.0)
+    stack.write_manifest(d, dict(m, status="incomplete"))
+    W, H = m["width"], m["height"]
+    paths_per_spot = W * H * job.spp
+    t_start = time.perf_counter()
+    dropped_n = int(m["dropped"]["contributions"])
+    frac_sum = float(m["dropped"]["fraction"]) * (n_files - len(todo))
+    preview_data = None
+    with progress_bar(f"render {job.scene_file.name}", total=len(todo) * paths_per_spot,
+                      disable=None if progress is None else not progress) as advance:
+        for j in todo:
+            done_before = [0]
+
+            def cb(done, total, _d=done_before):
+                advance(done - _d[0])
+                _d[0] = done
+
+            seed_j = job.seed if n_files == 1 else spot_seed(job.seed, j)
+            res = job.integrator.render_transient(job.scene, job.sensor, seed=seed_j, spp=job.spp,
+                                                  spot=None if m["capture"] == "camera" else j, progress=cb)
+            stack.write_spot(d, j, res.histogram, m)
+            dropped_n += res.dropped_contributions
+            frac_sum += res.dropped_fraction
+            if preview_data is None:
+                preview_data = (j, res.histogram)
+            del res
+            if on_spot is not None:
+                on_spot(j)
+    elapsed = time.perf_counter() - t_start
+    m["render"]["render_time_s"] = float(m["render"].get("render_time_s", 0.0) or 0.0) + elapsed
+    m["dropped"] = {"contributions": dropped_n, "fraction": frac_sum / n_files}
+    if preview_data is None:
+        preview_data = (0, stack.read_spot(d, 0, m))
+    from .preview import write_preview
+
+    write_preview(d / "preview.png", preview_data[1], m, spot=preview_data[0])
+    m["status"] = "complete"
+    stack.write_manifest(d, m)
+    if job.detect_kwargs is None:
+        return d
+    return _detect_into(job, d)
+
+
+def _detect_into(job: RenderJob, ideal_dir: Path) -> Path:
+    """Run the film's detector model on the ideal capture; counts land in ``job.out_dir``.
+
+    (``detect_stack`` writes into a temporary sibling and moves the files in
+    with the manifest last, keeping ``ideal/``.)
+    """
+    from transient_mi.detector import detect_stack
+
+    return detect_stack(ideal_dir, job.out_dir, progress=True, **job.detect_kwargs)
+
+
+def render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int = 0, variant: str | None = None,
+           resume: bool = False, progress: bool | None = None) -> Path:
+    """Validate, render and write a capture; see :mod:`transient_mi.pipeline`."""
+    job = prepare_render(scene_file, out_dir, defines=defines, spp=spp, seed=seed, variant=variant,
+                         resume=resume)
+    return run_render(job, progress=progress)

@@ -1,0 +1,109 @@
+"""``preview.png``: a picture of a capture a person can look at.
+
+Camera renders: the time-integrated image, four time slices (at the times by
+which 20/40/60/80 % of the light has arrived) and an x-t streak image of the
+middle row. NLOS captures: the time-integrated photons per pixel, the x-t
+streak image of the middle pixel row and the histogram of the brightest
+pixel, for one laser spot.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _tonemap(img: np.ndarray) -> np.ndarray:
+    """Scale to the 98th percentile and apply a 1/2.2 gamma (for display only)."""
+    img = np.clip(np.nan_to_num(img.astype(np.float64)), 0, None)
+    hi = np.percentile(img, 98.0) if img.size else 0.0
+    if hi <= 0:
+        hi = img.max() if img.max() > 0 else 1.0
+    return np.clip(img / hi, 0, 1) ** (1 / 2.2)
+
+
+def slice_bins(hist: np.ndarray, fractions=(0.1, 0.3, 0.5, 0.7)) -> list[int]:
+    """Bins by which the given fractions of the light have arrived, every pixel weighted equally.
+
+    (Weighting pixels equally keeps a directly visible light source from
+    deciding every slice.)
+    """
+    flat = hist.reshape(-1, hist.shape[-1]).astype(np.float64)
+    tot = flat.sum(axis=1, keepdims=True)
+    per_bin = (flat / np.where(tot > 0, tot, 1.0)).sum(axis=0)
+    cum = np.cumsum(per_bin)
+    if cum[-1] <= 0:
+        n = hist.shape[-1]
+        return [int(f * (n - 1)) for f in fractions]
+    return [int(np.searchsorted(cum, f * cum[-1])) for f in fractions]
+
+
+def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int = 0) -> Path:
+    """Write ``preview.png`` for one spot's histograms ``hist[height, width, n_bins]`` (atomically)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = manifest["time"]
+    t0, bw, n = t["t0_ps"], t["bin_width_ps"], t["n_bins"]
+    t_ns = lambda b: (t0 + (b + 0.5) * bw) / 1000.0  # noqa: E731
+    H, W, _ = hist.shape
+    steady = hist.sum(axis=-1, dtype=np.float64)
+    row = H // 2
+    streak = hist[row].astype(np.float64)  # [x, t]
+    extent_xt = [t0 / 1000.0, (t0 + n * bw) / 1000.0, W - 0.5, -0.5]
+
+    if manifest["capture"] == "camera":
+        bins = slice_bins(hist)
+        fig, axes = plt.subplots(1, 6, figsize=(18, 3.4), gridspec_kw={"width_ratios": [1, 1, 1, 1, 1, 1.6]})
+        axes[0].imshow(_tonemap(steady), cmap="gray")
+        axes[0].set_title("time-integrated")
+        for ax, b in zip(axes[1:5], bins):
+            lo, hi = max(0, b - 2), min(n, b + 3)
+            ax.imshow(_tonemap(hist[..., lo:hi].sum(axis=-1, dtype=np.float64)), cmap="inferno")
+            ax.set_title(f"t = {t_ns(b):.2f} ns")
+        axes[5].imshow(_tonemap(streak), cmap="inferno", aspect="auto", extent=extent_xt)
+        axes[5].set_title(f"x-t streak, row {row}")
+        axes[5].set_xlabel("time (ns)")
+        axes[5].set_ylabel("pixel x")
+        for ax in axes[:5]:
+            ax.set_xticks([])
+            ax.set_yticks([])
+    else:
+        fig, axes = plt.subplots(1, 3, figsize=(14, 3.8), gridspec_kw={"width_ratios": [1, 1.6, 1.6]})
+        im = axes[0].imshow(steady, cmap="viridis", origin="lower")
+        axes[0].set_title(f"photons/pulse, spot {spot}")
+        fig.colorbar(im, ax=axes[0], fraction=0.046)
+        axes[1].imshow(_tonemap(streak), cmap="inferno", aspect="auto", extent=extent_xt)
+        axes[1].set_title(f"x-t streak, pixel row {row}")
+        axes[1].set_xlabel("time (ns)")
+        axes[1].set_ylabel("pixel x")
+        y, x = np.unravel_index(int(np.argmax(steady)), steady.shape)
+        tt = (t0 + (np.arange(n) + 0.5) * bw) / 1000.0
+        axes[2].semilogy(tt, np.clip(hist[y, x].astype(np.float64), 1e-30, None))
+        axes[2].set_title(f"histogram of pixel (y={y}, x={x})")
+        axes[2].set_xlabel("time (ns)")
+        axes[2].set_ylabel(manifest.get("quantity", "value") + " per bin")
+    fig.tight_layout()
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=90)
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    finally:
+        plt.close(fig)
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path

@@ -1,0 +1,98 @@
+"""Binary PLY writer for triangle meshes, atomic and byte-for-byte deterministic.
+
+The file holds only what Mitsuba's ``<shape type="ply">`` needs: float32
+vertex positions and int32 triangle indices (Mitsuba computes smooth vertex
+normals itself unless the shape sets ``face_normals``). It is written under a
+temporary name in the target folder and renamed into place, so a reader never
+sees half a file and a failed write leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from recon.errors import UserInputError
+
+
+def ply_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:
+    """Binary little-endian PLY of a triangle mesh.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        Positions in metres (stored as float32).
+    faces : ndarray, shape (F, 3)
+        Vertex indices of each triangle, counter-clockwise seen from outside.
+    """
+    v = np.ascontiguousarray(vertices, dtype="<f4")
+    f = np.asarray(faces, dtype="<i4")
+    header = (
+        "ply\n"
+        "format binary_little_endian 1.0\n"
+        "comment transient-mi procedural mesh\n"
+        f"element vertex {len(v)}\n"
+        "property float x\nproperty float y\nproperty float z\n"
+        f"element face {len(f)}\n"
+        "property list uchar int vertex_indices\n"
+        "end_header\n"
+    ).encode("ascii")
+    rec = np.empty(len(f), dtype=[("n", "u1"), ("idx", "<i4", (3,))])
+    rec["n"] = 3
+    rec["idx"] = f
+    return header + v.tobytes() + rec.tobytes()
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes, what: str = "output") -> Path:
+    """Write ``data`` to ``path`` via a temporary file in the same folder and a rename.
+
+    Raises
+    ------
+    UserInputError
+        When the folder does not exist, ``path`` is a folder, or the file
+        cannot be written (permissions, full disk). Nothing is left behind.
+    """
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    if p.is_dir():
+        raise UserInputError(f"{what} {str(p)!r} is a directory; give a file name such as {str(p / 'mannequin.ply')!r}")
+    if not parent.is_dir():
+        raise UserInputError(f"{what} {str(p)!r}: folder {str(parent)!r} does not exist")
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(dir=parent, prefix=f".{p.name}.", suffix=".tmp")
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the file ordinary permissions
+        os.replace(tmp, p)
+        tmp = None
+    except OSError as e:
+        raise UserInputError(f"{what} {str(p)!r} cannot be written: {e.strerror or e}") from None
+    finally:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+    return p
+
+
+def _read_umask() -> int:
+    # Read once at import: os.umask can only be read by setting it, which is
+    # not safe while other threads create files.
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _read_umask()
+
+
+def write_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray) -> Path:
+    """Write a triangle mesh as binary PLY, atomically. Returns the path."""
+    return write_bytes_atomic(path, ply_bytes(vertices, faces), what="output mesh")
