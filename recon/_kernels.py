@@ -199,39 +199,3 @@ def wiener_apply(D, K, inv_snr):  # pragma: no cover - compiled
         p = k.real * k.real + k.imag * k.imag
         Df[i] = Df[i] * (k.conjugate() * (m / (p + reg)))
 
-
-@njit(cache=True, nogil=True)
-def raster_depth(tri, xs, ys, zlo, zhi, out):  # pragma: no cover - compiled
-    """Nearest hit z of vertical rays through (xs[i], ys[j]) with triangles ``tri`` (n, 3, 3), in [zlo, zhi].
-
-    out : (ny, nx) float64, initialised to +inf, updated with the minimum.
-    """
-    nx = xs.shape[0]
-    ny = ys.shape[0]
-    x0 = xs[0]
-    y0 = ys[0]
-    dx = xs[1] - xs[0] if nx > 1 else 1.0
-    dy = ys[1] - ys[0] if ny > 1 else 1.0
-    for t in range(tri.shape[0]):
-        ax, ay, az = tri[t, 0, 0], tri[t, 0, 1], tri[t, 0, 2]
-        bx, by, bz = tri[t, 1, 0], tri[t, 1, 1], tri[t, 1, 2]
-        cx, cy, cz = tri[t, 2, 0], tri[t, 2, 1], tri[t, 2, 2]
-        det = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy)
-        if det == 0.0:
-            continue
-        i0 = max(0, int(math.ceil((min(ax, bx, cx) - x0) / dx)))
-        i1 = min(nx - 1, int(math.floor((max(ax, bx, cx) - x0) / dx)))
-        j0 = max(0, int(math.ceil((min(ay, by, cy) - y0) / dy)))
-        j1 = min(ny - 1, int(math.floor((max(ay, by, cy) - y0) / dy)))
-        for j in range(j0, j1 + 1):
-            py = ys[j]
-            for i in range(i0, i1 + 1):
-                px = xs[i]
-                l1 = ((by - cy) * (px - cx) + (cx - bx) * (py - cy)) / det
-                l2 = ((cy - ay) * (px - cx) + (ax - cx) * (py - cy)) / det
-                l3 = 1.0 - l1 - l2
-                if l1 < 0.0 or l2 < 0.0 or l3 < 0.0:
-                    continue
-                z = l1 * az + l2 * bz + l3 * cz
-                if zlo <= z <= zhi and z < out[j, i]:
-                    out[j, i] = z

@@ -13,7 +13,8 @@ Definitions (all distances in metres; "occupied" voxels are those with
     terms carry a discretisation error below that spacing.
 ``depth_mae_m``, ``depth_rmse_m``
     Per voxel column (x_m, y_m), the ground-truth depth is the first hit of
-    the ray from the wall (z = 0) along +z with the mesh, within the bounds;
+    the line from the wall along +z with the mesh (NaN if it misses or the
+    hit lies outside the z bounds);
     the reconstructed depth is the z of the column's maximum of ``volume``.
     Mean absolute and root-mean-square difference over columns where both
     exist. ``depth_coverage`` is the fraction of ground-truth columns that
@@ -129,15 +130,15 @@ def mesh_occupancy(mesh, grid: VoxelGrid, seed: int = 0, samples: np.ndarray | N
 
 
 def mesh_depth_map(mesh, grid: VoxelGrid) -> np.ndarray:
-    """First hit (z, metres) of rays from (x_m, y_m, 0) along +z with the mesh, within the z bounds; NaN if none."""
-    from . import _kernels
+    """Ground-truth depth per voxel column: the first hit (z, metres) of the line through (x_m, y_m) along +z
+    with the mesh (:func:`recon.ground_truth.ground_truth_depth_map`), NaN where it misses the mesh or the
+    first hit lies outside the grid's z bounds."""
+    from .ground_truth import ground_truth_depth_map
 
-    tri = np.ascontiguousarray(mesh.triangles, dtype=np.float64)
+    d = ground_truth_depth_map(mesh, grid.x_m, grid.y_m)
     zlo, zhi = grid.bounds[4], grid.bounds[5]
-    out = np.full((len(grid.y_m), len(grid.x_m)), np.inf)
-    _kernels.raster_depth(tri, np.asarray(grid.x_m, float), np.asarray(grid.y_m, float), float(zlo), float(zhi), out)
-    out[~np.isfinite(out)] = np.nan
-    return out
+    d[~((d >= zlo) & (d <= zhi))] = np.nan
+    return d
 
 
 def _point_targets_from_mesh(mesh, grid: VoxelGrid) -> np.ndarray | None:

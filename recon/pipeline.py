@@ -87,7 +87,7 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
 
 def run(capture_path, out_dir, method: str = "bp", *, bounds=None, voxels=None, voxel_size_m=None,
         filter: str = "paper", sigma_m=None, threshold=None, ground_truth=None, pileup_correction: bool = False,
-        pulses=None, time_crop_ps=None, time_downsample: int | None = None, overwrite: bool = False,
+        pulses=None, blind_cycles=None, time_crop_ps=None, time_downsample: int | None = None, overwrite: bool = False,
         plots: bool = True, seed: int = 0, **options) -> tuple[Reconstruction, dict | None, Path]:
     """Load, preprocess, reconstruct, filter, score and write (the ``recon`` command).
 
@@ -101,9 +101,9 @@ def run(capture_path, out_dir, method: str = "bp", *, bounds=None, voxels=None, 
     gt = load_ground_truth(ground_truth) if ground_truth is not None else None  # fail early
     cap = load_capture(capture_path)
     if pileup_correction:
-        cap = preprocess.pileup_correction(cap, n_cycles=pulses)
-    elif pulses is not None:
-        raise UserInputError("--pulses is only used with --pileup-correction")
+        cap = preprocess.pileup_correction(cap, n_cycles=pulses, blind_cycles=blind_cycles)
+    elif pulses is not None or blind_cycles is not None:
+        raise UserInputError("--pulses and --blind-cycles are only used with --pileup-correction")
     if time_crop_ps is not None:
         cap = preprocess.crop_time(cap, *time_crop_ps)
     if time_downsample:

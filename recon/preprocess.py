@@ -91,7 +91,42 @@ def remove_first_last(capture: Capture) -> Capture:
     return resample_time_axis(capture, t0, remove_offsets=True)
 
 
-def pileup_correction(capture: Capture, n_cycles: float | None = None) -> Capture:
+def blind_cycles_from_manifest(capture: Capture) -> tuple[int, str]:
+    """Whole laser cycles the detector stays blind after a detection, from a counts manifest.
+
+    Uses ``detector.resolved``: ``period_ps`` and the larger of
+    ``spad_dead_time_ps`` / ``tcspc_dead_time_ps`` (``tau``), and the recorded
+    window ``[a, b) = [t0, t_end)``. A dead time blinds exactly ``m`` whole
+    cycles after any detection in the window when ``tau >= b - a`` and
+    ``m P + b <= a + tau <= (m + 1) P + a - (b - a)``, i.e.
+    ``m = floor((a + tau - b) / P)`` (the detector model's condition,
+    ``transient_mi.detector.pileup.blind_cycles``). ``m = 0`` is Coates'
+    classic setting.
+
+    Returns
+    -------
+    (m, note)
+        ``m >= 0``; ``note`` says where it came from (and when it is only
+        approximate: the dead time is not whole cycles for this window, or the
+        manifest has no dead time).
+    """
+    res = ((capture.manifest.get("detector") or {}).get("resolved")) or {}
+    P = res.get("period_ps")
+    taus = [t for t in (res.get("spad_dead_time_ps"), res.get("tcspc_dead_time_ps")) if isinstance(t, (int, float))]
+    if not isinstance(P, (int, float)) or not P > 0 or not taus:
+        return 0, "no dead time in the manifest: Coates' setting (0 blind cycles) assumed"
+    tau = float(max(taus))
+    a, b = capture.t0_ps, capture.t_end_ps
+    tol = 1e-9 * P
+    m = math.floor((a + tau - b + tol) / P)
+    if tau + tol >= b - a and m >= 0 and b + tau <= (m + 1) * P + a + tol:
+        return int(m), f"{m} blind cycles (dead time {tau:g} ps, period {P:g} ps)"
+    m = max(0, math.floor(tau / P))
+    return m, (f"dead time {tau:g} ps is not whole periods of {P:g} ps for the window [{a:g}, {b:g}) ps: "
+               f"{m} blind cycles used, the correction is approximate")
+
+
+def pileup_correction(capture: Capture, n_cycles: float | None = None, blind_cycles: int | None = None) -> Capture:
     """Coates' pile-up correction of a counts capture (see :func:`recon.pileup.coates_correction`).
 
     Each histogram becomes ``n_cycles * lambda_b``: the counts a detector
@@ -105,6 +140,9 @@ def pileup_correction(capture: Capture, n_cycles: float | None = None) -> Captur
     n_cycles : float, optional
         Laser pulses the histograms integrate; default from the manifest's
         ``detector`` section (``pulses``).
+    blind_cycles : int, optional
+        Whole cycles the detector is blind after each detection (dead time
+        longer than the period); default :func:`blind_cycles_from_manifest`.
     """
     from .pileup import coates_correction
 
@@ -117,16 +155,22 @@ def pileup_correction(capture: Capture, n_cycles: float | None = None) -> Captur
             f"{', '.join(PULSE_KEYS)}; pass n_cycles")
     if not (math.isfinite(n) and n > 0):
         raise UserInputError(f"n_cycles={n_cycles!r} must be a positive number of laser pulses")
+    if blind_cycles is None:
+        m, note = blind_cycles_from_manifest(capture)
+    else:
+        if not isinstance(blind_cycles, (int, np.integer)) or isinstance(blind_cycles, bool) or blind_cycles < 0:
+            raise UserInputError(f"blind_cycles={blind_cycles!r} must be a whole number >= 0")
+        m, note = int(blind_cycles), f"{int(blind_cycles)} blind cycles (given)"
 
     def transform(j, h):
-        lam = coates_correction(h, n, axis=-1) * n
+        lam = coates_correction(h, n, axis=-1, blind_cycles=m) * n
         if not np.all(np.isfinite(lam)):
             finite = np.where(np.isfinite(lam), lam, -np.inf)
             cap = np.max(finite, axis=-1, keepdims=True)
             lam = np.where(np.isfinite(lam), lam, np.maximum(cap, 0))
         return lam.astype(np.float32)
 
-    return capture.derive(transform, f"pileup_correction(n_cycles={n:g})")
+    return capture.derive(transform, f"pileup_correction(n_cycles={n:g}; {note})")
 
 
 def crop_time(capture: Capture, t_min_ps: float | None = None, t_max_ps: float | None = None) -> Capture:

@@ -5,7 +5,8 @@ import pytest
 
 from recon.capture import Capture
 from recon.errors import UserInputError
-from recon.preprocess import crop_time, downsample_time, pileup_correction, remove_first_last, resample_time_axis
+from recon.preprocess import (blind_cycles_from_manifest, crop_time, downsample_time, pileup_correction,
+                              remove_first_last, resample_time_axis)
 from recon.synthetic import point_capture, to_counts, wall_grid
 
 C = 299792458.0 * 1e-12
@@ -90,3 +91,27 @@ def test_pileup_correction_undoes_first_photon_pileup():
                                     kind="counts")
     with pytest.raises(UserInputError, match="needs the number of laser pulses"):
         pileup_correction(no_pulses)
+
+
+def test_pileup_correction_with_dead_time_longer_than_the_period():
+    """Whole blind cycles (50 MHz laser, 50 ns TCSPC dead time, a short window: m = 2): the detector fires in a
+    ready cycle with p_det and is then blind for m cycles, so the expected counts per bin are
+    N p_b / (1 + m p_det); Coates on the live cycles recovers N lambda."""
+    N = 10 ** 9
+    lam = np.array([0.0, 0.02, 0.3, 0.8, 0.5, 0.1, 0.0, 0.05])
+    survive = np.exp(-np.concatenate([[0.0], np.cumsum(lam)[:-1]]))
+    p = survive * (1 - np.exp(-lam))
+    m = 2
+    expected = N * p / (1 + m * p.sum())
+    data = np.round(np.broadcast_to(expected, (1, 2, 2, lam.size))).astype(np.uint32)
+    det = {"pulses": N, "resolved": {"period_ps": 20000.0, "spad_dead_time_ps": 20000.0,
+                                     "tcspc_dead_time_ps": 50000.0}}
+    cap = Capture.from_arrays(data, spots=[[0, 0, 0]], pixel_centers=wall_grid(2), t0_ps=3000.0, bin_width_ps=500,
+                              kind="counts", laser_origin=[0, 0, 1], detector_origin=[0, 0, 1],
+                              manifest_extra={"detector": det})
+    assert blind_cycles_from_manifest(cap)[0] == m                       # floor((3000 + 50000 - 7000) / 20000)
+    out = pileup_correction(cap)
+    assert "2 blind cycles" in out.processing[-1]
+    np.testing.assert_allclose(out.spot(0)[0, 0], N * lam, rtol=1e-5, atol=5.0)
+    # ignoring the dead time (classic Coates) underestimates
+    assert np.all(pileup_correction(cap, blind_cycles=0).spot(0)[0, 0, 2:6] < 0.9 * N * lam[2:6])

@@ -61,6 +61,9 @@ def recon_command(
                                            help="Coates pile-up correction of a counts capture."),
     pulses: Optional[float] = typer.Option(None, "--pulses", help="Laser pulses for --pileup-correction "
                                                                   "(default from the manifest)."),
+    blind_cycles: Optional[int] = typer.Option(
+        None, "--blind-cycles", help="Whole cycles the detector is blind after a detection, for "
+                                     "--pileup-correction (default from the manifest's dead time and period)."),
     time_crop_ps: Optional[str] = typer.Option(None, "--time-crop-ps", help="Keep bins in T_MIN,T_MAX (ps)."),
     time_downsample: Optional[int] = typer.Option(None, "--time-downsample", help="Sum groups of K bins."),
     wavelength_m: Optional[float] = typer.Option(None, "--wavelength-m",
@@ -87,7 +90,8 @@ def recon_command(
     rec, metrics, path = run(
         capture, out, method, bounds=parse_bounds(bounds) if bounds is not None else None, voxels=_voxels(voxels),
         voxel_size_m=voxel_size_m, filter=filter, sigma_m=sigma_m, threshold=threshold, ground_truth=ground_truth,
-        pileup_correction=pileup_correction, pulses=pulses, time_crop_ps=_pair(time_crop_ps, "--time-crop-ps"),
+        pileup_correction=pileup_correction, pulses=pulses, blind_cycles=blind_cycles,
+        time_crop_ps=_pair(time_crop_ps, "--time-crop-ps"),
         time_downsample=time_downsample, overwrite=overwrite, plots=not no_plots, seed=seed, **options)
     g = rec.grid
     nz, ny, nx = g.shape
