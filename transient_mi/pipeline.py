@@ -9,9 +9,12 @@ complete), and finally ``preview.png`` and the manifest with status
 ``complete``. Peak memory is that of one spot, whatever the number of spots.
 
 ``resume=True`` continues an interrupted capture: spots already written with
-the same configuration are kept, the others are rendered. Spot ``j`` is
-rendered with its own seed derived from ``(seed, j)``, so a resumed capture
-is byte-identical to an uninterrupted one.
+the same configuration are kept, the others are rendered. Spots are rendered
+in fixed groups (one spot each, except NLOS array captures, whose sensor's
+``spot_groups`` lets a group share sub-paths); the group starting at spot
+``j`` uses its own seed derived from ``(seed, j)``, and a group with any
+spot missing is rendered again as a whole, so a resumed capture is
+byte-identical to an uninterrupted one.
 
 With a ``spad_film`` the ideal capture is rendered into ``OUT/ideal/`` and the
 detector model turns it into a counts capture in ``OUT/``.
@@ -229,6 +232,8 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Pa
     """
     d = job.ideal_dir
     d.mkdir(parents=True, exist_ok=True)
+    if job.resume:
+        _remove_stale_temporaries(d)
     m = dict(job.manifest)
     n_files = m["n_files"]
     todo = [j for j in range(n_files) if not (job.resume and stack.spot_is_complete(d, j, m))]
@@ -243,26 +248,42 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Pa
     dropped_n = int(m["dropped"]["contributions"])
     frac_sum = float(m["dropped"]["fraction"]) * (n_files - len(todo))
     preview_data = None
-    with progress_bar(f"render {job.scene_file.name}", total=len(todo) * paths_per_spot,
+    # Spots are rendered in fixed groups (NLOS array captures share sub-paths within a group); a group
+    # with any spot missing is rendered again as a whole, so resumed captures keep the same bytes.
+    if hasattr(job.sensor, "spot_groups"):
+        groups = job.sensor.spot_groups(job.scene, job.spp)
+    else:
+        groups = [[j] for j in range(n_files)]
+    todo_set = set(todo)
+    groups = [g for g in groups if todo_set.intersection(g)]
+    with progress_bar(f"render {job.scene_file.name}", total=sum(len(g) for g in groups) * paths_per_spot,
                       disable=None if progress is None else not progress) as advance:
-        for j in todo:
+        for group in groups:
             done_before = [0]
 
             def cb(done, total, _d=done_before):
                 advance(done - _d[0])
                 _d[0] = done
 
-            seed_j = job.seed if n_files == 1 else spot_seed(job.seed, j)
-            res = job.integrator.render_transient(job.scene, job.sensor, seed=seed_j, spp=job.spp,
-                                                  spot=None if m["capture"] == "camera" else j, progress=cb)
-            stack.write_spot(d, j, res.histogram, m)
-            dropped_n += res.dropped_contributions
-            frac_sum += res.dropped_fraction
-            if preview_data is None:
-                preview_data = (j, res.histogram)
-            del res
-            if on_spot is not None:
-                on_spot(j)
+            seed_g = job.seed if n_files == 1 else spot_seed(job.seed, group[0])
+            if len(group) == 1:
+                results = [job.integrator.render_transient(
+                    job.scene, job.sensor, seed=seed_g, spp=job.spp,
+                    spot=None if m["capture"] == "camera" else group[0], progress=cb)]
+            else:
+                results = job.integrator.render_transient(job.scene, job.sensor, seed=seed_g, spp=job.spp,
+                                                          spots=group, progress=cb)
+            for j, res in zip(group, results):
+                if j not in todo_set:
+                    continue  # complete from an earlier run (and identical)
+                stack.write_spot(d, j, res.histogram, m)
+                dropped_n += res.dropped_contributions
+                frac_sum += res.dropped_fraction
+                if preview_data is None:
+                    preview_data = (j, np.array(res.histogram))  # a copy: frees the group buffer
+                if on_spot is not None:
+                    on_spot(j)
+            del results
     elapsed = time.perf_counter() - t_start
     m["render"]["render_time_s"] = float(m["render"].get("render_time_s", 0.0) or 0.0) + elapsed
     m["dropped"] = {"contributions": dropped_n, "fraction": frac_sum / n_files}
@@ -276,6 +297,17 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Pa
     if job.detect_kwargs is None:
         return d
     return _detect_into(job, d)
+
+
+def _remove_stale_temporaries(d: Path) -> None:
+    """Delete temporary files a killed render left behind (``.spot_NNNNN.exr.*.tmp`` and the like)."""
+    for p in d.iterdir():
+        name = p.name
+        if name.startswith((".spot_", f".{stack.MANIFEST_NAME}.", ".preview.png.")) and p.is_file():
+            try:
+                p.unlink()
+            except OSError:
+                pass
 
 
 def _detect_into(job: RenderJob, ideal_dir: Path) -> Path:

@@ -104,8 +104,12 @@ def load_scene(path: str | Path, defines: dict[str, str] | None = None):
         raise UserInputError(f"scene file {str(p)!r} does not exist")
     if not p.is_file():
         raise UserInputError(f"scene file {str(p)!r} is not a file")
+    # Mitsuba's scene optimisation merges meshes that share an (equivalent)
+    # BSDF; for NLOS scenes that could fuse the relay wall with hidden
+    # geometry, so it is switched off for them.
+    nlos = "spad_array" in p.read_text(errors="replace")
     try:
         with single_threaded():
-            return mi.load_file(str(p), **(defines or {}))
+            return mi.load_file(str(p), optimize=not nlos, **(defines or {}))
     except RuntimeError as e:
         raise UserInputError(f"{p}: {mitsuba_error_message(e)}") from None

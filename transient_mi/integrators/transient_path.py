@@ -10,7 +10,7 @@ import numpy as np
 
 from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_streams,
                                              seed_rng, to_mono)
-from transient_mi.props import PluginParameterError, get_int
+from transient_mi.props import PluginParameterError, get_float, get_int
 
 PLUGIN = ("integrator", "transient_path", "TransientPath")
 
@@ -57,6 +57,10 @@ class TransientPath(mi.CppADIntegrator):
        * - ``rr_depth``
          - integer
          - Depth at which Russian roulette starts, >= 1 (default 5).
+       * - ``hidden_geometry_prob``
+         - float
+         - NLOS only: probability of hidden-geometry sampling (vs BSDF
+           sampling) at the relay-wall patch point, in [0, 1] (default 0.8).
 
     Determinism: each SIMD lane accumulates its own histogram slot (see
     :mod:`transient_mi.integrators._lanes`), so the same seed gives the same
@@ -82,8 +86,17 @@ class TransientPath(mi.CppADIntegrator):
         self.nlos_options = self._read_nlos_options(props)
 
     def _read_nlos_options(self, props) -> dict:
-        """Extra parameters used with NLOS sensors (none yet)."""
-        return {}
+        """Extra parameters used with NLOS sensors (``spad_array``).
+
+        ``hidden_geometry_prob``: probability of choosing hidden-geometry
+        (area) sampling over BSDF sampling for the direction leaving the
+        relay-wall patch point (one-sample MIS with the balance heuristic,
+        see :mod:`transient_mi.integrators._nlos`); in [0, 1], default 0.8.
+        """
+        return {
+            "hidden_geometry_prob": get_float(props, self.NAME, "hidden_geometry_prob", 0.8,
+                                              min_value=0.0, max_value=1.0),
+        }
 
     # ---------------------------------------------------------------- API
 
@@ -98,7 +111,7 @@ class TransientPath(mi.CppADIntegrator):
         return mi.TensorXf(result.histogram)
 
     def render_transient(self, scene, sensor, *, seed: int = 0, spp: int = 0, spot: int | None = None,
-                         progress=None):
+                         spots=None, progress=None):
         """Render one transient image (or one laser spot of an NLOS capture).
 
         Parameters
@@ -111,6 +124,9 @@ class TransientPath(mi.CppADIntegrator):
             Samples per pixel; 0 takes the sensor's sampler value.
         spot : int, optional
             Laser spot to render (NLOS sensors only).
+        spots : sequence of int, optional
+            A group of laser spots to render together (NLOS array captures,
+            see ``spad_array.spot_groups``); a list of results is returned.
         progress : callable, optional
             ``progress(done_paths, total_paths)`` after every kernel launch.
 
@@ -134,9 +150,13 @@ class TransientPath(mi.CppADIntegrator):
         if spp < 1:
             raise PluginParameterError(f"{self.NAME}: spp={spp} must be >= 1")
         if hasattr(sensor, "nlos_estimator"):
+            if spots is not None:
+                results = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spots=spots, progress=progress)
+                film.set_result(results[-1])
+                return results
             result = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spot=spot, progress=progress)
         else:
-            if spot not in (None, 0):
+            if spot not in (None, 0) or spots not in (None, [0]):
                 raise PluginParameterError(f"{self.NAME}: spot={spot} given, but the sensor is a camera")
             result = self._render_camera(scene, sensor, seed, spp, progress)
         film.set_result(result)
