@@ -11,7 +11,8 @@ Backprojection
     are spread over its ellipsoid. No radiometric weighting is applied.
 
     Array captures stream one laser spot (file) at a time; confocal captures
-    pair spot k with pixel k. Memory: the volume, one file and per-pixel
+    pair spot k with pixel k (a spot within 1e-6 m of its pixel's patch centre,
+    as rendered float32 positions are, is taken to be on it). Memory: the volume, one file and per-pixel
     distance tables (chunked over pixels), never a pairs x voxels array.
 
 Filtered backprojection (``fbp``)
@@ -33,6 +34,7 @@ from ._progress import progress_bar
 from .errors import UserInputError
 from .grid import VoxelGrid
 from .result import Reconstruction
+from .wall import SAME_SPOT_TOLERANCE_M
 
 __all__ = ["backprojection", "filtered_backprojection", "backproject", "fbp_time_filter"]
 
@@ -98,7 +100,7 @@ def backproject(capture, grid: VoxelGrid, transform: Callable[[int, np.ndarray],
             ck = capture.path_offsets_m(j).reshape(K) - t0c
             if paired:
                 S = capture.spots
-                same = bool(np.array_equal(S, P))
+                same = bool(np.max(np.abs(S - P)) <= SAME_SPOT_TOLERANCE_M)
             else:
                 dxs, dys, dzs = (t[0] for t in _tables(capture.spots[j][None], grid))
             for k0 in range(0, K, chunk):

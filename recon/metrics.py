@@ -29,7 +29,9 @@ Definitions (all distances in metres; "occupied" voxels are those with
     strongest local maxima of ``volume`` (one per target, 3x3x3
     non-maximum suppression) are matched to the targets by minimum total
     distance (Hungarian assignment); the error of each target is its
-    distance to its matched maximum. ``localisation_error_m`` is the mean.
+    distance to its matched maximum. ``localisation_error_m`` is the mean
+    over matched targets; a target without a maximum (the threshold removed
+    it) has error ``null`` and is not counted in ``n_found``.
 """
 
 from __future__ import annotations
@@ -197,7 +199,7 @@ def localisation_errors(rec: Reconstruction, points: np.ndarray) -> dict:
             errs[i] = float(cost[i, j])
             positions[i] = found[j].tolist()
     valid = [e for e in errs if e is not None]
-    return {"targets": pts.tolist(), "found": positions, "errors_m": errs,
+    return {"targets": pts.tolist(), "found": positions, "errors_m": errs, "n_found": len(valid),
             "localisation_error_m": float(np.mean(valid)) if valid else None,
             "max_localisation_error_m": float(np.max(valid)) if valid else None,
             "voxel_size_m": list(g.voxel_size_m)}

@@ -6,7 +6,11 @@ import numpy as np
 
 from .errors import UserInputError
 
-__all__ = ["regular_pixel_grid", "RegularGrid"]
+__all__ = ["regular_pixel_grid", "RegularGrid", "SAME_SPOT_TOLERANCE_M"]
+
+#: A confocal laser spot within this distance of its pixel's patch centre counts as on it (metres):
+#: rendered captures store positions in float32 (~1e-7 m), far below any bin's path width.
+SAME_SPOT_TOLERANCE_M = 1e-6
 
 
 class RegularGrid:
@@ -32,22 +36,33 @@ class RegularGrid:
 def regular_pixel_grid(capture, method: str, rtol: float = 1e-4) -> RegularGrid | None:
     """Return the capture's pixel grid if it is regular, axis-aligned and in the plane z = 0, else None.
 
-    ``method`` only names the caller in error messages. Raises nothing; the
-    callers decide whether to fall back or to raise.
+    Positions may deviate from the regular grid by ``rtol`` times the pixel
+    pitch (rendered captures store float32 positions, ~1e-7 m off); the
+    returned axes are the column / row means. ``method`` only names the caller
+    in messages. Raises nothing; the callers decide whether to fall back or to
+    raise.
     """
     P = capture.pixel_centers
     if not capture.wall_is_z0(atol=1e-6):
         return None
-    x = P[0, :, 0]
-    y = P[:, 0, 1]
-    if not (np.allclose(P[..., 0], x[None, :], rtol=0, atol=1e-9) and np.allclose(P[..., 1], y[:, None], rtol=0, atol=1e-9)):
+    x = P[..., 0].mean(axis=0)
+    y = P[..., 1].mean(axis=1)
+    steps = [np.diff(a) for a in (x, y) if len(a) > 1]
+    if not steps:
+        return RegularGrid(x, y)
+    pitch = float(np.mean(np.concatenate(steps)))
+    if not pitch > 0:
+        return None
+    tol = rtol * pitch
+    if np.max(np.abs(P[..., 0] - x[None, :])) > tol or np.max(np.abs(P[..., 1] - y[:, None])) > tol:
         return None
     for a in (x, y):
         if len(a) > 1:
             d = np.diff(a)
-            if not (d[0] > 0 and np.allclose(d, d[0], rtol=rtol, atol=0)):
+            if not (d[0] > 0 and np.max(np.abs(d - d.mean())) <= tol):
                 return None
-    return RegularGrid(x.copy(), y.copy())
+            a[:] = a[0] + d.mean() * np.arange(len(a))   # the regular grid the positions approximate
+    return RegularGrid(x, y)
 
 
 def require_regular_confocal(capture, method: str) -> RegularGrid:
@@ -63,7 +78,7 @@ def require_regular_confocal(capture, method: str) -> RegularGrid:
             f"{capture.describe()}: use bp, fbp or phasor for it")
     S = capture.spots.reshape(capture.height, capture.width, 3)
     dev = float(np.max(np.linalg.norm(S - capture.pixel_centers, axis=-1)))
-    if dev > 1e-6:
+    if dev > SAME_SPOT_TOLERANCE_M:
         raise UserInputError(f"--method {method}: laser spot k must be pixel k's patch centre, but they differ by "
                              f"up to {dev:.3g} m in {where}; use bp, fbp or phasor")
     g = regular_pixel_grid(capture, method)
