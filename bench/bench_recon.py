@@ -1,0 +1,303 @@
+"""Benchmark of recon's reconstructions (time and peak memory), optionally side by side with y-tal.
+
+Cases (full size; ``--small`` shrinks everything for CI):
+
+====================  =====================================================  =============================
+case                  capture -> volume                                      goal on 2 cores
+====================  =====================================================  =============================
+bp64                  single spot, 32x32 pixels, 1024 bins -> 64^3            <= 0.5 s, <= 0.5 GB
+bp128                 same capture -> 128^3                                   <= 5 s, <= 1 GB
+phasor64              same capture -> 64^3                                    <= 10 s, <= 2 GB
+lct64                 confocal 64x64 pixels, 512 bins -> 64^3                 <= 0.5 s
+fk64                  same confocal capture -> 64^3                           <= 1 s
+bp64_confocal         same confocal capture -> 64^3                           (y-tal comparison)
+====================  =====================================================  =============================
+
+Every case runs in a fresh child process that reads the capture from the
+same y-tal HDF5 file (written once with :func:`recon.io.ytal.write_ytal`), so
+peak RSS (``ru_maxrss``) is per case. ``time_s`` times the reconstruction
+call only (the fastest of ``--repeat`` calls, default 3), after one warm-up
+call on a tiny capture (numba kernels loaded);
+``first_call_s`` is that warm-up (JIT compile or cache load). Memory is the
+child's peak resident set (Python, numpy, scipy, numba included);
+``rss_before_mb`` is the resident set just before the timed call.
+
+``--with-ytal`` also runs y-tal 0.20.0 (GPL; installed on demand in its own
+virtual environment, default ``~/.cache/transient-mi-bench/ytal``) on the same
+HDF5 file and the same voxel centres, with
+``tal.set_resources(cpu_processes=2, downscale=16)`` (y-tal's knob to process
+the data in chunks and bound its memory; ``--ytal-downscale``) and an
+address-space limit (``--ytal-memory-gb``, default 14) so that it fails
+instead of swapping. y-tal's f-k reconstructs on its own grid; y-tal 0.20.0 has no LCT.
+
+Prints one JSON document on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+YTAL_VENV = Path.home() / ".cache" / "transient-mi-bench" / "ytal"
+POINTS = [[0.1, -0.05, 0.5], [-0.2, 0.2, 0.4], [0.0, 0.0, 0.7], [0.25, 0.15, 0.6]]
+
+GOALS = {"bp64": {"time_s": 0.5, "peak_rss_gb": 0.5}, "bp128": {"time_s": 5.0, "peak_rss_gb": 1.0},
+         "phasor64": {"time_s": 10.0, "peak_rss_gb": 2.0}, "lct64": {"time_s": 0.5}, "fk64": {"time_s": 1.0}}
+
+
+def sizes(small: bool) -> dict:
+    if small:
+        return {"pixels": 8, "bins": 128, "bin_ps": 64.0, "conf_pixels": 8, "conf_bins": 128, "conf_bin_ps": 64.0,
+                "n": 16, "n_big": 24}
+    return {"pixels": 32, "bins": 1024, "bin_ps": 8.0, "conf_pixels": 64, "conf_bins": 512, "conf_bin_ps": 16.0,
+            "n": 64, "n_big": 128}
+
+
+CASES = {
+    # name: (capture, method, voxels key)
+    "bp64": ("single", "bp", "n"),
+    "bp128": ("single", "bp", "n_big"),
+    "phasor64": ("single", "phasor", "n"),
+    "lct64": ("confocal", "lct", "n"),
+    "fk64": ("confocal", "fk", "n"),
+    "bp64_confocal": ("confocal", "bp", "n"),
+}
+BOUNDS = (-0.5, 0.5, -0.5, 0.5, 0.1, 1.1)
+
+
+def rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+# ----------------------------------------------------------------------------- child (ours)
+
+
+def child(case: str, h5: str, n: int, repeat: int = 1) -> dict:
+    sys.path.insert(0, str(ROOT))
+    import numpy as np
+
+    from recon import load_capture
+    from recon.grid import VoxelGrid
+    from recon.pipeline import reconstruct
+    from recon.synthetic import point_capture
+
+    method = CASES[case][1]
+    # warm-up: same method on a tiny capture (numba kernels compiled or loaded from cache)
+    mode = "confocal" if CASES[case][0] == "confocal" else "array"
+    tiny = point_capture([[0, 0, 0.5]], mode=mode, pixels=4, sigma_ps=40, bin_width_ps=16)
+    t = time.perf_counter()
+    reconstruct(tiny, method, voxels=4, filter="none")
+    first = time.perf_counter() - t
+    cap = load_capture(h5)
+    grid = VoxelGrid.from_bounds(BOUNDS, voxels=n)
+    before = rss_mb()
+    times = []
+    for _ in range(max(1, repeat)):
+        t = time.perf_counter()
+        rec = reconstruct(cap, method, grid, filter="none")
+        times.append(time.perf_counter() - t)
+    elapsed = min(times)
+    t = time.perf_counter()
+    from recon.filters import paper_filter
+
+    paper_filter(rec, threshold="rel:0.3")
+    t_filter = time.perf_counter() - t
+    return {"status": "ok", "time_s": elapsed, "times_s": times, "paper_filter_s": t_filter, "first_call_s": first,
+            "peak_rss_mb": rss_mb(), "rss_before_mb": before, "shape_zyx": list(rec.raw.shape),
+            "argmax_m": [round(float(v), 4) for v in rec.argmax_m("raw")], "params": rec.params}
+
+
+# ----------------------------------------------------------------------------- parent
+
+
+def make_inputs(tmp: Path, small: bool) -> dict:
+    sys.path.insert(0, str(ROOT))
+    from recon.io.ytal import write_ytal
+    from recon.synthetic import point_capture
+
+    s = sizes(small)
+    single = point_capture(POINTS, pixels=s["pixels"], t0_ps=0.0, n_bins=s["bins"], bin_width_ps=s["bin_ps"],
+                           sigma_ps=20.0)
+    conf = point_capture(POINTS, mode="confocal", pixels=s["conf_pixels"], t0_ps=0.0, n_bins=s["conf_bins"],
+                         bin_width_ps=s["conf_bin_ps"], sigma_ps=20.0)
+    paths = {"single": tmp / "single.h5", "confocal": tmp / "confocal.h5"}
+    write_ytal(single, paths["single"])
+    write_ytal(conf, paths["confocal"])
+    return {"paths": paths, "describe": {"single": single.describe(), "confocal": conf.describe()},
+            "pitch": {"single": single.pixel_pitch_m()[0], "confocal": conf.pixel_pitch_m()[0]}}
+
+
+def run_ours(case: str, h5: Path, n: int, timeout: int, repeat: int) -> dict:
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", case, "--h5", str(h5), "--n", str(n),
+           "--repeat", str(repeat)]
+    env = dict(os.environ, TRANSIENT_MI_PROGRESS="0", PYTHONPATH=str(ROOT))
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+    except subprocess.TimeoutExpired:
+        return {"status": "timeout", "timeout_s": timeout}
+    if r.returncode != 0:
+        return {"status": "failed", "stderr": r.stderr[-2000:]}
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def ensure_ytal(venv: Path) -> Path:
+    py = venv / "bin" / "python"
+    if py.exists() and subprocess.run([str(py), "-c", "import tal"], capture_output=True).returncode == 0:
+        return py
+    print(f"[bench] creating y-tal environment {venv} (pip install y-tal==0.20.0)", file=sys.stderr)
+    venv.parent.mkdir(parents=True, exist_ok=True)
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    subprocess.run([str(py), "-m", "pip", "install", "--quiet", "y-tal==0.20.0"], check=True)
+    return py
+
+
+def run_ytal(py: Path, case: str, h5: Path, n: int, pitch: float, bin_m: float, tmp: Path, timeout: int,
+             memory_gb: float, downscale: int) -> dict:
+    sys.path.insert(0, str(ROOT))
+    from recon.grid import VoxelGrid
+
+    grid = VoxelGrid.from_bounds(BOUNDS, voxels=n)
+    lam = max(4 * pitch, 4 * bin_m)   # recon.phasor.default_wavelength_m: the same virtual wave for both
+    spec = {"method": CASES[case][1], "x_m": grid.x_m.tolist(), "y_m": grid.y_m.tolist(), "z_m": grid.z_m.tolist(),
+            "wavelength_m": lam, "pulse_sigma_m": lam, "cpu_processes": 2, "downscale": downscale}
+    sp = tmp / f"{case}.json"
+    sp.write_text(json.dumps(spec))
+    limit = int(memory_gb * 2 ** 30)
+
+    def preexec():
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    home = tmp / "ytal-home"  # y-tal writes ~/.tal.conf on first use
+    home.mkdir(exist_ok=True)
+    env = dict(os.environ, HOME=str(home), OMP_NUM_THREADS="2", NUMBA_NUM_THREADS="2")
+    try:
+        r = subprocess.run([str(py), str(ROOT / "bench" / "_ytal_runner.py"), case, str(h5), str(sp)],
+                           capture_output=True, text=True, timeout=timeout, env=env, preexec_fn=preexec)
+    except subprocess.TimeoutExpired:
+        return {"status": "timeout", "timeout_s": timeout}
+    if r.returncode != 0:
+        oom = "MemoryError" in r.stderr or "Unable to allocate" in r.stderr or r.returncode in (-9, 137)
+        return {"status": "out of memory" if oom else "failed", "memory_limit_gb": memory_gb,
+                "stderr": r.stderr[-1500:]}
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def _fmt(r: dict | None) -> tuple[str, str]:
+    if not r:
+        return "-", "-"
+    if r.get("status") != "ok":
+        why = r.get("reason") or r["status"]
+        if r.get("status") == "out of memory":
+            why = f"out of memory (> {r.get('memory_limit_gb'):g} GB limit)"
+        return why, "-"
+    return f"{r['time_s']:.3g} s", f"{r['peak_rss_mb'] / 1024:.2f} GB"
+
+
+def markdown_table(result: dict) -> str:
+    """Markdown table of a benchmark result."""
+    lines = ["| case | capture | voxels | recon time | recon peak RSS | goal | y-tal 0.20.0 time | y-tal peak RSS |"
+             " speed-up |", "|---|---|---|---|---|---|---|---|---|"]
+    for c in result["cases"]:
+        t, m = _fmt(c["ours"])
+        yt, ym = _fmt(c.get("ytal"))
+        g = c.get("goal")
+        goal = "-" if not g else " / ".join([f"<= {g['time_s']:g} s"] + ([f"<= {g['peak_rss_gb']:g} GB"]
+                                                                          if "peak_rss_gb" in g else []))
+        if g:
+            goal += " (met)" if c.get("meets_goal") else " (missed)"
+        sp = f"{c['speedup']:.0f}x" if "speedup" in c else "-"
+        cap = ", ".join(p.strip() for p in result["captures"][c["capture"]].split(",")[:2])
+        lines.append(f"| {c['case']} | {cap} | {'x'.join(map(str, c['voxels']))} | {t} | {m} | {goal} | {yt} | {ym} |"
+                     f" {sp} |")
+    la, lb = result.get("load_average_start"), result.get("load_average_end")
+    if la and lb:
+        lines.append("")
+        lines.append(f"Machine: {result['machine']['cpus']} CPUs; 1-minute load average {la[0]:.1f} at the start and "
+                     f"{lb[0]:.1f} at the end of the run.")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--small", action="store_true", help="tiny sizes (CI)")
+    ap.add_argument("--with-ytal", action="store_true", help="also run y-tal 0.20.0 (own virtual environment)")
+    ap.add_argument("--ytal-venv", type=Path, default=YTAL_VENV)
+    ap.add_argument("--ytal-memory-gb", type=float, default=14.0,
+                    help="address-space limit of the y-tal process (GB)")
+    ap.add_argument("--ytal-downscale", type=int, default=16,
+                    help="y-tal's tal.set_resources(downscale=...): process the data in this many chunks")
+    ap.add_argument("--cases", default=",".join(CASES), help="comma-separated subset of " + ",".join(CASES))
+    ap.add_argument("--timeout", type=int, default=1800, help="seconds per case and implementation")
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="timed calls per case (in one process); time_s is the fastest (robust on a shared machine)")
+    ap.add_argument("--table", type=Path, metavar="JSON",
+                    help="print a Markdown table of a saved result (this script's output) and exit")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    ap.add_argument("--h5", help=argparse.SUPPRESS)
+    ap.add_argument("--n", type=int, help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    if a.child:
+        print(json.dumps(child(a.child, a.h5, a.n, a.repeat)))
+        return 0
+    if a.table:
+        print(markdown_table(json.loads(a.table.read_text())))
+        return 0
+    cases = [c for c in a.cases.split(",") if c]
+    bad = [c for c in cases if c not in CASES]
+    if bad:
+        ap.error(f"unknown case(s) {bad}; choose from {', '.join(CASES)}")
+    s = sizes(a.small)
+    ytal_py = ensure_ytal(a.ytal_venv) if a.with_ytal else None
+    import numba
+    import numpy
+    import scipy
+
+    out = {"benchmark": "recon", "small": a.small, "load_average_start": list(os.getloadavg()),
+           "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": numpy.__version__,
+                       "scipy": scipy.__version__, "numba": numba.__version__, "platform": platform.platform()},
+           "cases": []}
+    with tempfile.TemporaryDirectory(prefix="bench-recon-") as td:
+        tmp = Path(td)
+        inputs = make_inputs(tmp, a.small)
+        out["captures"] = inputs["describe"]
+        for case in cases:
+            cap_name, method, nkey = CASES[case]
+            n = s[nkey]
+            h5 = inputs["paths"][cap_name]
+            print(f"[bench] {case}: ours", file=sys.stderr)
+            row = {"case": case, "method": method, "capture": cap_name, "voxels": [n, n, n],
+                   "ours": run_ours(case, h5, n, a.timeout, 1 if a.small else a.repeat)}
+            goal = GOALS.get(case)
+            if goal and not a.small:
+                row["goal"] = goal
+                o = row["ours"]
+                row["meets_goal"] = o.get("status") == "ok" and o["time_s"] <= goal["time_s"] and \
+                    ("peak_rss_gb" not in goal or o["peak_rss_mb"] / 1024 <= goal["peak_rss_gb"])
+            if ytal_py is not None:
+                print(f"[bench] {case}: y-tal", file=sys.stderr)
+                from recon.units import C_M_PER_PS
+
+                bin_ps = s["bin_ps"] if cap_name == "single" else s["conf_bin_ps"]
+                row["ytal"] = run_ytal(ytal_py, case, h5, n, inputs["pitch"][cap_name], bin_ps * C_M_PER_PS, tmp,
+                                       a.timeout, a.ytal_memory_gb, a.ytal_downscale)
+                y, o = row["ytal"], row["ours"]
+                if y.get("status") == "ok" and o.get("status") == "ok":
+                    row["speedup"] = y["time_s"] / o["time_s"]
+                    row["memory_ratio"] = y["peak_rss_mb"] / o["peak_rss_mb"]
+            out["cases"].append(row)
+    out["load_average_end"] = list(os.getloadavg())
+    print(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

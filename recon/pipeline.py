@@ -1,0 +1,124 @@
+"""One call from a capture to a filtered reconstruction (what ``transient-mi recon`` runs)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from .capture import Capture, load_capture
+from .errors import UserInputError
+from .filters import DEFAULT_THRESHOLD, no_filter, paper_filter
+from .grid import VoxelGrid, make_grid
+from .result import Reconstruction
+
+__all__ = ["METHODS", "FILTERS", "reconstruct", "run"]
+
+METHODS = ("bp", "fbp", "lct", "fk", "phasor")
+FILTERS = ("paper", "none")
+CONFOCAL_ONLY = ("lct", "fk")
+
+
+def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = None, *,
+                bounds=None, voxels=None, voxel_size_m=None, filter: str = "paper", sigma_m: float | None = None,
+                threshold=None, **options) -> Reconstruction:
+    """Reconstruct ``capture`` with ``method`` and filter the result.
+
+    Parameters
+    ----------
+    capture : Capture
+    method : {"bp", "fbp", "lct", "fk", "phasor"}
+        Backprojection, filtered backprojection, light-cone transform
+        (confocal), f-k migration (confocal), phasor fields.
+    grid : VoxelGrid, optional
+        Default :func:`recon.grid.make_grid` from ``bounds``, ``voxels``,
+        ``voxel_size_m``.
+    filter : {"paper", "none"}
+        ``paper``: Gaussian, negative Laplacian, threshold
+        (:func:`recon.filters.paper_filter`); ``none``: ``volume = raw``.
+    sigma_m : float, optional
+        Gaussian sigma of the paper filter, metres (default one voxel).
+    threshold : str, optional
+        Threshold spec (default ``rel:0.3`` for ``paper``, ``none`` for ``none``).
+    **options
+        Method options: ``voxel_integration`` (bp), ``fbp_sigma_m`` (fbp),
+        ``snr`` (lct), ``wavelength_m``, ``pulse_sigma_m``, ``phasor_method`` (phasor).
+    """
+    if method not in METHODS:
+        raise UserInputError(f"--method {method!r}: allowed {', '.join(METHODS)}")
+    if filter not in FILTERS:
+        raise UserInputError(f"--filter {filter!r}: allowed {', '.join(FILTERS)}")
+    if method in CONFOCAL_ONLY and capture.mode != "confocal":
+        raise UserInputError(
+            f"--method {method} needs a confocal capture (laser on each pixel's wall patch); "
+            f"{capture.source or 'this capture'} is an {capture.describe()}: use bp, fbp or phasor")
+    if grid is None:
+        grid = make_grid(capture, bounds=bounds, voxels=voxels, voxel_size_m=voxel_size_m)
+    allowed = {"bp": {"voxel_integration"}, "fbp": {"fbp_sigma_m"}, "lct": {"snr"}, "fk": set(),
+               "phasor": {"wavelength_m", "pulse_sigma_m", "phasor_method"}}[method]
+    opts = {k: v for k, v in options.items() if v is not None}
+    bad = sorted(set(opts) - allowed)
+    if bad:
+        raise UserInputError(f"option(s) {', '.join(bad)} do not apply to --method {method}")
+    if method == "bp":
+        from .backprojection import backprojection
+
+        rec = backprojection(capture, grid, **opts)
+    elif method == "fbp":
+        from .backprojection import filtered_backprojection
+
+        rec = filtered_backprojection(capture, grid, sigma_m=opts.get("fbp_sigma_m"))
+    elif method == "lct":
+        from .confocal import lct
+
+        rec = lct(capture, grid, **opts)
+    elif method == "fk":
+        from .confocal import fk_migration
+
+        rec = fk_migration(capture, grid)
+    else:
+        from .phasor import phasor_fields
+
+        rec = phasor_fields(capture, grid, wavelength_m=opts.get("wavelength_m"),
+                            pulse_sigma_m=opts.get("pulse_sigma_m"), method=opts.get("phasor_method", "auto"))
+    if filter == "paper":
+        return paper_filter(rec, sigma_m=sigma_m, threshold=DEFAULT_THRESHOLD if threshold is None else threshold)
+    return no_filter(rec, threshold="none" if threshold is None else threshold)
+
+
+def run(capture_path, out_dir, method: str = "bp", *, bounds=None, voxels=None, voxel_size_m=None,
+        filter: str = "paper", sigma_m=None, threshold=None, ground_truth=None, pileup_correction: bool = False,
+        pulses=None, blind_cycles=None, time_crop_ps=None, time_downsample: int | None = None, overwrite: bool = False,
+        plots: bool = True, seed: int = 0, **options) -> tuple[Reconstruction, dict | None, Path]:
+    """Load, preprocess, reconstruct, filter, score and write (the ``recon`` command).
+
+    Returns ``(reconstruction, metrics or None, output directory)``.
+    """
+    from . import preprocess
+    from .metrics import compute_metrics, load_ground_truth
+    from .output import write_outputs
+
+    t_start = time.perf_counter()
+    gt = load_ground_truth(ground_truth) if ground_truth is not None else None  # fail early
+    cap = load_capture(capture_path)
+    if pileup_correction:
+        cap = preprocess.pileup_correction(cap, n_cycles=pulses, blind_cycles=blind_cycles)
+    elif pulses is not None or blind_cycles is not None:
+        raise UserInputError("--pulses and --blind-cycles are only used with --pileup-correction")
+    if time_crop_ps is not None:
+        cap = preprocess.crop_time(cap, *time_crop_ps)
+    if time_downsample:
+        cap = preprocess.downsample_time(cap, int(time_downsample))
+    t_load = time.perf_counter()
+    rec = reconstruct(cap, method, bounds=bounds, voxels=voxels, voxel_size_m=voxel_size_m, filter=filter,
+                      sigma_m=sigma_m, threshold=threshold, **options)
+    t_rec = time.perf_counter()
+    metrics = compute_metrics(rec, gt, seed=seed) if gt is not None else None
+    t_metrics = time.perf_counter()
+    meta = {
+        "capture": {"source": str(capture_path), "description": cap.describe(), "mode": cap.mode, "kind": cap.kind,
+                    "processing": list(cap.processing)},
+        "timings_s": {"load_and_preprocess": t_load - t_start, "reconstruct_and_filter": t_rec - t_load,
+                      "metrics": t_metrics - t_rec},
+    }
+    out = write_outputs(out_dir, rec, meta=meta, metrics=metrics, overwrite=overwrite, plots=plots)
+    return rec, metrics, out
