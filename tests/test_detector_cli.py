@@ -63,7 +63,7 @@ def test_exposure_and_auto_gate(ideal, tmp_path):
     r = _run(ideal, "-o", tmp_path / "c", "--exposure-s", 2e-4, "--auto-gate", "--auto-gate-depth-max-m", 1.0)
     assert r.returncode == 0, r.stderr
     d = read_manifest(tmp_path / "c")["detector"]
-    assert d["pulses"] == 10_000 and d["auto_gate"] is True and d["resolved"]["gate"] == "auto"
+    assert d["pulses"] == 10_000 and d["auto_gate"] is True and d["resolved"]["gate"] == "auto_per_spot"
     assert d["auto_gate_depth_max_m"] == 1.0
 
 

@@ -82,7 +82,7 @@ def test_render_pipeline_detect_step_uses_the_film_parameters(tmp_path):
     m, counts = read_stack(out)
     assert m["kind"] == "counts" and counts.shape == (2, 3, 4, 64) and counts.dtype == np.uint32
     d = m["detector"]
-    assert d["pulses"] == 2000 and d["pde"] == 0.5 and d["seed"] == 4 and d["resolved"]["gate"] == "auto"
+    assert d["pulses"] == 2000 and d["pde"] == 0.5 and d["seed"] == 4 and d["resolved"]["gate"] == "auto_per_spot"
     assert read_manifest(out / "ideal")["kind"] == "ideal"
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
 

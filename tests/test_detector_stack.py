@@ -166,7 +166,37 @@ def test_auto_gate_passes_the_hidden_volume_and_suppresses_the_first_bounce(tmp_
     exp = 20_000 * p / (1 + 2 * p)
     assert np.all(np.abs(sig - exp) <= 3 * math.sqrt(exp) + 0.01 * exp)  # jitter loses < 1 % outside +-6 bins
     res = read_manifest(gated_dir)["detector"]["resolved"]
-    assert res["gate"] == "auto" and res["gate_open_ps"] < t.min() - 120.0 and res["gate_close_ps"] > t.max()
+    assert res["gate"] == "auto_per_spot" and res["gate_open_ps"] < t.min() - 120.0 and res["gate_close_ps"] > t.max()
+    assert res["gate_open_ps_per_spot"] == [res["gate_open_ps"]] and res["gate_close_ps_per_spot"] == [res["gate_close_ps"]]
+
+
+def test_per_spot_auto_gate_blocks_a_strong_return_and_keeps_the_signal(tmp_path):
+    """A strong return 800 ps before each spot's earliest three-bounce arrival (the paper geometry's
+    first-bounce margin is >= 767 ps) gives no counts; the hidden point is still seen."""
+    S, H, W = 2, 3, 3
+    m = make_ideal_capture(tmp_path / "probe", np.zeros((S, H, W, T), np.float32), bin_width_ps=W_PS, t0_ps=-1000.0)
+    geo = m["geometry"]
+    spots = np.array(geo["spots"])
+    P = np.array(geo["pixel_centers"]).reshape(-1, 3)
+    o = np.array([0.0, 0.0, 0.5])
+    windows = [three_bounce_range_ps(m, 0.1, 1.5, spot=j) for j in range(S)]
+    data = np.zeros((S, H, W, T), np.float32)
+    for j in range(S):
+        # a strong return 800 ps before spot j's earliest three-bounce arrival
+        b_first = int((windows[j][0] - 800.0 - m["time"]["t0_ps"]) / W_PS)
+        assert b_first >= 0
+        data[j, ..., b_first] = 30.0
+        t = (np.linalg.norm(o - spots[j]) + np.linalg.norm(P - o, axis=1)) / C_M_PER_PS
+        for k, tk in enumerate(t):
+            data[j, k // W, k % W, int((tk - m["time"]["t0_ps"]) / W_PS)] += 2e-3
+    make_ideal_capture(tmp_path / "ideal", data, bin_width_ps=W_PS, t0_ps=-1000.0)
+    counts = read_stack(detect_stack(tmp_path / "ideal", tmp_path / "g", DetectorParams(auto_gate=True),
+                                     pulses=20_000, progress=False))[1]
+    for j in range(S):
+        b_first = int((windows[j][0] - 800.0 - m["time"]["t0_ps"]) / W_PS)
+        w = int(100.0 / W_PS) + 1  # +-100 ps around the return (the jitter's spread)
+        assert counts[j, ..., b_first - w:b_first + w + 1].sum() == 0
+        assert counts[j].sum() > 0.5 * 20_000 * 0.7 * 2e-3 * H * W
 
 
 def test_three_bounce_range_bounds_the_hidden_volume(tmp_path):
@@ -196,4 +226,24 @@ def test_manifest_is_plain_json(tmp_path):
     src, _ = _ideal(tmp_path)
     out = detect_stack(src, tmp_path / "counts", DetectorParams(auto_gate=True), pulses=100, progress=False)
     m = json.loads((out / "manifest.json").read_text())
-    assert m["detector"]["auto_gate"] is True and m["detector"]["resolved"]["gate"] == "auto"
+    assert m["detector"]["auto_gate"] is True and m["detector"]["resolved"]["gate"] == "auto_per_spot"
+
+
+def test_one_window_cannot_gate_every_spot_but_per_spot_windows_can(tmp_path):
+    """Laser and detector 2.2 m off to the side (the paper scene): far spots' first-bounce returns arrive
+    after near spots' earliest three-bounce light, so a window shared by all spots would pass them, while
+    each spot's own window opens after its own return (triangle inequality: every three-bounce path from
+    S is longer than L -> S -> D)."""
+    S_pos = [[x, 0.0, 0.0] for x in (-0.375, -0.125, 0.125, 0.375)]
+    m = make_ideal_capture(tmp_path / "side", np.zeros((4, 4, 4, T), np.float32), bin_width_ps=W_PS,
+                           spots=S_pos, include_first_last=True)
+    geo = m["geometry"]
+    geo["laser_origin"] = geo["detector_origin"] = [-2.0, 0.0, 1.0]
+    L = np.array(geo["laser_origin"])
+    first = [2 * np.linalg.norm(np.array(s) - L) / C_M_PER_PS for s in S_pos]
+    shared = three_bounce_range_ps(m, 0.25, 0.75)
+    own = [three_bounce_range_ps(m, 0.25, 0.75, spot=j) for j in range(4)]
+    assert shared[0] < max(first)  # a shared window would let a first-bounce return in
+    for j in range(4):
+        assert own[j][0] - 120.0 - first[j] > 10 * 47.0  # gate 50 % point > 10 edge sigmas after the return
+        assert own[j][0] >= shared[0] and own[j][1] <= shared[1]

@@ -188,13 +188,15 @@ def hidden_volume_corners(geo: dict, depth_min_m: float, depth_max_m: float) -> 
                      for a in (-1, 1) for b in (-1, 1) for d in (depth_min_m, depth_max_m)])
 
 
-def three_bounce_range_ps(manifest: dict, depth_min_m: float = 0.1, depth_max_m: float = 1.5) -> tuple[float, float]:
+def three_bounce_range_ps(manifest: dict, depth_min_m: float = 0.1, depth_max_m: float = 1.5,
+                          spot: int | None = None) -> tuple[float, float]:
     """Earliest and latest three-bounce arrival (capture time axis, ps) for the hidden volume.
 
     Paths laser -> S_j -> o -> P_k -> detector with o in the hidden volume
     (:func:`hidden_volume_corners`), over every (laser spot, pixel) pair of
-    the capture (spot k with pixel k for confocal captures). The laser->wall
-    and wall->detector segments count only when ``include_first_last``.
+    the capture (spot k with pixel k for confocal captures), or over the
+    pixels of laser spot ``spot`` alone. The laser->wall and wall->detector
+    segments count only when ``include_first_last``.
 
     The latest arrival is exact (a sum of distances is convex, so its maximum
     over a box is at a corner). The earliest is a lower bound: the larger of
@@ -212,6 +214,9 @@ def three_bounce_range_ps(manifest: dict, depth_min_m: float = 0.1, depth_max_m:
     if manifest.get("capture") == "confocal":
         S = spots.reshape(H * W, 3)
         P = centers.reshape(H * W, 3)
+    elif spot is not None:
+        S = np.repeat(spots[int(spot)][None], len(centers), axis=0)
+        P = centers
     else:
         S = np.repeat(spots, len(centers), axis=0)
         P = np.tile(centers, (len(spots), 1))
@@ -236,11 +241,13 @@ def three_bounce_range_ps(manifest: dict, depth_min_m: float = 0.1, depth_max_m:
 
 
 def auto_gate(manifest: dict, gate_transition_ps: float, depth_min_m: float = 0.1,
-              depth_max_m: float = 1.5) -> tuple[float, float]:
+              depth_max_m: float = 1.5, spot: int | None = None) -> tuple[float, float]:
     """Gate times ``(gate_open_ps, gate_close_ps)`` passing the three-bounce light of the hidden volume.
 
     See :func:`three_bounce_range_ps`; the 50 % points are placed one
-    transition time outside ``[t_early, t_late]``.
+    transition time outside ``[t_early, t_late]``. ``spot``: the gate for
+    that laser spot only (array captures gate every laser position
+    separately, as a gated SPAD array is re-timed for each acquisition).
     """
-    t_early, t_late = three_bounce_range_ps(manifest, depth_min_m, depth_max_m)
+    t_early, t_late = three_bounce_range_ps(manifest, depth_min_m, depth_max_m, spot=spot)
     return t_early - gate_transition_ps, t_late + gate_transition_ps

@@ -124,11 +124,21 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
     budget = resolve_budget(params, m.get("laser"), pulses=pulses, exposure_s=exposure_s)
     run_params = params
     gate_source = "none"
+    spot_gates = None  # per-spot (open, close) for array captures with auto_gate
     if params.auto_gate:
-        g_open, g_close = auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
-                                    params.auto_gate_depth_max_m)
+        if m["capture"] == "array":
+            # One gate per laser position (a gated SPAD array is re-timed for every acquisition): every
+            # three-bounce path from spot j is longer than j's own first-bounce path (triangle inequality),
+            # so the spot's window passes its hidden-volume light and blocks its wall return.
+            spot_gates = [auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
+                                    params.auto_gate_depth_max_m, spot=j) for j in range(m["n_files"])]
+            g_open, g_close = min(g[0] for g in spot_gates), max(g[1] for g in spot_gates)
+            gate_source = "auto_per_spot"
+        else:
+            g_open, g_close = auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
+                                        params.auto_gate_depth_max_m)
+            gate_source = "auto"
         run_params = params.replace(gate_open_ps=g_open, gate_close_ps=g_close, auto_gate=False)
-        gate_source = "auto"
     elif params.gate_open_ps is not None:
         gate_source = "explicit"
     if params.crosstalk_prob > 0 and m["capture"] == "confocal":
@@ -163,6 +173,8 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         "gate_open_ps": run_params.gate_open_ps,
         "gate_close_ps": run_params.gate_close_ps,
         "gate_transition_ps": run_params.gate_transition_ps,
+        "gate_open_ps_per_spot": None if spot_gates is None else [g[0] for g in spot_gates],
+        "gate_close_ps_per_spot": None if spot_gates is None else [g[1] for g in spot_gates],
         "spad_dead_time_ps": model.spad_dead_time_ps,
         "tcspc_dead_time_ps": model.tcspc_dead_time_ps,
     }
@@ -188,7 +200,11 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
                 arr = check_ideal(data, where=f"{ideal / spot_filename(j)}")
                 if budget.photon_scale != 1.0:
                     arr = arr * budget.photon_scale
-                counts, info = run_spot(model, arr.reshape(H * W, T), N, spot_rng(seed, j), engine, (H, W),
+                spot_model = model if spot_gates is None else build_model(
+                    run_params.replace(gate_open_ps=spot_gates[j][0], gate_close_ps=spot_gates[j][1]),
+                    bin_width_ps=t["bin_width_ps"], n_bins=T, t0_ps=t["t0_ps"],
+                    repetition_rate_hz=budget.repetition_rate_hz)
+                counts, info = run_spot(spot_model, arr.reshape(H * W, T), N, spot_rng(seed, j), engine, (H, W),
                                         advance=advance)
                 write_spot(tmp, j, to_uint32(counts, where=spot_filename(j)).reshape(H, W, T), manifest)
                 engines_used.append(info["engine"])

@@ -68,6 +68,11 @@ class PulsedLaser(mi.Emitter):
          - float
          - Distance between neighbouring spots, metres; > 0 when there is
            more than one spot (default 0).
+       * - ``scan_extent_m``
+         - float
+         - Alternative to ``spot_spacing_m``: side of the wall square the
+           scan covers; spacing = ``scan_extent_m / max(spots_x, spots_y)``
+           (spots at the centres of that many equal cells).
        * - ``pulse_energy_j``
          - float
          - Energy of one pulse, J, > 0. Alternatively give
@@ -101,7 +106,13 @@ class PulsedLaser(mi.Emitter):
             raise PluginParameterError(f"{name}: origin and target are the same point {tuple(self.origin)}")
         self.spots_x = get_int(props, name, "spots_x", 1, min_value=1, max_value=4096)
         self.spots_y = get_int(props, name, "spots_y", 1, min_value=1, max_value=4096)
-        self.spot_spacing_m = get_float(props, name, "spot_spacing_m", 0.0, min_value=0.0)
+        if "scan_extent_m" in props and "spot_spacing_m" in props:
+            raise PluginParameterError(f"{name}: give spot_spacing_m or scan_extent_m, not both")
+        if "scan_extent_m" in props:
+            extent = get_float(props, name, "scan_extent_m", None, min_value=0.0, min_exclusive=True)
+            self.spot_spacing_m = extent / max(self.spots_x, self.spots_y)
+        else:
+            self.spot_spacing_m = get_float(props, name, "spot_spacing_m", 0.0, min_value=0.0)
         if self.spots_x * self.spots_y > 1 and not self.spot_spacing_m > 0:
             raise PluginParameterError(
                 f"{name}: spot_spacing_m={self.spot_spacing_m:g} must be > 0 with "

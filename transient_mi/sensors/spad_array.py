@@ -71,6 +71,13 @@ class SpadArray(mi.Sensor):
            tile the wall). A larger pitch spreads small patches over a large
            wall area, as in a focused SPAD array whose pixels each see
            1 cm^2 of a 1 m wall.
+       * - ``array_extent_m``
+         - float
+         - Alternative to ``pixel_pitch_m``: the side of the wall square the
+           array covers; pitch = ``array_extent_m / max(width, height)``
+           (patch centres at the centres of that many equal cells). Lets a
+           scene change the array size with ``$name`` parameters and keep
+           the covered wall area.
        * - ``aperture_diameter_m``
          - float
          - Diameter of the collecting lens, metres, > 0 (default 0.0254);
@@ -122,8 +129,15 @@ class SpadArray(mi.Sensor):
                 "must be on the hidden-space side (height > 0)")
         self.pixel_footprint_m = get_float(props, name, "pixel_footprint_m", DEFAULT_PIXEL_FOOTPRINT_M,
                                            min_value=0.0, min_exclusive=True)
-        self.pixel_pitch_m = get_float(props, name, "pixel_pitch_m", self.pixel_footprint_m,
-                                       min_value=0.0, min_exclusive=True)
+        if "array_extent_m" in props and "pixel_pitch_m" in props:
+            raise PluginParameterError(f"{name}: give pixel_pitch_m or array_extent_m, not both")
+        if "array_extent_m" in props:
+            extent = get_float(props, name, "array_extent_m", None, min_value=0.0, min_exclusive=True)
+            f = self.film()
+            self.pixel_pitch_m = extent / max(int(f.size()[0]), int(f.size()[1]))
+        else:
+            self.pixel_pitch_m = get_float(props, name, "pixel_pitch_m", self.pixel_footprint_m,
+                                           min_value=0.0, min_exclusive=True)
         if self.pixel_pitch_m < self.pixel_footprint_m * (1 - 1e-9):
             raise PluginParameterError(
                 f"{name}: pixel_pitch_m={self.pixel_pitch_m:g} is smaller than pixel_footprint_m="
