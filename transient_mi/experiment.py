@@ -39,7 +39,10 @@ class PaperConfig:
         SPAD array side (pixels); each pixel sees 1 cm^2 of wall, the array
         spans the 1 m wall.
     spots : int
-        Laser scan grid side (spots spread over the 1 m wall).
+        Laser scan grid side (spots spread over ``scan_extent_m`` of wall,
+        default 2 x 2 over 1 m).
+    scan_extent_m : float
+        Side of the wall square the laser scan covers.
     distance_m, pose, rotation_deg
         The mannequin: depth of its centre (m), pose, rotation about y.
     power_w : float
@@ -53,21 +56,22 @@ class PaperConfig:
     """
 
     array: int = 16
-    spots: int = 4
+    spots: int = 2
+    scan_extent_m: float = 1.0
     distance_m: float = 0.5
     pose: str = "arms_down"
     rotation_deg: float = 0.0
     power_w: float = 0.01
     spp: int = 1024
-    t0_ps: float = 14000.0
-    n_bins: int = 2250
-    bin_width_ps: float = 4.0
+    t0_ps: float = 12500.0
+    n_bins: int = 11500
+    bin_width_ps: float = 1.0
     max_depth: int = 4
 
     def defines(self) -> dict[str, str]:
         """The ``-D`` values for ``scenes/paper_mannequin.xml``."""
         return {
-            "array": str(self.array), "spots": str(self.spots), "distance": repr(float(self.distance_m)),
+            "array": str(self.array), "spots": str(self.spots), "scan_extent": repr(float(self.scan_extent_m)), "distance": repr(float(self.distance_m)),
             "pose": self.pose, "rotation": repr(float(self.rotation_deg)), "power_w": repr(float(self.power_w)),
             "spp": str(self.spp), "t0_ps": repr(float(self.t0_ps)), "n_bins": str(self.n_bins),
             "bin_width_ps": repr(float(self.bin_width_ps)), "max_depth": str(self.max_depth),

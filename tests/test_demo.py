@@ -1,0 +1,142 @@
+"""The paper's experiment: the scene's photon budget and gate, and ``transient-mi demo --quick`` end to end."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def cli(*args):
+    env = dict(os.environ, TRANSIENT_MI_PROGRESS="0")
+    return subprocess.run([sys.executable, "-m", "transient_mi", *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, env=env, timeout=1200)
+
+
+@pytest.fixture(scope="module")
+def paper_capture(tmp_path_factory):
+    """The paper scene with a 4x4 array (its patches hold the 4x4 laser spots, so the wall's
+    first-bounce return is in the capture), rendered and detected with the paper's detector."""
+    import transient_mi  # noqa: F401
+    from transient_mi.experiment import PaperConfig, detect_counts, render_ideal
+
+    root = tmp_path_factory.mktemp("paper")
+    cfg = PaperConfig(array=4, spots=4, spp=64, bin_width_ps=8.0, n_bins=1438)
+    ideal = render_ideal(cfg, root / "ideal", seed=3, progress=False)
+    counts = detect_counts(ideal, root / "counts", exposure_s=0.002, seed=4, progress=False)
+    return cfg, ideal, counts
+
+
+def test_paper_scene_renders_the_documented_photon_budget(paper_capture):
+    from recon.io import read_manifest
+    from recon.units import photon_energy_j
+
+    cfg, ideal, counts = paper_capture
+    m = read_manifest(ideal)
+    laser = m["laser"]
+    # 10 mW at 50 MHz and 1550 nm: 0.2 nJ per pulse, E / (h c / lambda) photons
+    assert laser["wavelength_nm"] == 1550.0 and laser["repetition_rate_hz"] == 50e6
+    assert laser["average_power_w"] == cfg.power_w and laser["pulse_energy_j"] == pytest.approx(cfg.power_w / 50e6)
+    assert laser["photons_per_pulse"] == pytest.approx(cfg.power_w / 50e6 / photon_energy_j(1550.0), rel=1e-12)
+    assert m["quantity"] == "photons_per_pulse" and m["include_first_last"] is True
+    geo = m["geometry"]
+    assert np.asarray(geo["spots"]).shape == (16, 3) and geo["pixel_footprint_m"] == 0.01
+    pitch = np.diff(np.asarray(geo["pixel_centers"])[0, :, 0])
+    np.testing.assert_allclose(pitch, 0.25, rtol=1e-5)  # 4 pixels spread over the 1 m wall (float32 positions)
+    d = read_manifest(counts)["detector"]
+    assert d["pulses"] == int(round(0.002 * 50e6)) and d["pde"] == 0.7 and d["jitter_ps"] == 25.0
+    assert d["dark_count_rate_cps"] == 25.0 and d["gate_transition_ps"] == 120.0 and d["auto_gate"] is True
+
+
+def test_gate_suppresses_the_first_bounce_wall_return(paper_capture):
+    from recon.io import read_manifest, read_spot
+    from recon.units import C_M_PER_PS
+
+    _, ideal, counts = paper_capture
+    mi_, mc = read_manifest(ideal), read_manifest(counts)
+    geo = mi_["geometry"]
+    L, D = np.asarray(geo["laser_origin"]), np.asarray(geo["detector_origin"])
+    t = mi_["time"]
+    centers = np.asarray(geo["pixel_centers"])
+    resolved = mc["detector"]["resolved"]
+    seen = 0
+    for j, S in enumerate(np.asarray(geo["spots"])):
+        k = np.unravel_index(np.argmin(np.linalg.norm(centers - S, axis=-1)), centers.shape[:2])
+        if np.linalg.norm(centers[k] - S) > 0.005:
+            continue  # the spot is outside every 1 cm patch
+        b = int(((np.linalg.norm(S - L) + np.linalg.norm(S - D)) / C_M_PER_PS - t["t0_ps"]) / t["bin_width_ps"])
+        ideal_px = read_spot(ideal, j, mi_)[k]
+        counts_px = read_spot(counts, j, mc)[k]
+        w = 6  # +-48 ps: the return's bin and the jitter's spread
+        # the return dwarfs the three-bounce light in the ideal capture ...
+        assert ideal_px[b - 1:b + 2].sum() > 1e4 * ideal_px[b + 50:].sum()
+        # ... the gate of this spot opens well after it and the counts hold none of it
+        assert resolved["gate_open_ps_per_spot"][j] > t["t0_ps"] + (b + 1) * t["bin_width_ps"] + 500.0
+        assert counts_px[b - w:b + w + 1].sum() == 0
+        # while the three-bounce light inside the gate is counted
+        assert counts_px[b + 50:].sum() > 0
+        seen += 1
+    assert seen == 16  # in the 4x4 array every laser spot sits on a pixel's patch
+
+
+@pytest.fixture(scope="module")
+def quick_demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo") / "quick"
+    r = cli("demo", "--quick", "-o", out)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_demo_quick_writes_every_output(quick_demo):
+    import matplotlib.image as mpimg
+    import trimesh
+
+    from recon.io import read_stack
+
+    out = quick_demo
+    for name in ("summary.md", "fig4_histograms.png", "fig5_reconstructions.png", "metrics.csv", "metrics.json",
+                 "ground_truth.ply"):
+        assert (out / name).stat().st_size > 0, name
+    for fig in ("fig4_histograms.png", "fig5_reconstructions.png"):
+        img = mpimg.imread(out / fig)
+        assert img.ndim == 3 and img.shape[0] > 200 and img.shape[1] > 400 and img.std() > 0.01
+    mesh = trimesh.load(out / "ground_truth.ply", force="mesh")
+    assert mesh.is_watertight
+    summary = (out / "summary.md").read_text()
+    assert "fig4_histograms.png" in summary and "| 32x32 |" in summary
+    for n in (4, 8, 16, 32):
+        m, data = read_stack(out / "captures" / f"array_{n:02d}" / "counts")
+        assert m["kind"] == "counts" and data.shape[1:3] == (n, n) and data.sum() > 0
+        with np.load(out / "recon" / f"array_{n:02d}" / "volume.npz") as z:
+            assert z["volume"].shape == z["raw"].shape == (32, 64, 64)
+            assert len(z["x_m"]) == 64 and len(z["z_m"]) == 32
+        rec_metrics = json.loads((out / "recon" / f"array_{n:02d}" / "metrics.json").read_text())
+        assert rec_metrics["chamfer_m"] is not None
+
+
+def test_demo_reconstruction_improves_from_4x4_to_32x32(quick_demo):
+    """The paper's finding, on the metrics: larger arrays reconstruct the mannequin better."""
+    with open(quick_demo / "metrics.csv") as f:
+        rows = {r["array"]: r for r in csv.DictReader(f)}
+    small, large = rows["4x4"], rows["32x32"]
+    assert float(large["chamfer_m"]) < float(small["chamfer_m"])
+    assert float(large["completeness_m"]) < float(small["completeness_m"])
+
+
+def test_demo_refuses_bad_input(tmp_path):
+    r = cli("demo", "--quick", "--arrays", "4,x", "-o", tmp_path / "d")
+    assert r.returncode == 2 and r.stderr.strip().splitlines()[-1].startswith("error: --arrays '4,x'")
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "keep.txt").write_text("x")
+    r = cli("demo", "--quick", "-o", tmp_path / "full")
+    assert r.returncode == 2 and "not empty" in r.stderr
+    assert (tmp_path / "full" / "keep.txt").read_text() == "x"
+    assert not (tmp_path / "d").exists()
