@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._atomic import temp_dir_beside
 from .errors import UserInputError
 from .filters import depth_map, projections
 from .result import Reconstruction
@@ -151,7 +152,7 @@ def write_outputs(out_dir: str | os.PathLike, rec: Reconstruction, meta: dict | 
         raise UserInputError(f"-o {str(out)!r} exists and is a file; choose a directory name")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise UserInputError(f"-o {str(out)!r} exists and is not empty; pass --overwrite to replace it")
-    tmp = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".tmp"))
+    tmp = temp_dir_beside(out)
     try:
         save_volume(tmp / "volume.npz", rec)
         files = ["volume.npz"]
@@ -165,7 +166,6 @@ def write_outputs(out_dir: str | os.PathLike, rec: Reconstruction, meta: dict | 
         (tmp / "recon.json").write_text(json.dumps(_jsonable(info), indent=1) + "\n")
         if metrics is not None:
             (tmp / "metrics.json").write_text(json.dumps(_jsonable(metrics), indent=1) + "\n")
-        os.chmod(tmp, 0o755)
         if out.exists():
             trash = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".old"))
             os.replace(out, trash / out.name)

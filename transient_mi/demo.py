@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon._progress import progress_bar
+from recon._atomic import temp_dir_beside, temp_file_beside
 from recon.errors import UserInputError
 
 from .experiment import (PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, detect_counts, ground_truth,
@@ -103,7 +103,7 @@ def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings 
     out = Path(out_dir)
     _check_out(out, overwrite)
     t_start = time.perf_counter()
-    tmp = Path(tempfile.mkdtemp(dir=out.parent if str(out.parent) else ".", prefix=f".{out.name}.", suffix=".tmp"))
+    tmp = temp_dir_beside(out)
     try:
         results, hists = _run(tmp, s, progress, log)
         gt = ground_truth(s.config(s.arrays[0]))
@@ -179,8 +179,7 @@ def _mpl():
 
 
 def _savefig(fig, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
+    tmp = temp_file_beside(path, suffix=".png")
     try:
         fig.savefig(tmp, dpi=80)
         os.replace(tmp, path)

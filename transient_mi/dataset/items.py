@@ -144,7 +144,7 @@ def _detector_record(spec: DatasetSpec, values: dict[str, Any], seed: int, index
     from transient_mi.detector import DetectorParams
 
     if engine not in DETECTOR_ENGINES:
-        raise UserInputError(f"{where}.engine={engine!r}: allowed {', '.join(ENGINES)}")
+        raise UserInputError(f"{where}.engine={engine!r}: allowed {', '.join(DETECTOR_ENGINES)}")
     DetectorParams.from_dict(params).validate()
     return {"params": params, "pulses": pulses, "exposure_s": exposure_s, "engine": engine,
             "seed": item_seed(seed, index, STREAM_DETECTOR)}

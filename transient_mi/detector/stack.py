@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from recon._progress import progress_bar
+from recon._atomic import temp_dir_beside
 from recon.errors import UserInputError
 from recon.io.stack import (MANIFEST_NAME, StackError, missing_spots, new_manifest, read_manifest,
                             read_spot, spot_filename, write_manifest, write_spot)
@@ -186,7 +186,7 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         detector=dict(detector, resolved=resolved), render=m.get("render"), source_ideal=source_ideal, **extra)
 
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+        tmp = temp_dir_beside(out)
     except OSError as e:
         raise UserInputError(f"output {out}: cannot create a directory in {out.parent} ({e.strerror})") from None
     try:
