@@ -47,3 +47,34 @@ def temp_file_beside(target: str | os.PathLike, suffix: str = ".tmp") -> Path:
     os.close(fd)
     os.chmod(tmp, file_mode())
     return Path(tmp)
+
+
+def check_output_location(out: str | os.PathLike, option: str = "-o") -> Path:
+    """Check that ``out`` can be created, without creating anything; return its parent.
+
+    Missing parent directories are fine (they are created when the output is
+    written) as long as the nearest existing ancestor is a directory in which
+    this process can create entries (probed for real: permission bits say
+    little for root or read-only mounts).
+
+    Raises
+    ------
+    recon.errors.UserInputError
+        Naming the option, the path and the problem.
+    """
+    from .errors import UserInputError
+
+    o = Path(out)
+    parent = o.parent if str(o.parent) else Path(".")
+    anc = parent
+    while not anc.exists():
+        if anc.parent == anc:
+            break
+        anc = anc.parent
+    if not anc.is_dir():
+        raise UserInputError(f"{option} {o}: {anc} is not a directory")
+    try:
+        os.rmdir(tempfile.mkdtemp(dir=anc, prefix=".transient-mi-probe-"))
+    except OSError as e:
+        raise UserInputError(f"{option} {o}: cannot create a directory in {anc} ({e.strerror})") from None
+    return parent

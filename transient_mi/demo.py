@@ -25,14 +25,13 @@ import csv
 import json
 import os
 import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from recon._atomic import temp_dir_beside, temp_file_beside
+from recon._atomic import check_output_location, temp_dir_beside, temp_file_beside
 from recon.errors import UserInputError
 
 from .experiment import (PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, detect_counts, ground_truth,
@@ -77,20 +76,11 @@ class ArrayResult:
 
 
 def _check_out(out: Path, overwrite: bool) -> None:
-    parent = out.parent if str(out.parent) else Path(".")
     if out.exists() and not out.is_dir():
         raise UserInputError(f"-o {out}: exists and is not a directory")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise UserInputError(f"-o {out}: directory exists and is not empty (pass --overwrite to replace it)")
-    if not parent.is_dir():
-        try:
-            parent.mkdir(parents=True)
-        except OSError as e:
-            raise UserInputError(f"-o {out}: cannot create {parent} ({e.strerror})") from None
-    try:
-        os.rmdir(tempfile.mkdtemp(dir=parent, prefix=".transient-mi-probe-"))
-    except OSError as e:
-        raise UserInputError(f"-o {out}: cannot create a directory in {parent} ({e.strerror})") from None
+    check_output_location(out)
 
 
 def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings | None = None,
@@ -102,6 +92,7 @@ def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings 
             raise UserInputError(f"--arrays: {a!r} is not a positive integer")
     out = Path(out_dir)
     _check_out(out, overwrite)
+    out.parent.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     tmp = temp_dir_beside(out)
     try:
