@@ -189,7 +189,8 @@ def expand_items(spec: DatasetSpec, *, variant: str, scene_sha256: str) -> list[
                     resolved = kind.resolve(_split(values, "object."))
                 except UserInputError as e:
                     raise UserInputError(f"item {index} ({item_name(index)}): object.{e}") from None
-                defines[spec.object_define] = MESH_NAME
+                if spec.object_define is not None:
+                    defines[spec.object_define] = MESH_NAME
                 obj = {"kind": kind.name, "define": spec.object_define, "file": MESH_NAME, "params": resolved}
             spp = values["spp"]
             record = {
