@@ -75,17 +75,27 @@ class ArrayResult:
     files: dict = field(default_factory=dict)
 
 
+def _is_previous_demo(out: Path) -> bool:
+    """A directory written by an earlier demo run (its summary.md says so)."""
+    summary = out / "summary.md"
+    return summary.is_file() and summary.read_text(errors="replace").startswith("# transient-mi demo:")
+
+
 def _check_out(out: Path, overwrite: bool) -> None:
     if out.exists() and not out.is_dir():
         raise UserInputError(f"-o {out}: exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
+    if out.is_dir() and any(out.iterdir()) and not overwrite and not _is_previous_demo(out):
         raise UserInputError(f"-o {out}: directory exists and is not empty (pass --overwrite to replace it)")
     check_output_location(out)
 
 
 def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings | None = None,
              overwrite: bool = False, progress: bool | None = None, log=print) -> Path:
-    """Run the demo; returns the output directory (see the module docstring)."""
+    """Run the demo; returns the output directory (see the module docstring).
+
+    An existing ``out_dir`` is replaced only if it holds an earlier demo's
+    output (or with ``overwrite``); anything else is refused.
+    """
     s = settings if settings is not None else (QUICK if quick else DemoSettings())
     for a in s.arrays:
         if not isinstance(a, int) or a < 1:
