@@ -25,14 +25,13 @@ import csv
 import json
 import os
 import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from recon._progress import progress_bar
+from recon._atomic import check_output_location, temp_dir_beside, temp_file_beside
 from recon.errors import UserInputError
 
 from .experiment import (PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, detect_counts, ground_truth,
@@ -76,34 +75,36 @@ class ArrayResult:
     files: dict = field(default_factory=dict)
 
 
+def _is_previous_demo(out: Path) -> bool:
+    """A directory written by an earlier demo run (its summary.md says so)."""
+    summary = out / "summary.md"
+    return summary.is_file() and summary.read_text(errors="replace").startswith("# transient-mi demo:")
+
+
 def _check_out(out: Path, overwrite: bool) -> None:
-    parent = out.parent if str(out.parent) else Path(".")
     if out.exists() and not out.is_dir():
         raise UserInputError(f"-o {out}: exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
+    if out.is_dir() and any(out.iterdir()) and not overwrite and not _is_previous_demo(out):
         raise UserInputError(f"-o {out}: directory exists and is not empty (pass --overwrite to replace it)")
-    if not parent.is_dir():
-        try:
-            parent.mkdir(parents=True)
-        except OSError as e:
-            raise UserInputError(f"-o {out}: cannot create {parent} ({e.strerror})") from None
-    try:
-        os.rmdir(tempfile.mkdtemp(dir=parent, prefix=".transient-mi-probe-"))
-    except OSError as e:
-        raise UserInputError(f"-o {out}: cannot create a directory in {parent} ({e.strerror})") from None
+    check_output_location(out)
 
 
 def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings | None = None,
              overwrite: bool = False, progress: bool | None = None, log=print) -> Path:
-    """Run the demo; returns the output directory (see the module docstring)."""
+    """Run the demo; returns the output directory (see the module docstring).
+
+    An existing ``out_dir`` is replaced only if it holds an earlier demo's
+    output (or with ``overwrite``); anything else is refused.
+    """
     s = settings if settings is not None else (QUICK if quick else DemoSettings())
     for a in s.arrays:
         if not isinstance(a, int) or a < 1:
             raise UserInputError(f"--arrays: {a!r} is not a positive integer")
     out = Path(out_dir)
     _check_out(out, overwrite)
+    out.parent.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    tmp = Path(tempfile.mkdtemp(dir=out.parent if str(out.parent) else ".", prefix=f".{out.name}.", suffix=".tmp"))
+    tmp = temp_dir_beside(out)
     try:
         results, hists = _run(tmp, s, progress, log)
         gt = ground_truth(s.config(s.arrays[0]))
@@ -179,8 +180,7 @@ def _subplots(nrows, ncols, *, figsize, **kw):
 
 
 def _savefig(fig, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
+    tmp = temp_file_beside(path, suffix=".png")
     try:
         fig.savefig(tmp, dpi=80)
         os.replace(tmp, path)
