@@ -177,7 +177,7 @@ ax.set_xlim(12, 40)
 ax.set_xlabel("time after emission (ns)")
 ax.set_ylabel(f"radiance per {bin_width_ps:g} ps bin")
 ax.set_title(f"pixel (y={py}, x={px}) at p = ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}) m")
-ax.legend()
+ax.legend(loc="upper right")
 plt.show()
 onset = t_ns[np.argmax(hist[py, px] > 0)]
 print(f"first non-empty bin centred at {onset:.2f} ns (predicted onset {first_ns:.2f} ns, bin width {bin_width_ps:g} ps)")
