@@ -170,13 +170,13 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
 # ------------------------------------------------------------------ figures
 
 
-def _subplots(nrows, ncols, *, figsize, **kw):
-    """A figure and its axes without pyplot (saving needs no backend; the session's, e.g. Jupyter's
-    inline one, is left alone)."""
-    from matplotlib.figure import Figure
+def _mpl():
+    import matplotlib
 
-    fig = Figure(figsize=figsize)
-    return fig, fig.subplots(nrows, ncols, **kw)
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def _savefig(fig, path: Path) -> None:
@@ -185,14 +185,16 @@ def _savefig(fig, path: Path) -> None:
         fig.savefig(tmp, dpi=80)
         os.replace(tmp, path)
     finally:
+        _mpl().close(fig)
         if os.path.exists(tmp):
             os.unlink(tmp)
 
 
 def _figure_histograms(path: Path, hists: dict, s: DemoSettings) -> None:
     """Fig. 4 style: per array size, the detected histogram (all pixels and spots) and the ideal expectation."""
+    plt = _mpl()
     arrays = list(hists)
-    fig, axes = _subplots(1, len(arrays), figsize=(4.2 * len(arrays), 3.6), sharey=False)
+    fig, axes = plt.subplots(1, len(arrays), figsize=(4.2 * len(arrays), 3.6), sharey=False)
     axes = np.atleast_1d(axes)
     for ax, n in zip(axes, arrays):
         t, ideal, counts, resolved = hists[n]
@@ -219,8 +221,9 @@ def _figure_reconstructions(path: Path, root: Path, results: list[ArrayResult], 
     """Fig. 5 style: raw and filtered front views per array size, next to the ground-truth silhouette."""
     from recon.ground_truth import ground_truth_silhouette
 
+    plt = _mpl()
     n = len(results)
-    fig, axes = _subplots(n, 4, figsize=(12.5, 3.0 * n), squeeze=False)
+    fig, axes = plt.subplots(n, 4, figsize=(12.5, 3.0 * n), squeeze=False)
     for row, r in enumerate(results):
         with np.load(root / r.files["recon"] / "volume.npz") as z:
             raw, vol, x, y, zz = z["raw"], z["volume"], z["x_m"], z["y_m"], z["z_m"]
