@@ -21,24 +21,18 @@ complete.
 
 from __future__ import annotations
 
-import csv
 import json
-import os
-import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from recon._progress import progress_bar
 from recon.errors import UserInputError
 
 from .experiment import (PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, detect_counts, ground_truth,
                          paper_detector, reconstruct, render_ideal, summed_histogram, write_ground_truth)
-
-METRIC_KEYS = ("chamfer_m", "accuracy_m", "completeness_m", "depth_mae_m", "depth_coverage", "iou")
+from .reporting import METRIC_KEYS, atomic_output_dir, pyplot as _mpl, save_figure as _savefig, write_csv
 
 
 @dataclass(frozen=True)
@@ -76,23 +70,6 @@ class ArrayResult:
     files: dict = field(default_factory=dict)
 
 
-def _check_out(out: Path, overwrite: bool) -> None:
-    parent = out.parent if str(out.parent) else Path(".")
-    if out.exists() and not out.is_dir():
-        raise UserInputError(f"-o {out}: exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise UserInputError(f"-o {out}: directory exists and is not empty (pass --overwrite to replace it)")
-    if not parent.is_dir():
-        try:
-            parent.mkdir(parents=True)
-        except OSError as e:
-            raise UserInputError(f"-o {out}: cannot create {parent} ({e.strerror})") from None
-    try:
-        os.rmdir(tempfile.mkdtemp(dir=parent, prefix=".transient-mi-probe-"))
-    except OSError as e:
-        raise UserInputError(f"-o {out}: cannot create a directory in {parent} ({e.strerror})") from None
-
-
 def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings | None = None,
              overwrite: bool = False, progress: bool | None = None, log=print) -> Path:
     """Run the demo; returns the output directory (see the module docstring)."""
@@ -101,10 +78,8 @@ def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings 
         if not isinstance(a, int) or a < 1:
             raise UserInputError(f"--arrays: {a!r} is not a positive integer")
     out = Path(out_dir)
-    _check_out(out, overwrite)
     t_start = time.perf_counter()
-    tmp = Path(tempfile.mkdtemp(dir=out.parent if str(out.parent) else ".", prefix=f".{out.name}.", suffix=".tmp"))
-    try:
+    with atomic_output_dir(out, overwrite) as tmp:
         results, hists = _run(tmp, s, progress, log)
         gt = ground_truth(s.config(s.arrays[0]))
         log("writing figures, metrics and summary")
@@ -113,12 +88,6 @@ def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings 
         _write_metrics(tmp, results)
         total = time.perf_counter() - t_start
         _write_summary(tmp / "summary.md", results, s, quick, total)
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     log(f"wrote {out} in {time.perf_counter() - t_start:.1f} s")
     return out
 
@@ -167,27 +136,6 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
 
 
 # ------------------------------------------------------------------ figures
-
-
-def _mpl():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _savefig(fig, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=80)
-        os.replace(tmp, path)
-    finally:
-        _mpl().close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def _figure_histograms(path: Path, hists: dict, s: DemoSettings) -> None:
@@ -260,10 +208,7 @@ def _write_metrics(root: Path, results: list[ArrayResult]) -> None:
         row.update({"counts_per_pixel_per_spot": r.counts_per_pixel_per_spot, "pulses_per_spot": r.pulses_per_spot})
         row.update({f"{k}_s": round(v, 3) for k, v in r.times_s.items()})
         rows.append(row)
-    with open(root / "metrics.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(root / "metrics.csv", rows)
     (root / "metrics.json").write_text(json.dumps(
         {"rows": rows, "per_array": {r.array: asdict(r) for r in results}}, indent=1, default=float) + "\n")
 
