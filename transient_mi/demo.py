@@ -21,23 +21,18 @@ complete.
 
 from __future__ import annotations
 
-import csv
 import json
-import os
-import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from recon._atomic import check_output_location, temp_dir_beside, temp_file_beside
 from recon.errors import UserInputError
 
 from .experiment import (PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, detect_counts, ground_truth,
                          paper_detector, reconstruct, render_ideal, summed_histogram, write_ground_truth)
-
-METRIC_KEYS = ("chamfer_m", "accuracy_m", "completeness_m", "depth_mae_m", "depth_coverage", "iou")
+from .reporting import METRIC_KEYS, atomic_output_dir, pyplot as _mpl, save_figure as _savefig, write_csv
 
 
 @dataclass(frozen=True)
@@ -81,14 +76,6 @@ def _is_previous_demo(out: Path) -> bool:
     return summary.is_file() and summary.read_text(errors="replace").startswith("# transient-mi demo:")
 
 
-def _check_out(out: Path, overwrite: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise UserInputError(f"-o {out}: exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not overwrite and not _is_previous_demo(out):
-        raise UserInputError(f"-o {out}: directory exists and is not empty (pass --overwrite to replace it)")
-    check_output_location(out)
-
-
 def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings | None = None,
              overwrite: bool = False, progress: bool | None = None, log=print) -> Path:
     """Run the demo; returns the output directory (see the module docstring).
@@ -101,11 +88,8 @@ def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings 
         if not isinstance(a, int) or a < 1:
             raise UserInputError(f"--arrays: {a!r} is not a positive integer")
     out = Path(out_dir)
-    _check_out(out, overwrite)
-    out.parent.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    tmp = temp_dir_beside(out)
-    try:
+    with atomic_output_dir(out, overwrite or _is_previous_demo(out)) as tmp:
         results, hists = _run(tmp, s, progress, log)
         gt = ground_truth(s.config(s.arrays[0]))
         log("writing figures, metrics and summary")
@@ -114,12 +98,6 @@ def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings 
         _write_metrics(tmp, results)
         total = time.perf_counter() - t_start
         _write_summary(tmp / "summary.md", results, s, quick, total)
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     log(f"wrote {out} in {time.perf_counter() - t_start:.1f} s")
     return out
 
@@ -168,26 +146,6 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
 
 
 # ------------------------------------------------------------------ figures
-
-
-def _mpl():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _savefig(fig, path: Path) -> None:
-    tmp = temp_file_beside(path, suffix=".png")
-    try:
-        fig.savefig(tmp, dpi=80)
-        os.replace(tmp, path)
-    finally:
-        _mpl().close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def _figure_histograms(path: Path, hists: dict, s: DemoSettings) -> None:
@@ -260,10 +218,7 @@ def _write_metrics(root: Path, results: list[ArrayResult]) -> None:
         row.update({"counts_per_pixel_per_spot": r.counts_per_pixel_per_spot, "pulses_per_spot": r.pulses_per_spot})
         row.update({f"{k}_s": round(v, 3) for k, v in r.times_s.items()})
         rows.append(row)
-    with open(root / "metrics.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(root / "metrics.csv", rows)
     (root / "metrics.json").write_text(json.dumps(
         {"rows": rows, "per_array": {r.array: asdict(r) for r in results}}, indent=1, default=float) + "\n")
 

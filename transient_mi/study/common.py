@@ -1,0 +1,70 @@
+"""Steps both studies share: render, reconstruct and score, quiet inner progress bars, metric columns."""
+
+from __future__ import annotations
+
+import os
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+from transient_mi.reporting import METRIC_KEYS
+
+#: Metric columns of the study tables (``recon.metrics``; ``None`` without ground truth).
+METRIC_COLUMNS = METRIC_KEYS + ("depth_rmse_m", "localisation_error_m", "occupied_voxels")
+
+
+def render(scene, out_dir, seed: int) -> Path:
+    """Render ``scene``'s ideal capture into ``out_dir`` (no progress bar of its own)."""
+    from transient_mi.pipeline import prepare_render, run_render
+
+    job = prepare_render(scene.path, out_dir, defines=scene.defines, spp=scene.spp, seed=seed)
+    return run_render(job, progress=False)
+
+
+def bar_enabled(progress: bool | None) -> bool:
+    """Whether a study draws its progress bar: ``progress``, or (None) when stderr is a terminal."""
+    from recon._progress import _enabled
+
+    return _enabled(None if progress is None else not progress)
+
+
+@contextmanager
+def quiet_inner_bars(active: bool = True):
+    """Silence the progress bars of inner steps (render, detection, backprojection) while a study draws its own."""
+    if not active:
+        yield
+        return
+    old = os.environ.get("TRANSIENT_MI_PROGRESS")
+    os.environ["TRANSIENT_MI_PROGRESS"] = "0"
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop("TRANSIENT_MI_PROGRESS", None)
+        else:
+            os.environ["TRANSIENT_MI_PROGRESS"] = old
+
+
+def reconstruct(capture, *, method: str, bounds, voxels, threshold: str, ground_truth, seed: int):
+    """Reconstruct (method + the paper's filter) and score; returns ``(rec, metrics or None, t_rec_s, t_metrics_s)``."""
+    import recon
+    from recon.metrics import compute_metrics
+
+    t0 = time.perf_counter()
+    rec = recon.reconstruct(capture, method, bounds=bounds, voxels=voxels, filter="paper", threshold=threshold)
+    t1 = time.perf_counter()
+    metrics = compute_metrics(rec, ground_truth, seed=seed) if ground_truth is not None else None
+    return rec, metrics, t1 - t0, time.perf_counter() - t1
+
+
+def metric_values(metrics: dict | None) -> dict:
+    """The :data:`METRIC_COLUMNS` of ``metrics`` (all ``None`` without metrics)."""
+    m = metrics or {}
+    return {k: m.get(k) for k in METRIC_COLUMNS}
+
+
+def front_view(rec) -> dict:
+    """The filtered volume's maximum along z (``image[y, x]``) and its axes, for figures."""
+    g = rec.grid
+    return {"image": rec.volume.max(axis=0), "x_m": g.x_m, "y_m": g.y_m,
+            "extent": (float(g.x_m[0]), float(g.x_m[-1]), float(g.y_m[0]), float(g.y_m[-1]))}
