@@ -1,4 +1,4 @@
-"""Writing preview and reconstruction pictures leaves the session's matplotlib backend alone.
+"""Writing preview, reconstruction, demo and study pictures leaves the session's matplotlib backend alone.
 
 (``matplotlib.use("Agg")`` inside the library switched a Jupyter session to Agg, after which
 ``plt.show()`` drew nothing: the notebooks' figures disappeared after the first render.)
@@ -22,8 +22,9 @@ def _run(code: str) -> str:
     return r.stdout.strip().splitlines()[-1]
 
 
-def test_preview_and_recon_pictures_keep_the_backend(tmp_path):
+def test_library_pictures_keep_the_session_backend(tmp_path):
     out = _run(f"""
+        import os
         import matplotlib.pyplot as plt, numpy as np
         before = plt.get_backend()
         from transient_mi.preview import write_preview
@@ -34,7 +35,11 @@ def test_preview_and_recon_pictures_keep_the_backend(tmp_path):
         cap = point_capture([(0.0, 0.0, 0.5)], mode="confocal", pixels=8)
         rec = recon.reconstruct(cap, "bp", voxels=8, bounds=(-0.5, 0.5, -0.5, 0.5, 0.3, 0.7))
         recon.write_outputs({str(tmp_path / "rec")!r}, rec)
-        import os
+        from transient_mi.reporting import pyplot, save_figure
+        fig, ax = pyplot().subplots(1, 2, figsize=(4, 2))
+        ax[0].plot([0, 1])
+        save_figure(fig, {str(tmp_path / "r.png")!r})
+        assert os.path.getsize({str(tmp_path / "r.png")!r}) > 0
         assert os.path.getsize({str(tmp_path / "p.png")!r}) > 0
         assert os.path.getsize({str(tmp_path / "rec" / "projection_z.png")!r}) > 0
         print(before, plt.get_backend())
