@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import numbers
-from typing import Sequence
 
 from recon.errors import UserInputError
 
