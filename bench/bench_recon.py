@@ -83,7 +83,6 @@ def rss_mb() -> float:
 
 def child(case: str, h5: str, n: int, repeat: int = 1) -> dict:
     sys.path.insert(0, str(ROOT))
-    import numpy as np
 
     from recon import load_capture
     from recon.grid import VoxelGrid

@@ -72,7 +72,6 @@ def confocal_time_volume(capture, grid: VoxelGrid, method: str):
         Pixel coordinates.
     """
     wall = require_regular_confocal(capture, method)
-    w_ps = capture.bin_width_ps
     w_m = capture.bin_width_m
     # deepest radius the volume needs: the farthest voxel from any pixel
     xs = np.array([grid.x_m[0], grid.x_m[-1]])

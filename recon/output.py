@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._atomic import check_output_location, temp_dir_beside
 from .errors import UserInputError
 from .filters import depth_map, projections
 from .result import Reconstruction
@@ -125,6 +126,19 @@ def _plots(d: Path, rec: Reconstruction, title: str) -> list[str]:
     return names
 
 
+def check_output_dir(out_dir: str | os.PathLike, overwrite: bool = False) -> Path:
+    """Check (creating nothing) that a reconstruction can be written to ``out_dir``; return its parent.
+
+    Missing parents are created when writing.
+    """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise UserInputError(f"-o {str(out)!r} exists and is a file; choose a directory name")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise UserInputError(f"-o {str(out)!r} exists and is not empty; pass --overwrite to replace it")
+    return check_output_location(out)
+
+
 def write_outputs(out_dir: str | os.PathLike, rec: Reconstruction, meta: dict | None = None,
                   metrics: dict | None = None, overwrite: bool = False, plots: bool = True) -> Path:
     """Write a reconstruction directory atomically (see the module docstring).
@@ -144,14 +158,9 @@ def write_outputs(out_dir: str | os.PathLike, rec: Reconstruction, meta: dict | 
         Write the PNG pictures.
     """
     out = Path(out_dir)
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise UserInputError(f"-o {str(out)!r}: the parent directory {str(parent)!r} does not exist")
-    if out.exists() and not out.is_dir():
-        raise UserInputError(f"-o {str(out)!r} exists and is a file; choose a directory name")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise UserInputError(f"-o {str(out)!r} exists and is not empty; pass --overwrite to replace it")
-    tmp = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".tmp"))
+    parent = check_output_dir(out, overwrite)
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_dir_beside(out)
     try:
         save_volume(tmp / "volume.npz", rec)
         files = ["volume.npz"]
@@ -165,7 +174,6 @@ def write_outputs(out_dir: str | os.PathLike, rec: Reconstruction, meta: dict | 
         (tmp / "recon.json").write_text(json.dumps(_jsonable(info), indent=1) + "\n")
         if metrics is not None:
             (tmp / "metrics.json").write_text(json.dumps(_jsonable(metrics), indent=1) + "\n")
-        os.chmod(tmp, 0o755)
         if out.exists():
             trash = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".old"))
             os.replace(out, trash / out.name)

@@ -95,9 +95,10 @@ def run(capture_path, out_dir, method: str = "bp", *, bounds=None, voxels=None, 
     """
     from . import preprocess
     from .metrics import compute_metrics, load_ground_truth
-    from .output import write_outputs
+    from .output import check_output_dir, write_outputs
 
     t_start = time.perf_counter()
+    check_output_dir(out_dir, overwrite)  # fail before any work
     gt = load_ground_truth(ground_truth) if ground_truth is not None else None  # fail early
     cap = load_capture(capture_path)
     if pileup_correction:

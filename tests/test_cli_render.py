@@ -95,7 +95,7 @@ def test_missing_scene_and_unwritable_output(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     r = cli("render", CBOX, "-o", blocker / "sub" / "out")
-    assert r.returncode == 2 and "does not exist" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert r.returncode == 2 and "is not a directory" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     r = cli("render", CBOX, "-o", "/proc/transient-mi-out")  # read-only filesystem, even for root
     assert r.returncode == 2 and "cannot create a directory in /proc" in r.stderr
     assert not (tmp_path / "o").exists()
@@ -132,3 +132,10 @@ print("ok")
 """
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=600)
     assert r.returncode == 0 and "ok" in r.stdout, r.stderr
+
+
+def test_missing_parent_directories_are_created(tmp_path):
+    out = tmp_path / "a" / "b" / "cb"
+    r = cli("render", CBOX, "-o", out, *SMALL)
+    assert r.returncode == 0, r.stderr
+    assert stack.read_manifest(out)["status"] == "complete"

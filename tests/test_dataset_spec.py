@@ -172,16 +172,11 @@ def test_bad_object_values_name_the_item():
 
 
 def test_detector_settings_follow_the_detector_module():
-    from transient_mi.dataset.spec import detector_param_names
-
-    names = detector_param_names()
-    if names is None:  # transient_mi.detector not installed: a clear error instead of a silent skip
-        with pytest.raises(UserInputError, match="transient_mi.detector is not available"):
-            spec_of(detector={"pulses": 1000})
-    else:
-        with pytest.raises(UserInputError, match="unknown detector setting 'pdee'"):
-            spec_of(detector={"pdee": 0.5})
-        s = spec_of(detector={"pulses": 1000}, grid={"detector.pde": [0.3, 0.7]})
-        recs = [it.record["detector"] for it in expand(s)]
-        assert [r["params"]["pde"] for r in recs] == [0.3, 0.7] and recs[0]["pulses"] == 1000
-        assert recs[0]["seed"] != recs[1]["seed"]
+    with pytest.raises(UserInputError, match="unknown detector setting 'pdee'"):
+        spec_of(detector={"pdee": 0.5})
+    s = spec_of(detector={"pulses": 1000}, grid={"detector.pde": [0.3, 0.7]})
+    recs = [it.record["detector"] for it in expand(s)]
+    assert [r["params"]["pde"] for r in recs] == [0.3, 0.7] and recs[0]["pulses"] == 1000
+    assert recs[0]["seed"] != recs[1]["seed"]
+    with pytest.raises(UserInputError, match="engine='warp': allowed auto, analytic, exact"):
+        expand(spec_of(detector={"pulses": 1000, "engine": "warp"}))

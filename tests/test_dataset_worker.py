@@ -103,3 +103,34 @@ def test_scene_loads_on_one_thread_and_renders_on_all(mannequin_item, monkeypatc
     finally:
         w._THREADS_SET = None
     assert seen == {"load": 1, "render": 2}
+
+
+def test_ground_truth_only_object_matches_the_mannequin_the_scene_builds(tmp_path):
+    """``define: null``: the paper scene builds its mannequin from $pose/$distance/$rotation, the worker
+    writes the same mesh as ground truth and passes no mesh path."""
+    import numpy as np
+    import trimesh
+
+    import transient_mi  # noqa: F401
+    from transient_mi.scene_io import load_scene
+    from transient_mi.scenes import scene_path
+
+    spec = parse_spec({
+        "scene": "paper_mannequin", "seed": 3, "spp": 2,
+        "defines": {"array": 4, "n_bins": 50, "bin_width_ps": 100, "pose": "${object.pose}",
+                    "distance": "${object.position_z}", "rotation": "${object.rotation_deg}"},
+        "object": {"kind": "mannequin", "define": None, "pose": "arms_raised", "position_z": 0.55,
+                   "rotation_deg": 10.0},
+    })
+    (item,) = expand_items(spec, variant="llvm_ad_mono", scene_sha256="0" * 64)
+    assert "define.mesh" not in item.record["parameters"] and item.record["object"]["define"] is None
+    items_dir = tmp_path / "items"
+    items_dir.mkdir()
+    task = {"record": item.record, "items_dir": str(items_dir), "scene_file": str(spec.scene_file), "threads": 2}
+    assert w.build_item(task)["status"] == "built"
+    gt = trimesh.load(items_dir / item.name / "mesh.ply", force="mesh")
+    scene = load_scene(scene_path("paper_mannequin"), {k[len("define."):]: str(v) for k, v in
+                                                       item.record["parameters"].items() if k.startswith("define.")})
+    (shape,) = [s for s in scene.shapes() if s.id() == "mannequin"]
+    v = np.asarray(shape.vertex_positions_buffer()).reshape(-1, 3)
+    np.testing.assert_allclose(np.sort(v, axis=0), np.sort(np.asarray(gt.vertices), axis=0), atol=1e-6)

@@ -122,6 +122,13 @@ def test_demo_quick_writes_every_output(quick_demo):
         assert rec_metrics["chamfer_m"] is not None
 
 
+def test_demo_replaces_its_own_earlier_output_only(quick_demo):
+    from transient_mi.demo import _is_previous_demo
+
+    assert _is_previous_demo(quick_demo)  # so a rerun may replace it (see run_demo)
+    assert not _is_previous_demo(quick_demo / "recon")
+
+
 def test_demo_reconstruction_improves_from_4x4_to_32x32(quick_demo):
     """The paper's finding, on the metrics: larger arrays reconstruct the mannequin better."""
     with open(quick_demo / "metrics.csv") as f:

@@ -1,6 +1,5 @@
 """`transient-mi render` on NLOS scenes: streaming per spot, resume, kill -9, bad input."""
 
-import json
 import os
 import signal
 import subprocess

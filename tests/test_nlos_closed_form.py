@@ -54,7 +54,6 @@ def test_three_bounce_small_patch(include_first_last, t0_ps):
             assert abs(z) < 4.0, f"pixel ({x},{y}): {mean[y, x]:.6g} vs analytic {ref:.6g} ({z:+.2f} sigma)"
             # arrival times: every recorded photon (hence the peak bin) lies in the range that the
             # patch's and the target's extents allow
-            extra = 0.0
             if include_first_last:
                 # |p - D| over the patch
                 g = np.linspace(-0.5, 0.5, 9) * FP

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 import transient_mi  # noqa: F401  (first: LLVM + plug-ins)
-import drjit as dr
 import mitsuba as mi
 
 from recon.units import C_M_PER_PS

@@ -16,7 +16,6 @@ re-registers the plug-ins for the new variant.
 
 from __future__ import annotations
 
-import sys as _sys
 
 from ._llvm import LLVMNotFoundError, resolve_llvm as _resolve_llvm
 from .variant import DEFAULT_VARIANT, VariantError, requested_variant as _requested_variant

@@ -70,16 +70,26 @@ class ArrayResult:
     files: dict = field(default_factory=dict)
 
 
+def _is_previous_demo(out: Path) -> bool:
+    """A directory written by an earlier demo run (its summary.md says so)."""
+    summary = out / "summary.md"
+    return summary.is_file() and summary.read_text(errors="replace").startswith("# transient-mi demo:")
+
+
 def run_demo(out_dir="out/demo", *, quick: bool = False, settings: DemoSettings | None = None,
              overwrite: bool = False, progress: bool | None = None, log=print) -> Path:
-    """Run the demo; returns the output directory (see the module docstring)."""
+    """Run the demo; returns the output directory (see the module docstring).
+
+    An existing ``out_dir`` is replaced only if it holds an earlier demo's
+    output (or with ``overwrite``); anything else is refused.
+    """
     s = settings if settings is not None else (QUICK if quick else DemoSettings())
     for a in s.arrays:
         if not isinstance(a, int) or a < 1:
             raise UserInputError(f"--arrays: {a!r} is not a positive integer")
     out = Path(out_dir)
     t_start = time.perf_counter()
-    with atomic_output_dir(out, overwrite) as tmp:
+    with atomic_output_dir(out, overwrite or _is_previous_demo(out)) as tmp:
         results, hists = _run(tmp, s, progress, log)
         gt = ground_truth(s.config(s.arrays[0]))
         log("writing figures, metrics and summary")

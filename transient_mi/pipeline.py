@@ -25,13 +25,13 @@ from __future__ import annotations
 import os
 import platform
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from recon._atomic import check_output_location
 from recon._progress import progress_bar
 from recon.errors import UserInputError
 from recon.io import stack
@@ -71,13 +71,7 @@ class RenderJob:
 def _check_output(out_dir: Path, resume: bool) -> None:
     if out_dir.exists() and not out_dir.is_dir():
         raise UserInputError(f"-o {out_dir}: exists and is not a directory")
-    parent = out_dir.parent if out_dir.parent != Path("") else Path(".")
-    if not parent.is_dir():
-        raise UserInputError(f"-o {out_dir}: parent directory {parent} does not exist")
-    try:  # a real probe: permission bits say little for root or read-only mounts
-        os.rmdir(tempfile.mkdtemp(dir=parent, prefix=".transient-mi-probe-"))
-    except OSError as e:
-        raise UserInputError(f"-o {out_dir}: cannot create a directory in {parent} ({e.strerror})") from None
+    check_output_location(out_dir)
     if out_dir.exists() and not resume and any(out_dir.iterdir()):
         raise UserInputError(f"-o {out_dir}: directory exists and is not empty (use --resume to continue it, "
                              "or choose another output)")

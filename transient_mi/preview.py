@@ -10,16 +10,11 @@ pixel, for one laser spot.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+from recon._atomic import temp_file_beside
 
 
 def _tonemap(img: np.ndarray) -> np.ndarray:
@@ -96,11 +91,9 @@ def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int 
         axes[2].set_ylabel(manifest.get("quantity", "value") + " per bin")
     fig.tight_layout()
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
+    tmp = temp_file_beside(path, suffix=".png")
     try:
         fig.savefig(tmp, dpi=90)
-        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     finally:
         plt.close(fig)

@@ -25,19 +25,11 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
+from recon._atomic import check_output_location, temp_dir_beside, temp_file_beside
 from recon.errors import UserInputError
 
 #: Metrics of :func:`recon.metrics.compute_metrics` reported in the demo and study tables.
 METRIC_KEYS = ("chamfer_m", "accuracy_m", "completeness_m", "depth_mae_m", "depth_coverage", "iou")
-
-
-def _nearest_existing(path: Path) -> Path:
-    p = path
-    while not p.exists():
-        if p.parent == p:
-            break
-        p = p.parent
-    return p
 
 
 def check_output_dir(out, overwrite: bool = False, option: str = "-o") -> Path:
@@ -54,17 +46,7 @@ def check_output_dir(out, overwrite: bool = False, option: str = "-o") -> Path:
         raise UserInputError(f"{option} {out}: exists and is not a directory")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise UserInputError(f"{option} {out}: directory exists and is not empty (pass --overwrite to replace it)")
-    parent = out.parent if str(out.parent) else Path(".")
-    base = _nearest_existing(parent.absolute())
-    if not base.is_dir():
-        raise UserInputError(f"{option} {out}: {base} is not a directory")
-    if base == parent.absolute():
-        try:  # a real probe: permission bits say little for root or read-only mounts
-            os.rmdir(tempfile.mkdtemp(dir=base, prefix=".transient-mi-probe-"))
-        except OSError as e:
-            raise UserInputError(f"{option} {out}: cannot create a directory in {parent} ({e.strerror})") from None
-    elif not os.access(base, os.W_OK | os.X_OK):
-        raise UserInputError(f"{option} {out}: cannot create {parent} ({base} is not writable)")
+    check_output_location(out, option)
     return out
 
 
@@ -86,8 +68,7 @@ def atomic_output_dir(out, overwrite: bool = False, option: str = "-o") -> Itera
         p = p.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".tmp"))
-        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it private; the result is an ordinary directory
+        tmp = temp_dir_beside(out)
     except OSError as e:
         _remove_empty(created)
         raise UserInputError(f"{option} {out}: cannot create a directory in {parent} ({e.strerror})") from None
@@ -105,12 +86,6 @@ def atomic_output_dir(out, overwrite: bool = False, option: str = "-o") -> Itera
         shutil.rmtree(tmp, ignore_errors=True)
         _remove_empty(created)
         raise
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def _remove_empty(dirs: list[Path]) -> None:
@@ -134,11 +109,9 @@ def pyplot():
 def save_figure(fig, path, dpi: int = 80) -> Path:
     """Save ``fig`` to ``path`` (PNG) under a temporary name, rename it, close the figure."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".png")
-    os.close(fd)
+    tmp = temp_file_beside(path, suffix=".png")
     try:
         fig.savefig(tmp, dpi=dpi)
-        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     finally:
         pyplot().close(fig)

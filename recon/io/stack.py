@@ -56,6 +56,7 @@ __all__ = [
 _DTYPES = {"ideal": np.dtype(np.float32), "counts": np.dtype(np.uint32)}
 
 
+from .._atomic import file_mode
 from ..errors import UserInputError
 
 
@@ -240,13 +241,6 @@ def manifest_path(directory: str | os.PathLike) -> Path:
     return Path(directory) / MANIFEST_NAME
 
 
-def _umask_mode() -> int:
-    """Permissions a normally created file gets (0o666 minus the umask)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
@@ -254,7 +248,7 @@ def _atomic_write_bytes(path: Path, data: bytes) -> None:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        os.chmod(tmp, _umask_mode())
+        os.chmod(tmp, file_mode())
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -374,7 +368,7 @@ def write_spot(directory: str | os.PathLike, index: int, data: np.ndarray, manif
         OpenEXR.File(_header(manifest, index), channels).write(tmp)
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
-        os.chmod(tmp, _umask_mode())
+        os.chmod(tmp, file_mode())
         os.replace(tmp, path)
     except BaseException:
         try:

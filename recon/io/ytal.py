@@ -37,11 +37,11 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .._atomic import temp_file_beside
 from ..errors import UserInputError
 from ..units import C_M_PER_PS
 
@@ -120,8 +120,7 @@ def write_ytal(capture, path: str | os.PathLike, compression: int = 0) -> Path:
         "transient_mi_version": _version(),
         MANIFEST_KEY: manifest,
     }
-    fd, tmp = tempfile.mkstemp(dir=p.parent if str(p.parent) else ".", prefix=f".{p.name}.", suffix=".tmp")
-    os.close(fd)
+    tmp = str(temp_file_beside(p))
     try:
         with h5py.File(tmp, "w") as f:
             kw = {"compression": "gzip", "compression_opts": compression} if compression else {}

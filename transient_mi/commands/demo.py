@@ -14,7 +14,8 @@ def demo(
     arrays: Optional[str] = typer.Option(None, "--arrays", help="Array sizes, comma-separated (default 4,8,16,32)."),
     seed: int = typer.Option(0, "--seed", help="Seed of rendering and detection."),
     exposure_ms: Optional[float] = typer.Option(None, "--exposure-ms", help="Exposure per laser spot, ms (default 10)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty output directory."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty output directory (an earlier "
+                                   "demo's output is replaced without it)."),
 ) -> None:
     """Render, detect and reconstruct the paper's mannequin for 4x4 to 32x32 SPAD arrays; write figures,
     a metrics table against the ground-truth mesh, and summary.md."""

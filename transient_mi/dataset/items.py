@@ -144,7 +144,7 @@ def _detector_record(spec: DatasetSpec, values: dict[str, Any], seed: int, index
     from transient_mi.detector import DetectorParams
 
     if engine not in DETECTOR_ENGINES:
-        raise UserInputError(f"{where}.engine={engine!r}: allowed {', '.join(ENGINES)}")
+        raise UserInputError(f"{where}.engine={engine!r}: allowed {', '.join(DETECTOR_ENGINES)}")
     DetectorParams.from_dict(params).validate()
     return {"params": params, "pulses": pulses, "exposure_s": exposure_s, "engine": engine,
             "seed": item_seed(seed, index, STREAM_DETECTOR)}
@@ -189,7 +189,8 @@ def expand_items(spec: DatasetSpec, *, variant: str, scene_sha256: str) -> list[
                     resolved = kind.resolve(_split(values, "object."))
                 except UserInputError as e:
                     raise UserInputError(f"item {index} ({item_name(index)}): object.{e}") from None
-                defines[spec.object_define] = MESH_NAME
+                if spec.object_define is not None:
+                    defines[spec.object_define] = MESH_NAME
                 obj = {"kind": kind.name, "define": spec.object_define, "file": MESH_NAME, "params": resolved}
             spp = values["spp"]
             record = {

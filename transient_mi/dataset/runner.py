@@ -189,7 +189,7 @@ def validate_scene(spec: DatasetSpec, items: list[Item]) -> int:
             if name not in known:
                 raise UserInputError(f"{_section_of(spec, key)}: scene {scene_file.name} has no parameter ${name}; "
                                      f"its parameters: {', '.join(sorted(known)) or 'none'}")
-        if spec.object_kind is not None and spec.object_define not in known:
+        if spec.object_kind is not None and spec.object_define is not None and spec.object_define not in known:
             raise UserInputError(f"object.define: scene {scene_file.name} has no parameter ${spec.object_define} "
                                  f"to receive the mesh path; its parameters: {', '.join(sorted(known)) or 'none'}")
     if spec.object_kind is not None and (scene_file.parent / MESH_NAME).exists():

@@ -127,7 +127,7 @@ class DatasetSpec:
     grid: dict[str, list] = field(default_factory=dict)
     random: dict[str, Distribution] = field(default_factory=dict)
     object_kind: str | None = None
-    object_define: str = "mesh"
+    object_define: str | None = "mesh"
     object_params: dict[str, Any] = field(default_factory=dict)
     detector: dict[str, Any] | None = None
     name: str | None = None
@@ -299,9 +299,11 @@ def parse_spec(data: dict, *, spec_file: str | Path | None = None) -> DatasetSpe
             raise UserInputError(f"object.kind: {kind!r}; allowed: {', '.join(OBJECT_KINDS)}")
         spec.object_kind = kind
         define = obj.get("define", "mesh")
-        if not isinstance(define, str) or not _NAME.match(define):
-            raise UserInputError(f"object.define: {define!r} is not a valid scene parameter name")
-        if define in spec.defines:
+        # define: null -> the mesh is written as ground truth only (the scene builds the same object
+        # itself, e.g. the `mannequin` shape of scenes/paper_mannequin.xml from its own parameters)
+        if define is not None and (not isinstance(define, str) or not _NAME.match(define)):
+            raise UserInputError(f"object.define: {define!r} is not a valid scene parameter name (or null)")
+        if define is not None and define in spec.defines:
             raise UserInputError(f"object.define: {define!r} is also given in defines; the generated mesh "
                                  f"sets -D {define}=mesh.ply itself")
         spec.object_define = define
@@ -389,7 +391,7 @@ def canonical_key(where: str, key: Any, spec: DatasetSpec) -> str:
     if not _NAME.match(key):
         raise UserInputError(f"{where}: {key!r} is not a parameter name; use spp, object.<name>, "
                              "detector.<name> or a scene parameter (letters, digits, _)")
-    if key == spec.object_define and spec.object_kind is not None:
+    if spec.object_define is not None and key == spec.object_define and spec.object_kind is not None:
         raise UserInputError(f"{where}: {key!r} is set by the object generator (object.define)")
     return f"define.{key}"
 

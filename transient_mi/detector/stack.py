@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from recon._progress import progress_bar
+from recon._atomic import check_output_location, temp_dir_beside
 from recon.errors import UserInputError
 from recon.io.stack import (MANIFEST_NAME, StackError, missing_spots, new_manifest, read_manifest,
                             read_spot, spot_filename, write_manifest, write_spot)
@@ -60,10 +60,7 @@ def _check_output(out: Path, ideal: Path, overwrite: bool) -> None:
         if (out / MANIFEST_NAME).exists() and not overwrite:
             raise UserInputError(f"output {out} already holds a capture: choose another directory "
                                  "(or overwrite it explicitly)")
-    if not out.parent.is_dir():
-        raise UserInputError(f"output {out}: parent directory {out.parent} does not exist")
-    if not os.access(out.parent, os.W_OK):
-        raise UserInputError(f"output {out}: cannot write in {out.parent}")
+    check_output_location(out, option="output")
 
 
 def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pulses: int | None = None,
@@ -186,7 +183,8 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         detector=dict(detector, resolved=resolved), render=m.get("render"), source_ideal=source_ideal, **extra)
 
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = temp_dir_beside(out)
     except OSError as e:
         raise UserInputError(f"output {out}: cannot create a directory in {out.parent} ({e.strerror})") from None
     try:

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import time as _time
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_streams,
                                              seed_rng, to_mono)

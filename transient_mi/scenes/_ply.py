@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from recon._atomic import file_mode
 from recon.errors import UserInputError
 
 
@@ -68,7 +69,7 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes, what: str = "output
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the file ordinary permissions
+        os.chmod(tmp, file_mode())  # mkstemp makes 0600; give the file ordinary permissions
         os.replace(tmp, p)
         tmp = None
     except OSError as e:
@@ -80,17 +81,6 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes, what: str = "output
             except OSError:
                 pass
     return p
-
-
-def _read_umask() -> int:
-    # Read once at import: os.umask can only be read by setting it, which is
-    # not safe while other threads create files.
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _read_umask()
 
 
 def write_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray) -> Path:
