@@ -29,10 +29,10 @@ from recon.errors import UserInputError
 from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv, write_json
 
 from . import validate as V
-from .common import METRIC_COLUMNS, bar_enabled, front_view, metric_values, quiet_inner_bars, reconstruct, render
+from .common import (METRIC_COLUMNS, bar_enabled, check_method_fits, front_view, metric_values, quiet_inner_bars,
+                     reconstruct, render)
 from .result import StudyResult
-from .scene import (array_size_defines, base_detector, load_study_ground_truth, reconstruction_bounds,
-                    study_scene)
+from .scene import array_size_defines, base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
 
 #: The paper's array sizes and 64x64.
 DEFAULT_ARRAYS = (4, 8, 16, 32, 64)
@@ -150,6 +150,7 @@ def _one(tmp: Path, sc, n: int, params, exposure: float, vox, seed: int, bounds,
     t0 = time.perf_counter()
     ideal = render(sc, cap_dir / "ideal", seed)
     t1 = time.perf_counter()
+    check_method_fits(method, read_manifest(ideal))
     counts = detect_stack(ideal, cap_dir / "counts", params, exposure_s=exposure, seed=seed + 1, progress=False)
     t2 = time.perf_counter()
     capture = recon.load_capture(counts)
@@ -157,7 +158,7 @@ def _one(tmp: Path, sc, n: int, params, exposure: float, vox, seed: int, bounds,
         from recon.grid import default_bounds
 
         bounds = tuple(float(b) for b in default_bounds(capture))
-    rec, metrics, t_rec, t_met = reconstruct(capture, method=method, bounds=bounds, voxels=vox, threshold=threshold,
+    rec, metrics, _, t_met = reconstruct(capture, method=method, bounds=bounds, voxels=vox, threshold=threshold,
                                              ground_truth=gt, seed=seed)
     t3 = time.perf_counter()
     m = read_manifest(counts)

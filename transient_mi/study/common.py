@@ -57,6 +57,16 @@ def reconstruct(capture, *, method: str, bounds, voxels, threshold: str, ground_
     return rec, metrics, t1 - t0, time.perf_counter() - t1
 
 
+def check_method_fits(method: str, manifest: dict) -> None:
+    """``lct``/``fk`` need a confocal capture: refuse them for array captures (before reconstructing)."""
+    from recon.errors import UserInputError
+    from recon.pipeline import CONFOCAL_ONLY
+
+    if method in CONFOCAL_ONLY and manifest.get("capture") != "confocal":
+        raise UserInputError(f"method={method!r} needs a confocal capture; the scene renders an "
+                             f"{manifest.get('capture')!r} capture: use bp, fbp or phasor")
+
+
 def metric_values(metrics: dict | None) -> dict:
     """The :data:`METRIC_COLUMNS` of ``metrics`` (all ``None`` without metrics)."""
     m = metrics or {}

@@ -128,7 +128,7 @@ def snr_vs_photons(path: Path, snr_bins: list[dict], snr_pixels: list[dict]) -> 
         line(ax, min(xs) / 2, max(xs) * 2, "shot-noise limit sqrt(N_s)")
         ax.plot([], [], linestyle="none", marker="_", color="k", ms=7, label="Poisson with background: "
                 "N_s / sqrt(N_s + N_bg)")
-    ax.set_title("per bin, signal: (mean - background) / sd", fontsize=10)
+    ax.set_title("per bin, signal only: N_s / sd (the scene's photons)", fontsize=10)
     ax.set_xlabel("detected signal counts per bin (N_s)")
     ax.set_ylabel("signal SNR")
 
@@ -153,8 +153,7 @@ def snr_vs_photons(path: Path, snr_bins: list[dict], snr_pixels: list[dict]) -> 
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.grid(alpha=0.3, which="both")
-        handles, labels = ax.get_legend_handles_labels()
-        if handles:
+        if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
     fig.suptitle("SNR over repeated detections of one render (colour: dark-count rate; filled markers: the "
                  "shortest dead time, open: longer ones)", fontsize=10)
@@ -204,14 +203,16 @@ def array_size_figure(path: Path, rows: list[dict], timings: list[dict]) -> Path
             ax.plot(n, [np.nan if y is None else 100 * y for y in ys], marker="o", label=label)
     ax.set_xlabel("SPAD array side (pixels)")
     ax.set_ylabel("error (cm)")
+    handles, labels = ax.get_legend_handles_labels()
     if any(r.get("iou") is not None for r in rows):
         tw = ax.twinx()
         tw.plot(n, [np.nan if r.get("iou") is None else r["iou"] for r in rows], marker="s", color="k", ls="--",
                 label="IoU (right axis)")
         tw.set_ylabel("occupancy IoU")
-        tw.legend(loc="upper center", fontsize=8)
+        h2, l2 = tw.get_legend_handles_labels()
+        handles, labels = handles + h2, labels + l2
     if have:
-        ax.legend(loc="upper right", fontsize=8)
+        ax.legend(handles, labels, loc="center right", fontsize=8, framealpha=0.9)
     else:
         ax.text(0.5, 0.5, "no ground truth: no error metrics", transform=ax.transAxes, ha="center")
     ax.set_xscale("log", base=2)

@@ -32,9 +32,10 @@ from recon.errors import UserInputError
 from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv, write_json
 
 from . import validate as V
-from .common import METRIC_COLUMNS, bar_enabled, front_view, metric_values, quiet_inner_bars, reconstruct, render
+from .common import (METRIC_COLUMNS, bar_enabled, check_method_fits, front_view, metric_values, quiet_inner_bars,
+                     reconstruct, render)
 from .result import StudyResult
-from .scene import (base_detector, load_study_ground_truth, reconstruction_bounds, study_scene)
+from .scene import base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
 
 #: Exposure per laser spot (s): in the paper scene from 5 pulses (~0.07 detected counts per pixel per spot) to
 #: 5e4 pulses (~700), well past where the reconstruction error stops improving (the paper's 10 ms, ~7000 counts,
@@ -45,9 +46,9 @@ DEFAULT_DARK_COUNT_RATES_CPS = (25.0, 1e5, 1e7)
 #: A fast SPAD (10 ns) and the microsecond hold-off InGaAs SPADs use against afterpulsing.
 DEFAULT_DEAD_TIMES_NS = (10.0, 1000.0)
 KEY_COLUMNS = ("laser_power_w", "exposure_s", "pulses_per_spot", "dark_count_rate_cps", "dead_time_ns", "seed")
-ROW_COLUMNS = KEY_COLUMNS + ("counts_per_pixel_per_spot", "expected_background_per_pixel_per_spot",
-                             "signal_counts_per_pixel_per_spot", "p_det_mean", "p_det_max", "engines",
-                             "exact") + METRIC_COLUMNS
+ROW_COLUMNS = KEY_COLUMNS + ("counts_per_pixel_per_spot", "signal_counts_per_pixel_per_spot",
+                             "background_counts_per_pixel_per_spot", "expected_background_low_flux_per_pixel_per_spot",
+                             "p_det_mean", "p_det_max", "engines", "exact") + METRIC_COLUMNS
 TIMING_COLUMNS = KEY_COLUMNS + ("detect_s", "reconstruct_s", "metrics_s", "total_s")
 CONFIG_COLUMNS = ("laser_power_w", "exposure_s", "pulses_per_spot", "dark_count_rate_cps", "dead_time_ns")
 
@@ -154,6 +155,7 @@ class _Run:
         from .detection import Detection, IdealCapture
 
         self.ideal = IdealCapture(ideal_dir)
+        check_method_fits(method, self.ideal.manifest)
         if bounds is None:
             import recon
             from recon.grid import default_bounds
@@ -165,6 +167,7 @@ class _Run:
         if powers is None and scene_power is None:
             raise UserInputError(f"{sc.path.name}: the capture's laser has no average_power_w")
         self.powers = (float(scene_power),) if powers is None else powers
+        self.powers_given = powers is not None
         self.configs = []
         for pw in self.powers:
             for dark in darks:
@@ -204,8 +207,10 @@ class _Run:
                 bg = stats.expected_background_per_pixel()
                 p = stats.p_det()
                 for r in self.rows[-len(self.seeds):]:
-                    r["expected_background_per_pixel_per_spot"] = bg
-                    r["signal_counts_per_pixel_per_spot"] = r["counts_per_pixel_per_spot"] - bg
+                    sig = stats.signal_counts_per_pixel(r["seed"])
+                    r["signal_counts_per_pixel_per_spot"] = sig
+                    r["background_counts_per_pixel_per_spot"] = r["counts_per_pixel_per_spot"] - sig
+                    r["expected_background_low_flux_per_pixel_per_spot"] = bg
                     r["p_det_mean"], r["p_det_max"] = float(p.mean()), float(p.max())
                 self.snr_bins += [dict(key, **r) for r in stats.bin_rows()]
                 self.snr_pixels += [dict(key, **r) for r in stats.pixel_rows()]
@@ -231,14 +236,14 @@ class _Run:
         rec, metrics, t_rec, t_met = reconstruct(cap, method=self.method, bounds=self.bounds, voxels=self.vox,
                                                  threshold=self.threshold, ground_truth=self.gt, seed=self.seed)
         for j in range(det.ideal.n_files):  # every spot enters the statistics, whatever the method read
-            if j not in seen:
+            if not stats.has(j, s):
                 cap.spot(j)
         wall = time.perf_counter() - t0
         n_files, H, W, _ = det.ideal.shape
         row = dict(key, seed=s, counts_per_pixel_per_spot=acc["counts"] / (n_files * H * W),
-                   expected_background_per_pixel_per_spot=None, signal_counts_per_pixel_per_spot=None,
-                   p_det_mean=None, p_det_max=None, engines="/".join(sorted(engines)), exact=acc["exact"],
-                   **metric_values(metrics))
+                   signal_counts_per_pixel_per_spot=None, background_counts_per_pixel_per_spot=None,
+                   expected_background_low_flux_per_pixel_per_spot=None, p_det_mean=None, p_det_max=None,
+                   engines="/".join(sorted(engines)), exact=acc["exact"], **metric_values(metrics))
         timing = dict(key, seed=s, detect_s=acc["detect_s"], reconstruct_s=max(t_rec - acc["detect_s"], 0.0),
                       metrics_s=t_met, total_s=wall)
         return row, timing, rec
@@ -308,21 +313,43 @@ def _write_outputs(tmp: Path, run: _Run, sc, gt, gt_desc: str, quick: bool, rend
                        "snr_pixels_csv": "snr_pixels.csv"}, "figures": figs}
 
 
-def _cm(v):
-    return f"{100 * v:.2f}"
+def detect_flags(base, with_power: bool) -> str:
+    """``transient-mi detect`` options that turn the default detector into ``base`` (dark counts and dead time
+    are given per row), plus ``--laser-power-w P`` when the study varies the power."""
+    import dataclasses
+
+    from transient_mi.detector import DetectorParams
+
+    default = DetectorParams()
+    flags = []
+    for f in dataclasses.fields(DetectorParams):
+        name, v = f.name, getattr(base, f.name)
+        if name in ("dark_count_rate_cps", "dead_time_ns", "laser_power_w") or v == getattr(default, name):
+            continue
+        opt = "--" + name.replace("_", "-")
+        if isinstance(v, bool):
+            flags.append(opt if v else "")
+        elif v is None and name == "tcspc_max_count_rate_hz":
+            flags.append(f"{opt} 0")
+        elif v is not None:
+            flags.append(f"{opt} {v:g}" if isinstance(v, float) else f"{opt} {v}")
+    if with_power:
+        flags.append("--laser-power-w P")
+    return " ".join(f for f in flags if f)
 
 
 def _write_summary(path: Path, run: _Run, settings: dict, figs: dict, render_s: float, total_s: float) -> None:
     has_metrics = any(a.get("chamfer_m_mean") is not None for a in run.aggregate)
     table_rows = []
+    def ms(a, k, scale=100.0, fmt="{:.2f}"):
+        m, s = a.get(f"{k}_mean"), a.get(f"{k}_sd")
+        return None if m is None else (fmt.format(scale * m) + " +- " + fmt.format(scale * s))
+
     for a in run.aggregate:
-        def ms(k, scale=100.0, fmt="{:.2f}"):
-            m, s = a.get(f"{k}_mean"), a.get(f"{k}_sd")
-            return None if m is None else (fmt.format(scale * m) + " +- " + fmt.format(scale * s))
         row = [f"{1e3 * a['laser_power_w']:g}", f"{a['exposure_s']:g}", a["pulses_per_spot"],
                f"{a['dark_count_rate_cps']:g}", f"{a['dead_time_ns']:g}", f"{a['counts_per_pixel_per_spot_mean']:.4g}"]
         if has_metrics:
-            row += [ms("chamfer_m"), ms("depth_mae_m"), ms("iou", 1.0, "{:.3f}")]
+            row += [ms(a, "chamfer_m"), ms(a, "depth_mae_m"), ms(a, "iou", 1.0, "{:.3f}")]
         row.append("yes" if a["exact"] else "no")
         table_rows.append(row)
     headers = ["power (mW)", "exposure (s)", "pulses", "dark (cps)", "dead time (ns)", "counts/px/spot"]
@@ -331,7 +358,10 @@ def _write_summary(path: Path, run: _Run, settings: dict, figs: dict, render_s: 
     headers.append("exact detection")
     table = markdown_table(headers, table_rows)
 
-    z = [(r["fano"] - 1.0) / r["fano_sd"] for r in run.snr_bins if r.get("fano_sd")]
+    from .snr import MIN_COINCIDENCES
+
+    z = [(r["fano"] - 1.0) / r["fano_sd"] for r in run.snr_bins
+         if r.get("fano_sd") and r["coincidences"] >= MIN_COINCIDENCES]
     within = sum(abs(v) <= 3 for v in z)
     pix = [r for r in run.snr_pixels if r.get("predicted_fano") is not None and r.get("fano_sd")]
     zp = [(r["fano"] - r["predicted_fano"]) / r["fano_sd"] for r in pix]
@@ -358,9 +388,11 @@ laser power x dark-count rate x dead time x exposure per laser spot, with detect
 
 ## SNR
 
-Per bin (signal region, {len(run.snr_bins)} classes of expected counts over all settings): the measured Fano
-factor var/mean is within 3 standard errors of 1 (Poisson, SNR = sqrt(N)) for {within} of {len(z)} classes
-(largest |z| = {max((abs(v) for v in z), default=float('nan')):.2f}). Per pixel (total counts), where the
+Per bin (signal region, {len(run.snr_bins)} classes of expected counts over all settings, {len(z)} with at least
+{MIN_COINCIDENCES:g} expected same-bin coincidences between seeds, where the Gaussian standard error holds): the
+measured Fano factor var/mean is within 3 standard errors of 1 (Poisson, SNR = sqrt(N)) for {within} of {len(z)}
+classes (largest |z| = {max((abs(v) for v in z), default=float('nan')):.2f}; the settings share their detection
+seeds, so classes of different settings are correlated). Per pixel (total counts), where the
 detector's whole-blind-cycles regime holds and at least 100 counts are expected, the renewal model's Fano
 factor (1 - p) / (1 + m p)^2 is compared with the measurement: {sum(abs(v) <= 3 for v in zp)} of {len(zp)}
 classes within 3 standard errors. Definitions: `transient_mi/study/snr.py`, docs/studies.md.
@@ -375,8 +407,8 @@ classes within 3 standard errors. Definitions: `transient_mi/study/snr.py`, docs
   seed means (`aggregate`) and the SNR tables. Same arguments, same bytes.
 - `snr_bins.csv`, `snr_pixels.csv`: the SNR classes.
 - `timings.csv`, `timings.json`: seconds per run (render {render_s:.1f} s; total {total_s:.0f} s).
-- `ideal/`: the ideal capture; `transient-mi detect ideal -o counts --exposure-s E --seed S
-  --dark-count-rate-cps D --dead-time-ns T{' --auto-gate' if s['detector']['auto_gate'] else ''} ...` reproduces
-  a row's counts (same detector parameters as `results.json` -> `settings.detector`).
+- `ideal/`: the ideal capture. A row's counts, byte for byte:
+  `transient-mi detect ideal -o counts --exposure-s E --seed S --dark-count-rate-cps D --dead-time-ns T
+  {detect_flags(run.base, len(run.powers) > 1 or run.powers_given)}`.
 """
     path.write_text(text)

@@ -221,7 +221,10 @@ def load_study_ground_truth(scene: StudyScene, ground_truth=None):
 def reconstruction_bounds(scene: StudyScene, bounds=None):
     """The voxel volume: ``bounds`` if given, the paper's for the paper scene, else None (recon's default)."""
     if bounds is not None:
-        b = tuple(float(v) for v in bounds)
+        try:
+            b = tuple(float(v) for v in bounds)
+        except (TypeError, ValueError):
+            b = ()
         if len(b) != 6 or not all(np.isfinite(b)) or not (b[0] < b[1] and b[2] < b[3] and b[4] < b[5]):
             raise UserInputError(f"bounds={bounds!r}: expected (xmin, xmax, ymin, ymax, zmin, zmax) metres "
                                  "with each min < max")

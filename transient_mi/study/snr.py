@@ -22,11 +22,21 @@ the mean's fluctuation cancels the kurtosis term)::
 
 which depends only on the relative sizes of the ``mu_b`` in the class, taken
 from the model (a plug-in estimate from the counts is too noisy when most
-bins hold no count; pile-up scales the ``mu_b`` of a class together). The *signal* SNR subtracts the
-expected background ``bg_b`` (dark counts, ambient light):
-``(mean - bg) / sqrt(var)``, whose Poisson expectation is
-``N_s / sqrt(N_s + N_bg)`` and whose shot-noise limit (no background) is
-``sqrt(N_s)``.
+bins hold no count; pile-up scales the ``mu_b`` of a class together). When
+bins hold far less than one count, ``F - 1`` is decided by the few bins where
+two seeds both counted; the Gaussian standard error is reliable when the
+expected number of such coincidences, ``coincidences = S (S - 1) / 2 sum_b
+mu_b^2``, is at least :data:`MIN_COINCIDENCES` (the summary and the tests
+check those classes). The same detection seeds serve every detector setting
+(common random numbers), so classes of different settings are correlated;
+within one setting they are independent. The *signal* SNR counts only the
+scene's photons: a bin's counts split into signal and background (dark counts,
+ambient light) in the ratio of their intensities in that bin, whatever the dead
+time does (it cannot tell a signal avalanche from a dark one), so the signal
+counts are ``N_s = sum_b x_b sig_b / mu_b`` (exact up to the jitter's mixing of
+neighbouring bins) and the signal SNR is ``N_s / sd``. Its shot-noise limit
+(no background) is ``sqrt(N_s)``; with background, Poisson counts give
+``N_s / sqrt(N_s + N_bg)``.
 
 **Per pixel** (total counts of one histogram), dead time matters: every count
 blinds the detector, so counts are more regular than Poisson. Where the
@@ -65,6 +75,8 @@ CLASSES_PER_DECADE = 4
 MIN_PER_CLASS = 20
 #: ... and its bins must hold at least this many counts over all seeds (else the variance is not measurable).
 MIN_COUNTS_PER_CLASS = 100
+#: Classes with fewer expected same-bin coincidences between seeds have a skewed Fano estimate (see above).
+MIN_COINCIDENCES = 20.0
 #: The asymptotic renewal prediction is reported for pixels with at least this many expected counts.
 MIN_RENEWAL_COUNTS = 100.0
 #: A bin belongs to the signal region when the gate efficiency is at least this.
@@ -90,7 +102,9 @@ class SpotExpectation:
     rendered : ndarray of bool, shape (n_selected, T)
         Bins of the selected histograms that received rendered light (ideal > 0).
     background : ndarray, shape (T,)
-        Expected background counts per bin (dark counts, ambient light).
+        Expected background counts per bin (dark counts, ambient light; low flux).
+    signal_fraction : ndarray of float32, shape (n_pix, T)
+        Fraction of each bin's avalanches that come from the scene (signal / (signal + background)).
     gate : ndarray, shape (T,)
         Gate efficiency per bin.
     total : ndarray, shape (n_pix,)
@@ -105,6 +119,7 @@ class SpotExpectation:
     """
 
     def __init__(self, detection, j: int, selected: np.ndarray):
+        # (_clean_first_photon: the analytic engine's Coates probabilities of the whole-blind-cycles regime)
         from transient_mi.detector.engines.analytic import CLEAN, NONE, _clean_first_photon, classify
         from transient_mi.detector.model import apply_jitter_kernel
 
@@ -118,9 +133,14 @@ class SpotExpectation:
         lam = model.intensity(arr)
         self.gate = np.asarray(gate, dtype=np.float64)
         self.rendered = arr[selected] > 0
-        self.signal = apply_jitter_kernel(pde * gate[None, :] * arr[selected], *jit) * N
+        sig_all = apply_jitter_kernel(pde * gate[None, :] * arr, *jit) * N
+        mu_all = apply_jitter_kernel(lam[:, :T], *jit) * N
+        self.signal = sig_all[selected]
         self.background = apply_jitter_kernel(model.background[None, :T], *jit)[0] * N
-        self.total = apply_jitter_kernel(lam[:, :T], *jit).sum(axis=1) * N
+        self.total = mu_all.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            self.signal_fraction = np.where(mu_all > 0, np.clip(sig_all / mu_all, 0.0, 1.0), 0.0).astype(np.float32)
+        del sig_all, mu_all
         self.p_det = -np.expm1(-lam.sum(axis=1))
         c = classify(model, lam, N)
         reg = c["regime"]
@@ -167,6 +187,7 @@ class SnrStats:
         self.K1 = np.zeros((n_files, self.n_pix), dtype=np.int64)
         self.K2 = np.zeros((n_files, self.n_pix), dtype=np.int64)
         self.expect: dict[int, SpotExpectation] = {}
+        self.signal_counts: dict[tuple[int, int], float] = {}
         self._seen: set = set()
 
     def add(self, j: int, seed: int, counts: np.ndarray) -> None:
@@ -177,6 +198,7 @@ class SnrStats:
         if j not in self.expect:
             self.expect[j] = SpotExpectation(self.detection, j, self.selected[j])
         c = counts.reshape(self.n_pix, self.T).astype(np.int64)
+        self.signal_counts[(j, seed)] = float((c * self.expect[j].signal_fraction).sum(dtype=np.float64))
         rows = self._rows[j]
         sel = c[self.selected[j]]
         self.S1[rows] += sel
@@ -188,8 +210,16 @@ class SnrStats:
     # ------------------------------------------------------------------ summaries
 
     def expected_background_per_pixel(self) -> float:
-        """Expected background counts per pixel per spot (sum over bins, mean over spots)."""
+        """Expected background counts per pixel per spot without dead time (sum over bins, mean over spots)."""
         return float(np.mean([e.background.sum() for e in self.expect.values()]))
+
+    def signal_counts_per_pixel(self, seed: int) -> float:
+        """Signal counts (the scene's photons) per pixel per spot of one seed (see the module docstring)."""
+        return sum(v for (j, s), v in self.signal_counts.items() if s == seed) / (len(self.expect) * self.n_pix)
+
+    def has(self, j: int, seed: int) -> bool:
+        """Whether spot ``j`` of seed ``seed`` was added."""
+        return (j, seed) in self._seen
 
     def p_det(self) -> np.ndarray:
         """Per-cycle avalanche probability of every (spot, pixel)."""
@@ -204,7 +234,7 @@ class SnrStats:
     def bin_rows(self) -> list[dict]:
         """Per-bin SNR classes over the signal region (see the module docstring)."""
         S = len(self.seeds)
-        mu, bg, sig, mean, var = [], [], [], [], []
+        mu, bg, sig, mean, var, smean = [], [], [], [], [], []
         for j in sorted(self.expect):
             e = self.expect[j]
             rows = self._rows[j]
@@ -218,9 +248,10 @@ class SnrStats:
             sig.append(e.signal[region])
             mean.append(m[region])
             var.append(v[region])
+            smean.append((m * e.signal_fraction[self.selected[j]])[region])
         if not mu:
             return []
-        mu, bg, sig, mean, var = (np.concatenate(a) for a in (mu, bg, sig, mean, var))
+        mu, bg, sig, mean, var, smean = (np.concatenate(a) for a in (mu, bg, sig, mean, var, smean))
         cls = _class_index(mu)
         out = []
         for k in np.unique(cls[mu > 0]):
@@ -228,23 +259,24 @@ class SnrStats:
             n = int(np.count_nonzero(i))
             if n < MIN_PER_CLASS or S * float(mean[i].sum()) < MIN_COUNTS_PER_CLASS:
                 continue
-            m_, v_, b_ = float(mean[i].mean()), float(var[i].mean()), float(bg[i].mean())
+            m_, v_ = float(mean[i].mean()), float(var[i].mean())
+            s_ = float(smean[i].mean())
             fano = v_ / m_ if m_ > 0 else math.nan
-            fano_sd = math.sqrt(2.0 * float((mu[i] ** 2).sum()) / (S - 1)) / float(mu[i].sum())
+            mu2 = float((mu[i] ** 2).sum())
+            fano_sd = math.sqrt(2.0 * mu2 / (S - 1)) / float(mu[i].sum())
             lo, hi = _class_bounds(int(k))
-            s_ = m_ - b_
             out.append({
                 "class_lo": lo, "class_hi": hi, "n_bins": n,
                 "expected_counts": float(mu[i].mean()), "expected_signal": float(sig[i].mean()),
-                "expected_background": b_,
+                "expected_background": float(bg[i].mean()),
                 "mean_counts": m_, "var_counts": v_,
                 "snr": m_ / math.sqrt(v_) if v_ > 0 else math.nan,
                 "snr_poisson": math.sqrt(m_),
-                "fano": fano, "fano_sd": fano_sd,
-                "signal_counts": s_,
+                "fano": fano, "fano_sd": fano_sd, "coincidences": S * (S - 1) / 2 * mu2,
+                "signal_counts": s_, "background_counts": m_ - s_,
                 "signal_snr": s_ / math.sqrt(v_) if v_ > 0 else math.nan,
                 "signal_snr_shot_limit": math.sqrt(max(s_, 0.0)),
-                "signal_snr_poisson": s_ / math.sqrt(s_ + b_) if s_ + b_ > 0 else math.nan,
+                "signal_snr_poisson": s_ / math.sqrt(m_) if m_ > 0 else math.nan,
             })
         return out
 
