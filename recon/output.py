@@ -82,10 +82,10 @@ def _extent(a: np.ndarray) -> tuple[float, float]:
 
 
 def _plots(d: Path, rec: Reconstruction, title: str) -> list[str]:
+    # The object-oriented API without pyplot: saving needs no backend, and the session's backend
+    # (Jupyter's inline one, a GUI) is left alone.
     import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     g = rec.grid
     xe, ye, ze = _extent(g.x_m), _extent(g.y_m), _extent(g.z_m)
@@ -97,7 +97,8 @@ def _plots(d: Path, rec: Reconstruction, title: str) -> list[str]:
     }
     names = []
     for axis, (label, xl, yl, extent, _) in specs.items():
-        fig, axs = plt.subplots(1, 2, figsize=(10, 4.4), constrained_layout=True)
+        fig = Figure(figsize=(10, 4.4), constrained_layout=True)
+        axs = fig.subplots(1, 2)
         for ax, img, what in ((axs[0], raw_p[axis], "raw"), (axs[1], vol_p[axis], "filtered")):
             im = ax.imshow(img, origin="lower", extent=extent, aspect="equal", cmap="inferno")
             ax.set_title(f"{what}: {label}")
@@ -107,11 +108,11 @@ def _plots(d: Path, rec: Reconstruction, title: str) -> list[str]:
         fig.suptitle(title)
         name = f"projection_{axis}.png"
         fig.savefig(d / name, dpi=110)
-        plt.close(fig)
         names.append(name)
     dm = depth_map(rec.volume, g)
-    fig, ax = plt.subplots(figsize=(5.6, 4.6), constrained_layout=True)
-    cmap = plt.get_cmap("viridis").copy()
+    fig = Figure(figsize=(5.6, 4.6), constrained_layout=True)
+    ax = fig.subplots()
+    cmap = matplotlib.colormaps["viridis"].copy()
     cmap.set_bad("lightgrey")
     im = ax.imshow(np.ma.masked_invalid(dm), origin="lower", extent=(*xe, *ye), aspect="equal", cmap=cmap,
                    vmin=ze[0], vmax=ze[1])
@@ -121,7 +122,6 @@ def _plots(d: Path, rec: Reconstruction, title: str) -> list[str]:
     fig.colorbar(im, ax=ax, label="z [m]", shrink=0.85)
     fig.suptitle(title)
     fig.savefig(d / "depth_map.png", dpi=110)
-    plt.close(fig)
     names.append("depth_map.png")
     return names
 

@@ -44,10 +44,9 @@ def slice_bins(hist: np.ndarray, fractions=(0.1, 0.3, 0.5, 0.7)) -> list[int]:
 
 def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int = 0) -> Path:
     """Write ``preview.png`` for one spot's histograms ``hist[height, width, n_bins]`` (atomically)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # The object-oriented API without pyplot: saving needs no backend, and the session's backend
+    # (Jupyter's inline one, a GUI) is left alone.
+    from matplotlib.figure import Figure
 
     t = manifest["time"]
     t0, bw, n = t["t0_ps"], t["bin_width_ps"], t["n_bins"]
@@ -60,7 +59,8 @@ def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int 
 
     if manifest["capture"] == "camera":
         bins = slice_bins(hist)
-        fig, axes = plt.subplots(1, 6, figsize=(18, 3.4), gridspec_kw={"width_ratios": [1, 1, 1, 1, 1, 1.6]})
+        fig = Figure(figsize=(18, 3.4))
+        axes = fig.subplots(1, 6, gridspec_kw={"width_ratios": [1, 1, 1, 1, 1, 1.6]})
         axes[0].imshow(_tonemap(steady), cmap="gray")
         axes[0].set_title("time-integrated")
         for ax, b in zip(axes[1:5], bins):
@@ -75,7 +75,8 @@ def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int 
             ax.set_xticks([])
             ax.set_yticks([])
     else:
-        fig, axes = plt.subplots(1, 3, figsize=(14, 3.8), gridspec_kw={"width_ratios": [1, 1.6, 1.6]})
+        fig = Figure(figsize=(14, 3.8))
+        axes = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1, 1.6, 1.6]})
         im = axes[0].imshow(steady, cmap="viridis", origin="lower")
         axes[0].set_title(f"photons/pulse, spot {spot}")
         fig.colorbar(im, ax=axes[0], fraction=0.046)
@@ -96,7 +97,6 @@ def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int 
         fig.savefig(tmp, dpi=90)
         os.replace(tmp, path)
     finally:
-        plt.close(fig)
         if os.path.exists(tmp):
             os.unlink(tmp)
     return path

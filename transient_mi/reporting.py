@@ -4,7 +4,8 @@
 :func:`check_output_dir`       refuse an unusable ``-o`` before any work
 :func:`atomic_output_dir`      build a result directory under a temporary
                                sibling name, rename it into place at the end
-:func:`pyplot`                 matplotlib with the Agg backend
+:func:`subplots`               a figure and its axes, without pyplot
+:func:`pyplot`                 ``subplots``/``close`` in pyplot's spelling (no pyplot)
 :func:`save_figure`            write a figure atomically (temporary name, rename)
 :func:`write_csv`              rows (dicts) as CSV
 :func:`write_json`             an object as indented JSON
@@ -96,14 +97,29 @@ def _remove_empty(dirs: list[Path]) -> None:
             break
 
 
+def subplots(nrows: int = 1, ncols: int = 1, *, figsize=None, **kwargs):
+    """``(figure, axes)`` like ``pyplot.subplots``, built without pyplot.
+
+    Saving needs no backend, and the session's backend is left alone: selecting
+    Agg from library code would switch a Jupyter session away from its inline
+    backend, after which ``plt.show()`` draws nothing.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kwargs)
+
+
+def _close(fig) -> None:
+    """Nothing to do: a figure made by :func:`subplots` belongs to no pyplot figure manager."""
+
+
 def pyplot():
-    """``matplotlib.pyplot`` on the Agg backend (no display needed)."""
-    import matplotlib
+    """The ``subplots`` and ``close`` that the figure code calls as ``plt.subplots``/``plt.close``,
+    without pyplot (see :func:`subplots`)."""
+    from types import SimpleNamespace
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return SimpleNamespace(subplots=subplots, close=_close)
 
 
 def save_figure(fig, path, dpi: int = 80) -> Path:

@@ -1,0 +1,238 @@
+"""Build the notebooks from their sources and execute them, embedding the outputs.
+
+The sources are plain Python scripts in the "percent" format (``notebooks/src/NN_name.py``;
+jupytext and VS Code read it too): ``# %%`` starts a code cell, ``# %% [markdown]`` a
+markdown cell whose lines are written as comments (``# text``). This script turns each
+into ``notebooks/NN_name.ipynb`` and runs it in a Jupyter kernel started from the
+Python interpreter that runs this script (not whatever ``python`` is first on PATH).
+
+Usage (from the repository root or from notebooks/)::
+
+    python notebooks/build.py                  # every notebook, full settings, outputs embedded
+    python notebooks/build.py 01 04            # only the notebooks whose names start with 01 or 04
+    python notebooks/build.py --small -o /tmp/nb  # tiny settings (what the tests run), elsewhere
+    python notebooks/build.py --no-execute     # convert only (no outputs)
+
+Notebooks run with ``notebooks/`` as the working directory and write their data under
+``out/notebooks/`` (or ``$TRANSIENT_MI_NOTEBOOK_OUT``); ``--small`` sets
+``TRANSIENT_MI_NOTEBOOK_SMALL=1``. A notebook is written under a temporary name and renamed,
+so a failed run leaves the previous file in place. ``tests/test_notebooks.py`` uses
+:func:`notebook_from_source` and :func:`execute_notebook`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+import tempfile
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import nbformat
+
+HERE = Path(__file__).resolve().parent
+SRC = HERE / "src"
+KERNEL_NAME = "transient-mi-notebooks"
+#: Embedded in the notebooks' metadata (what Jupyter and GitHub show and use to open them).
+KERNELSPEC = {"name": "python3", "display_name": "Python 3 (ipykernel)", "language": "python"}
+
+_MARKER = re.compile(r"^# %%(?P<title>[^\[]*)(\[(?P<kind>\w+)\])?\s*$")
+
+
+def sources(patterns=()) -> list[Path]:
+    """The notebook sources ``notebooks/src/NN_*.py``, in order; only names starting with a pattern, if given."""
+    found = sorted(SRC.glob("[0-9][0-9]_*.py"))
+    if patterns:
+        found = [p for p in found if any(p.stem.startswith(q) for q in patterns)]
+    return found
+
+
+def _markdown(lines: list[str], path: Path, lineno: int) -> str:
+    out = []
+    for i, line in enumerate(lines):
+        if line.strip() == "":
+            out.append("")
+        elif line == "#":
+            out.append("")
+        elif line.startswith("# "):
+            out.append(line[2:])
+        else:
+            raise ValueError(f"{path}:{lineno + i + 1}: a markdown cell line must start with '# ' (got {line!r})")
+    return "\n".join(out).strip("\n")
+
+
+def notebook_from_source(path) -> nbformat.NotebookNode:
+    """Parse a percent-format script into a notebook (no outputs).
+
+    Raises
+    ------
+    ValueError
+        If the file has text before its first ``# %%`` marker (other than
+        blank lines), an unknown cell kind, or a malformed markdown cell.
+    """
+    path = Path(path)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    cells: list[tuple[str, int, list[str]]] = []
+    for i, line in enumerate(lines):
+        m = _MARKER.match(line)
+        if m:
+            kind = m.group("kind") or "code"
+            if kind not in ("code", "markdown", "md"):
+                raise ValueError(f"{path}:{i + 1}: unknown cell kind [{kind}] (use [markdown] or nothing)")
+            cells.append(("markdown" if kind in ("markdown", "md") else "code", i + 1, []))
+        elif cells:
+            cells[-1][2].append(line)
+        elif line.strip():
+            raise ValueError(f"{path}:{i + 1}: text before the first '# %%' cell marker")
+    nb = nbformat.v4.new_notebook()
+    for kind, lineno, body in cells:
+        if kind == "markdown":
+            text = _markdown(body, path, lineno)
+            if text:
+                nb.cells.append(nbformat.v4.new_markdown_cell(text))
+        else:
+            text = "\n".join(body).strip("\n")
+            if text:
+                nb.cells.append(nbformat.v4.new_code_cell(text))
+    for k, cell in enumerate(nb.cells):  # stable ids: diffs of rebuilt notebooks stay small
+        cell["id"] = f"{path.stem[:2]}-{k:03d}"
+    nb.metadata["kernelspec"] = dict(KERNELSPEC)
+    nb.metadata["language_info"] = {"name": "python"}
+    return nb
+
+
+@contextmanager
+def kernel_manager():
+    """A ``KernelManager`` whose kernel is ``sys.executable -m ipykernel_launcher``.
+
+    The kernel spec lives in a temporary directory, so the kernel runs in the
+    environment of the interpreter running this code (the ``python3`` spec that
+    ipykernel installs runs ``python``, which may be another interpreter).
+    """
+    from jupyter_client.kernelspec import KernelSpecManager
+    from jupyter_client.manager import KernelManager
+
+    with tempfile.TemporaryDirectory(prefix="transient-mi-kernel-") as tmp:
+        d = Path(tmp) / KERNEL_NAME
+        d.mkdir()
+        spec = {"argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
+                "display_name": f"Python ({sys.executable})", "language": "python",
+                "metadata": {"debugger": False}}
+        (d / "kernel.json").write_text(json.dumps(spec))
+        ksm = KernelSpecManager(kernel_dirs=[tmp])
+        yield KernelManager(kernel_name=KERNEL_NAME, kernel_spec_manager=ksm)
+
+
+def kernel_env(*, small: bool, out_dir=None) -> dict:
+    """Environment of the kernel: ours, plus the notebook switches; no ``MPLBACKEND`` (inline plots)."""
+    env = dict(os.environ)
+    env.pop("MPLBACKEND", None)
+    env["TRANSIENT_MI_PROGRESS"] = "0"
+    env["PYDEVD_DISABLE_FILE_VALIDATION"] = "1"
+    if small:
+        env["TRANSIENT_MI_NOTEBOOK_SMALL"] = "1"
+    else:
+        env.pop("TRANSIENT_MI_NOTEBOOK_SMALL", None)
+    if out_dir is not None:
+        env["TRANSIENT_MI_NOTEBOOK_OUT"] = str(out_dir)
+    return env
+
+
+def execute_notebook(nb, *, cwd=HERE, small: bool = False, out_dir=None, timeout_s: float = 1800.0):
+    """Run every cell of ``nb`` (in place) in a fresh kernel; returns ``nb``.
+
+    Parameters
+    ----------
+    nb : nbformat.NotebookNode
+    cwd : path
+        Working directory of the kernel.
+    small : bool
+        Set ``TRANSIENT_MI_NOTEBOOK_SMALL=1`` (tiny renders).
+    out_dir : path, optional
+        ``TRANSIENT_MI_NOTEBOOK_OUT``: where the notebook writes its data.
+    timeout_s : float
+        Wall-clock limit for the whole notebook, seconds (each cell gets what is left).
+
+    Raises
+    ------
+    nbclient.exceptions.CellExecutionError
+        A cell raised (the message shows the cell and the traceback).
+    nbclient.exceptions.CellTimeoutError
+        The notebook ran past ``timeout_s``.
+    """
+    from nbclient import NotebookClient
+
+    deadline = time.monotonic() + timeout_s
+
+    def remaining(cell):
+        return max(1, int(deadline - time.monotonic()))
+
+    with kernel_manager() as km:
+        client = NotebookClient(nb, km=km, timeout_func=remaining, record_timing=False, allow_errors=False,
+                                resources={"metadata": {"path": str(cwd)}})
+        client.execute(env=kernel_env(small=small, out_dir=out_dir))
+    nb.metadata["kernelspec"] = dict(KERNELSPEC)
+    return nb
+
+
+def image_outputs(nb) -> int:
+    """Number of image outputs (PNG, GIF, JPEG, SVG) in ``nb``, including images embedded in HTML."""
+    n = 0
+    for cell in nb.cells:
+        for out in cell.get("outputs", []):
+            data = out.get("data", {})
+            n += sum(1 for k in data if k.startswith("image/"))
+            n += str(data.get("text/html", "")).count("data:image/")
+    return n
+
+
+def write_notebook(nb, path) -> Path:
+    """Write ``nb`` to ``path`` atomically (temporary name in the same folder, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            nbformat.write(nb, f)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("names", nargs="*", help="build only notebooks whose names start with these (e.g. 01 03)")
+    ap.add_argument("--small", action="store_true", help="tiny settings (TRANSIENT_MI_NOTEBOOK_SMALL=1)")
+    ap.add_argument("--no-execute", action="store_true", help="convert only; the notebooks get no outputs")
+    ap.add_argument("-o", "--out", default=str(HERE), help="where to write the .ipynb files (default notebooks/)")
+    ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per notebook (default 1800)")
+    args = ap.parse_args(argv)
+    srcs = sources(args.names)
+    if not srcs:
+        print(f"error: no notebook source in {SRC} matches {args.names}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    if args.small and out.resolve() == HERE:
+        print("error: --small would overwrite the committed notebooks; give -o DIR", file=sys.stderr)
+        return 2
+    for src in srcs:
+        nb = notebook_from_source(src)
+        t0 = time.perf_counter()
+        if not args.no_execute:
+            execute_notebook(nb, small=args.small, timeout_s=args.timeout)
+        target = write_notebook(nb, out / f"{src.stem}.ipynb")
+        size = target.stat().st_size
+        print(f"{target}: {len(nb.cells)} cells, {image_outputs(nb)} images, {size / 1e6:.2f} MB, "
+              f"{time.perf_counter() - t0:.1f} s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
