@@ -49,7 +49,7 @@ plt.rcParams.update({"figure.dpi": 72, "savefig.dpi": 72, "font.size": 9})
 # 10 ns to 40 ns after emission (the light needs about 13 ns to reach the camera).
 
 # %%
-import transient_mi
+import transient_mi  # noqa: F401  (registers the plug-ins and selects the LLVM before Mitsuba runs)
 from transient_mi.pipeline import render
 from transient_mi.scenes import scene_path
 

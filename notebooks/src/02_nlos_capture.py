@@ -51,7 +51,7 @@ plt.rcParams.update({"figure.dpi": 72, "savefig.dpi": 72, "font.size": 9})
 # (laser to wall, wall to detector) in the recorded time.
 
 # %%
-import transient_mi
+import transient_mi  # noqa: F401  (registers the plug-ins and selects the LLVM before Mitsuba runs)
 from transient_mi.pipeline import render
 from transient_mi.scenes import scene_path
 

@@ -286,12 +286,12 @@ print("counts per pixel with crosstalk:\n", c5.sum(-1))
 # laser spot. `laser_power_w` rescales the rendered light to another laser power.
 
 # %%
-import transient_mi
+import transient_mi  # noqa: F401  (registers the plug-ins and selects the LLVM before Mitsuba runs)
 from transient_mi.detector import detect_stack
 from transient_mi.experiment import paper_detector
 from transient_mi.pipeline import render
 from transient_mi.scenes import scene_path
-from recon.io import read_manifest, read_stack
+from recon.io import read_stack
 
 px, spots, spp = (8, 2, 64) if SMALL else (16, 4, 512)
 ideal_dir = render(scene_path("nlos_point_targets"), OUT / "ideal", spp=spp, progress=False,

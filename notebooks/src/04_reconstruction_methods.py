@@ -55,7 +55,7 @@ plt.rcParams.update({"figure.dpi": 72, "savefig.dpi": 72, "font.size": 9})
 # still includes the laser-to-wall and wall-to-detector segments, which every method removes.
 
 # %%
-import transient_mi
+import transient_mi  # noqa: F401  (registers the plug-ins and selects the LLVM before Mitsuba runs)
 from transient_mi.pipeline import render
 from transient_mi.scenes import scene_path
 

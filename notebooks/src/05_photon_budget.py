@@ -58,7 +58,7 @@ plt.rcParams.update({"figure.dpi": 72, "savefig.dpi": 72, "font.size": 9})
 # %%
 import time
 
-import transient_mi
+import transient_mi  # noqa: F401  (registers the plug-ins and selects the LLVM before Mitsuba runs)
 from transient_mi.study import run_photon_budget_study
 
 if SMALL:
