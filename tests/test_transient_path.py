@@ -75,6 +75,24 @@ def test_point_light_plane_peaks_at_two_segment_path_length(bin_width_ps, t0_ps)
     assert res.dropped_contributions == 0
 
 
+def test_contributions_outside_the_time_range_are_dropped_and_counted():
+    # A window that ends in the middle of the arrivals: the histogram holds exactly the contributions
+    # that arrive inside it, the rest are counted as dropped and still in the steady-state image.
+    W = H = 16
+    bw, t0 = 32.0, 8192.0
+    full = _render(_plane_scene(_film(W, H, 200, bw, t0)), seed=5)
+    arrivals = np.nonzero(full.histogram.sum(axis=(0, 1)))[0]
+    assert full.dropped_contributions == 0 and full.dropped_fraction == 0.0
+    cut = int((arrivals[0] + arrivals[-1]) // 2)
+    part = _render(_plane_scene(_film(W, H, cut, bw, t0)), seed=5)
+    np.testing.assert_array_equal(part.histogram, full.histogram[..., :cut])
+    # the steady image is the same light; only float32 summation order may differ (a few ulp)
+    np.testing.assert_allclose(part.steady, full.steady, rtol=4 * np.finfo(np.float32).eps)
+    lost = float(full.histogram[..., cut:].sum(dtype=np.float64))
+    assert part.dropped_contributions > 0
+    assert part.dropped_fraction == pytest.approx(lost / float(full.steady.sum(dtype=np.float64)), rel=1e-4)
+
+
 def test_shifting_t0_shifts_histogram_exactly():
     # Power-of-two bin width and t0 >= t/2 make (t - t0)/w exact in float64,
     # so a shift of k bins in t0 moves every contribution by exactly k bins.
