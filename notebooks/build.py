@@ -2,7 +2,8 @@
 
 The sources are plain Python scripts in the "percent" format (``notebooks/src/NN_name.py``;
 jupytext and VS Code read it too): ``# %%`` starts a code cell, ``# %% [markdown]`` a
-markdown cell whose lines are written as comments (``# text``). This script turns each
+markdown cell whose lines are written as comments (``# text``), ``# %% [setup]`` the
+setup cell every notebook shares (``src/_setup_cell.py``, written once). This script turns each
 into ``notebooks/NN_name.ipynb`` and runs it in a Jupyter kernel started from the
 Python interpreter that runs this script (not whatever ``python`` is first on PATH).
 
@@ -40,6 +41,9 @@ KERNEL_NAME = "transient-mi-notebooks"
 #: Embedded in the notebooks' metadata (what Jupyter and GitHub show and use to open them).
 KERNELSPEC = {"name": "python3", "display_name": "Python 3 (ipykernel)", "language": "python"}
 
+#: The text of every notebook's ``# %% [setup]`` cell (its leading comment block dropped), with
+#: ``__NOTEBOOK__`` replaced by the notebook's name.
+SETUP_CELL = SRC / "_setup_cell.py"
 _MARKER = re.compile(r"^# %%(?P<title>[^\[]*)(\[(?P<kind>\w+)\])?\s*$")
 
 
@@ -65,8 +69,19 @@ def _markdown(lines: list[str], path: Path, lineno: int) -> str:
     return "\n".join(out).strip("\n")
 
 
+def setup_cell(name: str) -> str:
+    """The shared first code cell (``SETUP_CELL``) for the notebook ``name`` (e.g. ``01_quickstart``)."""
+    lines = SETUP_CELL.read_text(encoding="utf-8").splitlines()
+    while lines and lines[0].startswith("#"):
+        lines.pop(0)
+    return "\n".join(lines).strip("\n").replace("__NOTEBOOK__", name)
+
+
 def notebook_from_source(path) -> nbformat.NotebookNode:
     """Parse a percent-format script into a notebook (no outputs).
+
+    ``# %% [setup]`` stands for the shared setup cell (:func:`setup_cell`); what follows it up to
+    the next marker must be blank.
 
     Raises
     ------
@@ -81,9 +96,9 @@ def notebook_from_source(path) -> nbformat.NotebookNode:
         m = _MARKER.match(line)
         if m:
             kind = m.group("kind") or "code"
-            if kind not in ("code", "markdown", "md"):
-                raise ValueError(f"{path}:{i + 1}: unknown cell kind [{kind}] (use [markdown] or nothing)")
-            cells.append(("markdown" if kind in ("markdown", "md") else "code", i + 1, []))
+            if kind not in ("code", "markdown", "md", "setup"):
+                raise ValueError(f"{path}:{i + 1}: unknown cell kind [{kind}] (use [markdown], [setup] or nothing)")
+            cells.append(("markdown" if kind in ("markdown", "md") else kind, i + 1, []))
         elif cells:
             cells[-1][2].append(line)
         elif line.strip():
@@ -94,6 +109,10 @@ def notebook_from_source(path) -> nbformat.NotebookNode:
             text = _markdown(body, path, lineno)
             if text:
                 nb.cells.append(nbformat.v4.new_markdown_cell(text))
+        elif kind == "setup":
+            if any(line.strip() for line in body):
+                raise ValueError(f"{path}:{lineno}: a [setup] cell takes no text (it is {SETUP_CELL.name})")
+            nb.cells.append(nbformat.v4.new_code_cell(setup_cell(path.stem)))
         else:
             text = "\n".join(body).strip("\n")
             if text:

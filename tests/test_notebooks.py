@@ -95,6 +95,15 @@ def test_percent_format_parser(tmp_path):
     nb = build.notebook_from_source(src)
     assert [(c.cell_type, c.source) for c in nb.cells] == [
         ("markdown", "# Title\n\ntext with `code`"), ("code", "x = 1"), ("code", "print(x)")]
+    setup = tmp_path / "97_setup.py"
+    setup.write_text("# %% [setup]\n\n# %%\nprint(OUT)\n")
+    nb = build.notebook_from_source(setup)
+    assert [(c.cell_type, c.source) for c in nb.cells] == [("code", build.setup_cell("97_setup")), ("code", "print(OUT)")]
+    assert '/ "97_setup"' in nb.cells[0].source and "__NOTEBOOK__" not in nb.cells[0].source
+    assert not nb.cells[0].source.startswith("#")  # the template's header comment is not part of the cell
+    setup.write_text("# %% [setup]\nx = 1\n")
+    with pytest.raises(ValueError, match="takes no text"):
+        build.notebook_from_source(setup)
     bad = tmp_path / "98_bad.py"
     bad.write_text("import os\n# %%\nx = 1\n")
     with pytest.raises(ValueError, match="before the first"):

@@ -15,34 +15,7 @@
 # dead times in ns. The defaults are the reference paper's detector: PDE 0.70, 25 ps FWHM jitter,
 # 25 cps dark counts, 120 ps gate transitions, 20 MHz maximum TCSPC count rate, 50 MHz laser.
 
-# %%
-import os
-import shutil
-import sys
-from pathlib import Path
-
-SMALL = os.environ.get("TRANSIENT_MI_NOTEBOOK_SMALL") == "1"  # tiny settings (the test suite)
-
-
-def find_repo_root(start: Path) -> Path | None:
-    """The transient-mi checkout this notebook lives in (None when the package is pip-installed)."""
-    for d in (start, *start.parents):
-        if (d / "transient_mi" / "__init__.py").is_file() and (d / "recon").is_dir():
-            return d
-    return None
-
-
-ROOT = find_repo_root(Path.cwd())
-if ROOT is not None:
-    sys.path.insert(0, str(ROOT))  # use this checkout's transient_mi and recon
-OUT = Path(os.environ.get("TRANSIENT_MI_NOTEBOOK_OUT") or (ROOT or Path.cwd()) / "out" / "notebooks") / "03_detector_model"
-shutil.rmtree(OUT, ignore_errors=True)
-OUT.mkdir(parents=True)
-
-import matplotlib.pyplot as plt
-import numpy as np
-
-plt.rcParams.update({"figure.dpi": 72, "savefig.dpi": 72, "font.size": 9})
+# %% [setup]
 
 # %% [markdown]
 # ## Part 1: one pixel

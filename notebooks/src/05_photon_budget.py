@@ -16,34 +16,7 @@
 #
 # `transient_mi.study.run_photon_budget_study` does all of it (also `transient-mi study photon-budget`).
 
-# %%
-import os
-import shutil
-import sys
-from pathlib import Path
-
-SMALL = os.environ.get("TRANSIENT_MI_NOTEBOOK_SMALL") == "1"  # tiny settings (the test suite)
-
-
-def find_repo_root(start: Path) -> Path | None:
-    """The transient-mi checkout this notebook lives in (None when the package is pip-installed)."""
-    for d in (start, *start.parents):
-        if (d / "transient_mi" / "__init__.py").is_file() and (d / "recon").is_dir():
-            return d
-    return None
-
-
-ROOT = find_repo_root(Path.cwd())
-if ROOT is not None:
-    sys.path.insert(0, str(ROOT))  # use this checkout's transient_mi and recon
-OUT = Path(os.environ.get("TRANSIENT_MI_NOTEBOOK_OUT") or (ROOT or Path.cwd()) / "out" / "notebooks") / "05_photon_budget"
-shutil.rmtree(OUT, ignore_errors=True)
-OUT.mkdir(parents=True)
-
-import matplotlib.pyplot as plt
-import numpy as np
-
-plt.rcParams.update({"figure.dpi": 72, "savefig.dpi": 72, "font.size": 9})
+# %% [setup]
 
 # %% [markdown]
 # ## Run the study
