@@ -18,7 +18,6 @@ place, so ``OUT`` either does not exist or is complete.
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import tempfile
@@ -27,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ._atomic import check_output_location, temp_dir_beside
+from ._json import to_json
 from .errors import UserInputError
 from .filters import depth_map, projections
 from .result import Reconstruction
@@ -58,22 +58,6 @@ def load_volume(path: str | os.PathLike) -> Reconstruction:
         if meta.is_file():
             method = json.loads(meta.read_text()).get("method", method)
         return Reconstruction(raw=z["raw"], grid=grid, method=method, volume=z["volume"])
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return _jsonable(obj.item())
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
 
 
 def _extent(a: np.ndarray) -> tuple[float, float]:
@@ -171,9 +155,9 @@ def write_outputs(out_dir: str | os.PathLike, rec: Reconstruction, meta: dict | 
                          "voxel_size_m": list(rec.grid.voxel_size_m)},
                 "files": files + ["recon.json"] + (["metrics.json"] if metrics is not None else [])}
         info.update(meta or {})
-        (tmp / "recon.json").write_text(json.dumps(_jsonable(info), indent=1) + "\n")
+        (tmp / "recon.json").write_text(json.dumps(to_json(info), indent=1) + "\n")
         if metrics is not None:
-            (tmp / "metrics.json").write_text(json.dumps(_jsonable(metrics), indent=1) + "\n")
+            (tmp / "metrics.json").write_text(json.dumps(to_json(metrics), indent=1) + "\n")
         if out.exists():
             trash = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".old"))
             os.replace(out, trash / out.name)

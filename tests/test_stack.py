@@ -143,3 +143,10 @@ def test_stack_reader_needs_no_mitsuba(tmp_path):
     r = subprocess.run([sys.executable, "-c", code, str(tmp_path / "s")], capture_output=True, text=True,
                        cwd=os.path.dirname(os.path.dirname(__file__)))
     assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.parametrize("value", [float("nan"), np.float64("inf"), np.float32("nan")])
+def test_manifest_value_that_is_not_finite_is_refused(value):
+    # Python and numpy non-finite values alike: a manifest must be plain, finite JSON.
+    with pytest.raises(stack.StackError, match="not finite"):
+        _manifest(render={"spp": 4, "scale": value})

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
 from recon._atomic import check_output_location, temp_dir_beside, temp_file_beside
+from recon._json import to_json
 from recon.errors import UserInputError
 
 #: Metrics of :func:`recon.metrics.compute_metrics` reported in the demo and study tables.
@@ -157,20 +158,10 @@ def write_csv(path, rows: Sequence[dict], fieldnames: Sequence[str] | None = Non
     return path
 
 
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    return _plain(obj)
-
-
 def write_json(path, obj) -> Path:
     """Write ``obj`` as indented JSON (numpy scalars converted, NaN as null)."""
     path = Path(path)
-    path.write_text(json.dumps(_jsonable(obj), indent=1, allow_nan=False) + "\n")
+    path.write_text(json.dumps(to_json(obj), indent=1, allow_nan=False) + "\n")
     return path
 
 

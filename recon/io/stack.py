@@ -57,6 +57,7 @@ _DTYPES = {"ideal": np.dtype(np.float32), "counts": np.dtype(np.uint32)}
 
 
 from .._atomic import file_mode
+from .._json import to_json
 from ..errors import UserInputError
 
 
@@ -154,21 +155,14 @@ def new_manifest(
     return validate_manifest(_jsonable(m), "manifest")
 
 
+def _not_finite(value: float):
+    raise StackError(f"manifest value {value!r} is not finite")
+
+
 def _jsonable(obj):
-    """Convert numpy scalars/arrays (recursively) to plain JSON types."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, float) and not math.isfinite(obj):
-        raise StackError(f"manifest value {obj!r} is not finite")
-    return obj
+    """Plain JSON types for a manifest or config (numpy scalars and arrays converted); a NaN or
+    infinity is an error."""
+    return to_json(obj, _not_finite)
 
 
 def validate_manifest(m: dict, where: str | os.PathLike = "manifest") -> dict:
