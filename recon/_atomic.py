@@ -8,6 +8,7 @@ renamed into place, outputs should have the permissions an ordinary
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -47,6 +48,24 @@ def temp_file_beside(target: str | os.PathLike, suffix: str = ".tmp") -> Path:
     os.close(fd)
     os.chmod(tmp, file_mode())
     return Path(tmp)
+
+
+def replace_dir(tmp: str | os.PathLike, out: str | os.PathLike) -> None:
+    """Rename the finished directory ``tmp`` to ``out`` (same filesystem).
+
+    An existing ``out`` is first moved into a hidden directory beside it, then
+    removed once ``tmp`` is in place, so ``out`` is always either the old
+    result or the new one, never a mixture.
+    """
+    tmp, out = Path(tmp), Path(out)
+    if not out.exists():
+        os.replace(tmp, out)
+        return
+    parent = out.parent if str(out.parent) else Path(".")
+    trash = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".old"))
+    os.replace(out, trash / out.name)
+    os.replace(tmp, out)
+    shutil.rmtree(trash, ignore_errors=True)
 
 
 def check_output_location(out: str | os.PathLike, option: str = "-o") -> Path:

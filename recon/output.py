@@ -20,12 +20,11 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from ._atomic import check_output_location, temp_dir_beside
+from ._atomic import check_output_location, replace_dir, temp_dir_beside
 from ._json import to_json
 from .errors import UserInputError
 from .filters import depth_map, projections
@@ -158,13 +157,7 @@ def write_outputs(out_dir: str | os.PathLike, rec: Reconstruction, meta: dict | 
         (tmp / "recon.json").write_text(json.dumps(to_json(info), indent=1) + "\n")
         if metrics is not None:
             (tmp / "metrics.json").write_text(json.dumps(to_json(metrics), indent=1) + "\n")
-        if out.exists():
-            trash = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".old"))
-            os.replace(out, trash / out.name)
-            os.replace(tmp, out)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
+        replace_dir(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -21,12 +21,11 @@ import json
 import math
 import os
 import shutil
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
-from recon._atomic import check_output_location, temp_dir_beside, temp_file_beside
+from recon._atomic import check_output_location, replace_dir, temp_dir_beside, temp_file_beside
 from recon._json import to_json
 from recon.errors import UserInputError
 
@@ -76,14 +75,7 @@ def atomic_output_dir(out, overwrite: bool = False, option: str = "-o") -> Itera
         raise UserInputError(f"{option} {out}: cannot create a directory in {parent} ({e.strerror})") from None
     try:
         yield tmp
-        if out.exists():
-            old = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".old"))
-            os.rmdir(old)
-            os.rename(out, old)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
+        replace_dir(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         _remove_empty(created)
