@@ -10,7 +10,9 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 
 def umask() -> int:
@@ -48,6 +50,25 @@ def temp_file_beside(target: str | os.PathLike, suffix: str = ".tmp") -> Path:
     os.close(fd)
     os.chmod(tmp, file_mode())
     return Path(tmp)
+
+
+@contextmanager
+def atomic_file(target: str | os.PathLike, suffix: str = ".tmp", fsync: bool = False) -> Iterator[Path]:
+    """Yield a temporary file beside ``target`` to write; when the block succeeds it is renamed onto
+    ``target`` (after ``fsync`` when asked), and when anything fails it is removed.
+
+    A reader therefore sees the old file or the complete new one, never a partial one.
+    """
+    tmp = temp_file_beside(target, suffix)
+    try:
+        yield tmp
+        if fsync:
+            with open(tmp, "rb") as f:
+                os.fsync(f.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def replace_dir(tmp: str | os.PathLike, out: str | os.PathLike) -> None:

@@ -35,8 +35,8 @@ def test_library_pictures_keep_the_session_backend(tmp_path):
         cap = point_capture([(0.0, 0.0, 0.5)], mode="confocal", pixels=8)
         rec = recon.reconstruct(cap, "bp", voxels=8, bounds=(-0.5, 0.5, -0.5, 0.5, 0.3, 0.7))
         recon.write_outputs({str(tmp_path / "rec")!r}, rec)
-        from transient_mi.reporting import pyplot, save_figure
-        fig, ax = pyplot().subplots(1, 2, figsize=(4, 2))
+        from transient_mi.reporting import save_figure, subplots
+        fig, ax = subplots(1, 2, figsize=(4, 2))
         ax[0].plot([0, 1])
         save_figure(fig, {str(tmp_path / "r.png")!r})
         assert os.path.getsize({str(tmp_path / "r.png")!r}) > 0

@@ -32,7 +32,7 @@ from recon.errors import UserInputError
 
 from .experiment import (PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, detect_counts, ground_truth,
                          paper_detector, reconstruct, render_ideal, summed_histogram, write_ground_truth)
-from .reporting import METRIC_KEYS, atomic_output_dir, pyplot as _mpl, save_figure as _savefig, write_csv
+from .reporting import METRIC_KEYS, atomic_output_dir, save_figure as _savefig, subplots, write_csv
 
 
 @dataclass(frozen=True)
@@ -150,9 +150,8 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
 
 def _figure_histograms(path: Path, hists: dict, s: DemoSettings) -> None:
     """Fig. 4 style: per array size, the detected histogram (all pixels and spots) and the ideal expectation."""
-    plt = _mpl()
     arrays = list(hists)
-    fig, axes = plt.subplots(1, len(arrays), figsize=(4.2 * len(arrays), 3.6), sharey=False)
+    fig, axes = subplots(1, len(arrays), figsize=(4.2 * len(arrays), 3.6), sharey=False)
     axes = np.atleast_1d(axes)
     for ax, n in zip(axes, arrays):
         t, ideal, counts, resolved = hists[n]
@@ -179,9 +178,8 @@ def _figure_reconstructions(path: Path, root: Path, results: list[ArrayResult], 
     """Fig. 5 style: raw and filtered front views per array size, next to the ground-truth silhouette."""
     from recon.ground_truth import ground_truth_silhouette
 
-    plt = _mpl()
     n = len(results)
-    fig, axes = plt.subplots(n, 4, figsize=(12.5, 3.0 * n), squeeze=False)
+    fig, axes = subplots(n, 4, figsize=(12.5, 3.0 * n), squeeze=False)
     for row, r in enumerate(results):
         with np.load(root / r.files["recon"] / "volume.npz") as z:
             raw, vol, x, y, zz = z["raw"], z["volume"], z["x_m"], z["y_m"], z["z_m"]

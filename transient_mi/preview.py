@@ -9,12 +9,11 @@ pixel, for one laser spot.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
-from recon._atomic import temp_file_beside
+from recon._atomic import atomic_file
 
 
 def _tonemap(img: np.ndarray) -> np.ndarray:
@@ -92,11 +91,6 @@ def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int 
         axes[2].set_ylabel(manifest.get("quantity", "value") + " per bin")
     fig.tight_layout()
     path = Path(path)
-    tmp = temp_file_beside(path, suffix=".png")
-    try:
+    with atomic_file(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=90)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path

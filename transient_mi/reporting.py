@@ -5,7 +5,6 @@
 :func:`atomic_output_dir`      build a result directory under a temporary
                                sibling name, rename it into place at the end
 :func:`subplots`               a figure and its axes, without pyplot
-:func:`pyplot`                 ``subplots``/``close`` in pyplot's spelling (no pyplot)
 :func:`save_figure`            write a figure atomically (temporary name, rename)
 :func:`write_csv`              rows (dicts) as CSV
 :func:`write_json`             an object as indented JSON
@@ -19,13 +18,12 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 import shutil
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
-from recon._atomic import check_output_location, replace_dir, temp_dir_beside, temp_file_beside
+from recon._atomic import atomic_file, check_output_location, replace_dir, temp_dir_beside
 from recon._json import to_json
 from recon.errors import UserInputError
 
@@ -103,29 +101,11 @@ def subplots(nrows: int = 1, ncols: int = 1, *, figsize=None, **kwargs):
     return fig, fig.subplots(nrows, ncols, **kwargs)
 
 
-def _close(fig) -> None:
-    """Nothing to do: a figure made by :func:`subplots` belongs to no pyplot figure manager."""
-
-
-def pyplot():
-    """The ``subplots`` and ``close`` that the figure code calls as ``plt.subplots``/``plt.close``,
-    without pyplot (see :func:`subplots`)."""
-    from types import SimpleNamespace
-
-    return SimpleNamespace(subplots=subplots, close=_close)
-
-
 def save_figure(fig, path, dpi: int = 80) -> Path:
-    """Save ``fig`` to ``path`` (PNG) under a temporary name, rename it, close the figure."""
+    """Save ``fig`` to ``path`` (PNG) under a temporary name, then rename it."""
     path = Path(path)
-    tmp = temp_file_beside(path, suffix=".png")
-    try:
+    with atomic_file(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=dpi)
-        os.replace(tmp, path)
-    finally:
-        pyplot().close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path
 
 

@@ -32,7 +32,6 @@ import hashlib
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -56,7 +55,7 @@ __all__ = [
 _DTYPES = {"ideal": np.dtype(np.float32), "counts": np.dtype(np.uint32)}
 
 
-from .._atomic import file_mode
+from .._atomic import atomic_file
 from .._json import to_json
 from ..errors import UserInputError
 
@@ -236,20 +235,8 @@ def manifest_path(directory: str | os.PathLike) -> Path:
 
 
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, file_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    with atomic_file(path, fsync=True) as tmp:
+        tmp.write_bytes(data)
 
 
 def write_manifest(directory: str | os.PathLike, manifest: dict) -> Path:
@@ -356,20 +343,8 @@ def write_spot(directory: str | os.PathLike, index: int, data: np.ndarray, manif
     names = channel_names(T)
     channels = {name: np.ascontiguousarray(arr[:, :, b]) for b, name in enumerate(names)}
     path = spot_path(d, index)
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        OpenEXR.File(_header(manifest, index), channels).write(tmp)
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.chmod(tmp, file_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    with atomic_file(path, fsync=True) as tmp:
+        OpenEXR.File(_header(manifest, index), channels).write(str(tmp))
     return path
 
 

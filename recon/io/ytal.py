@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import temp_file_beside
+from .._atomic import atomic_file
 from ..errors import UserInputError
 from ..units import C_M_PER_PS
 
@@ -120,8 +120,7 @@ def write_ytal(capture, path: str | os.PathLike, compression: int = 0) -> Path:
         "transient_mi_version": _version(),
         MANIFEST_KEY: manifest,
     }
-    tmp = str(temp_file_beside(p))
-    try:
+    with atomic_file(p) as tmp:
         with h5py.File(tmp, "w") as f:
             kw = {"compression": "gzip", "compression_opts": compression} if compression else {}
             ds = f.create_dataset("H", shape=shape, dtype=dtype, **kw)
@@ -156,13 +155,6 @@ def write_ytal(capture, path: str | os.PathLike, compression: int = 0) -> Path:
             f["t_start"] = np.float64(capture.t0_ps * C_M_PER_PS)
             f["t_accounts_first_and_last_bounces"] = bool(capture.include_first_last)
             f["scene_info"] = yaml.safe_dump(scene_info, sort_keys=False)
-        os.replace(tmp, p)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
     return p
 
 

@@ -10,12 +10,11 @@ sees half a file and a failed write leaves nothing behind.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from recon._atomic import file_mode
+from recon._atomic import atomic_file
 from recon.errors import UserInputError
 
 
@@ -62,24 +61,11 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes, what: str = "output
         raise UserInputError(f"{what} {str(p)!r} is a directory; give a file name such as {str(p / 'mannequin.ply')!r}")
     if not parent.is_dir():
         raise UserInputError(f"{what} {str(p)!r}: folder {str(parent)!r} does not exist")
-    tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(dir=parent, prefix=f".{p.name}.", suffix=".tmp")
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, file_mode())  # mkstemp makes 0600; give the file ordinary permissions
-        os.replace(tmp, p)
-        tmp = None
+        with atomic_file(p, fsync=True) as tmp:
+            tmp.write_bytes(data)
     except OSError as e:
         raise UserInputError(f"{what} {str(p)!r} cannot be written: {e.strerror or e}") from None
-    finally:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
     return p
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from transient_mi.reporting import pyplot, save_figure
+from transient_mi.reporting import save_figure, subplots
 
 #: Error metrics a figure may show: key -> (label, scale to display units).
 ERROR_PANELS = {
@@ -59,9 +59,8 @@ def error_vs_photons(path: Path, aggregate: list[dict]) -> Path | None:
     panels = [k for k in ERROR_PANELS if any(r.get(f"{k}_mean") is not None for r in aggregate)]
     if not panels:
         return None
-    plt = pyplot()
     style, vary = _styles(aggregate)
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 3.8), squeeze=False)
+    fig, axes = subplots(1, len(panels), figsize=(4.6 * len(panels), 3.8), squeeze=False)
     for ax, key in zip(axes[0], panels):
         label, scale = ERROR_PANELS[key]
         for cfg in _configs(aggregate):
@@ -86,8 +85,7 @@ def error_vs_photons(path: Path, aggregate: list[dict]) -> Path | None:
 
 def snr_vs_photons(path: Path, snr_bins: list[dict], snr_pixels: list[dict]) -> Path:
     """Per-bin SNR, per-bin signal SNR and per-pixel SNR against detected counts, with the closed forms."""
-    plt = pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
+    fig, axes = subplots(1, 3, figsize=(15, 4.4))
 
     def ok(*vals):
         return all(v is not None and math.isfinite(v) and v > 0 for v in vals)
@@ -163,9 +161,8 @@ def snr_vs_photons(path: Path, snr_bins: list[dict], snr_pixels: list[dict]) -> 
 
 def reconstruction_strip(path: Path, previews: list[tuple[str, dict]], mesh=None, title: str = "") -> Path:
     """Front views (filtered volume, max over z) side by side, after the ground-truth silhouette if known."""
-    plt = pyplot()
     n = len(previews) + (1 if mesh is not None else 0)
-    fig, axes = plt.subplots(1, n, figsize=(2.6 * n, 2.9), squeeze=False)
+    fig, axes = subplots(1, n, figsize=(2.6 * n, 2.9), squeeze=False)
     axes = axes[0]
     i = 0
     if mesh is not None and previews:
@@ -190,9 +187,8 @@ def reconstruction_strip(path: Path, previews: list[tuple[str, dict]], mesh=None
 
 def array_size_figure(path: Path, rows: list[dict], timings: list[dict]) -> Path:
     """Error metrics and the time of each step against the array size."""
-    plt = pyplot()
     n = [r["array"] for r in rows]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = subplots(1, 2, figsize=(11, 4))
     ax = axes[0]
     have = False
     for key, label in (("chamfer_m", "Chamfer"), ("accuracy_m", "accuracy"), ("completeness_m", "completeness"),
