@@ -103,9 +103,11 @@ Markdown("\n".join(rows))
 
 # %%
 display(Image(filename=str(study.figures["snr_vs_photons"])))
-# the Gaussian standard error of the Fano factor is trusted where two seeds counted in the same bin
-# at least 20 times (expected); sparser classes rest on a handful of coincidences
-bins = [b for b in study.snr_bins if b["fano_sd"] and b["coincidences"] >= 20]
+from transient_mi.study.snr import MIN_COINCIDENCES
+
+# the Gaussian standard error of the Fano factor is trusted where two seeds are expected to count in the
+# same bin at least MIN_COINCIDENCES (20) times; sparser classes rest on a handful of coincidences
+bins = [b for b in study.snr_bins if b["fano_sd"] and b["coincidences"] >= MIN_COINCIDENCES]
 z = [abs(b["fano"] - 1) / b["fano_sd"] for b in bins]
 print(f"per-bin Fano factor within 3 standard errors of 1 (Poisson) in {sum(v <= 3 for v in z)} of {len(z)} "
       f"classes of bins (largest |z| = {max(z, default=float('nan')):.2f})")
