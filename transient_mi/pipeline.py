@@ -184,12 +184,61 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         render=render_info,
         dropped={"contributions": 0, "fraction": 0.0},
     )
+    manifest["variance"] = variance_block(integrator, spp, layout["quantity"])
     job = RenderJob(scene_file, out_dir, dict(defines or {}), spp, seed, tm.variant(), resume,
                     scene, sensor, integrator, layout, manifest, detect_kwargs)
     if resume and job.ideal_dir.exists() and stack.manifest_path(job.ideal_dir).exists():
         old = stack.read_manifest(job.ideal_dir)
         _check_resumable(old, manifest, job.ideal_dir)
     return job
+
+
+def variance_block(integrator, spp: int, quantity: str) -> dict:
+    """The manifest's ``variance`` entry for a render of ``spp`` samples (summary filled in at the end)."""
+    from transient_mi.integrators._replicates import DEFAULT_REPLICATES, effective_replicates
+
+    R = effective_replicates(spp, getattr(integrator, "variance_replicates", DEFAULT_REPLICATES))
+    block = {
+        "directory": stack.VARIANCE_DIR if R >= 2 else None,
+        "replicates": R,
+        "degrees_of_freedom": R - 1,
+        "estimator": "sample variance of the mean over independent replicates (unbiased; randomised QMC "
+                     "replicates have independent random shifts)",
+        "quantity": f"({quantity})^2",
+        "summary": None,
+    }
+    if R < 2:
+        block["reason"] = (f"spp={spp} and variance_replicates={getattr(integrator, 'variance_replicates', '?')} "
+                           "give a single replicate: no variance is recorded")
+    return block
+
+
+def variance_summary(directory: Path, manifest: dict) -> dict | None:
+    """Relative Monte Carlo error of a complete capture (read back spot by spot).
+
+    ``pixel_total_rel_std``: median, 90th percentile and maximum over
+    (spot, pixel) of ``sqrt(Var(total)) / total`` for pixels whose total is
+    above 1e-6 of the largest; ``bin_rel_std_weighted``: the value-weighted
+    mean of ``sqrt(Var(x_b)) / x_b`` over all bins, i.e.
+    ``sum sqrt(Var(x_b)) / sum x_b``.
+    """
+    if not stack.has_variance(manifest):
+        return None
+    rel, sd_sum, x_sum = [], 0.0, 0.0
+    for j in range(manifest["n_files"]):
+        x = stack.read_spot(directory, j, manifest).astype(np.float64)
+        var, tvar = stack.read_variance(directory, j, manifest)
+        tot = x.sum(axis=-1)
+        ok = tot > 1e-6 * max(float(tot.max()), 1e-300)
+        rel.extend((np.sqrt(tvar[ok].astype(np.float64)) / tot[ok]).tolist())
+        sd_sum += float(np.sqrt(var.astype(np.float64)).sum())
+        x_sum += float(x.sum())
+    if not rel:
+        return {"pixel_total_rel_std": None, "bin_rel_std_weighted": None}
+    r = np.asarray(rel)
+    return {"pixel_total_rel_std": {"median": float(np.median(r)), "p90": float(np.percentile(r, 90)),
+                                    "max": float(r.max())},
+            "bin_rel_std_weighted": sd_sum / x_sum if x_sum > 0 else None}
 
 
 def _check_resumable(old: dict, new: dict, where: Path) -> None:
@@ -230,7 +279,8 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Pa
         _remove_stale_temporaries(d)
     m = dict(job.manifest)
     n_files = m["n_files"]
-    todo = [j for j in range(n_files) if not (job.resume and stack.spot_is_complete(d, j, m))]
+    todo = [j for j in range(n_files) if not (job.resume and stack.spot_is_complete(d, j, m)
+                                              and stack.variance_is_complete(d, j, m))]
     if job.resume and stack.manifest_path(d).exists():
         old = stack.read_manifest(d)
         m["dropped"] = old.get("dropped", m["dropped"])
@@ -270,6 +320,8 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Pa
             for j, res in zip(group, results):
                 if j not in todo_set:
                     continue  # complete from an earlier run (and identical)
+                if stack.has_variance(m):  # first: a complete spot file implies a complete variance file
+                    stack.write_variance(d, j, res.variance, res.total_variance, m)
                 stack.write_spot(d, j, res.histogram, m)
                 dropped_n += res.dropped_contributions
                 frac_sum += res.dropped_fraction
@@ -286,6 +338,8 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Pa
     from .preview import write_preview
 
     write_preview(d / "preview.png", preview_data[1], m, spot=preview_data[0])
+    if stack.has_variance(m):
+        m["variance"] = dict(m["variance"], summary=variance_summary(d, m))
     m["status"] = "complete"
     stack.write_manifest(d, m)
     if job.detect_kwargs is None:

@@ -11,8 +11,10 @@ so a spot's counts do not depend on the others.
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,20 +22,21 @@ import numpy as np
 from recon._progress import progress_bar
 from recon._atomic import check_output_location, temp_dir_beside
 from recon.errors import UserInputError
-from recon.io.stack import (MANIFEST_NAME, StackError, missing_spots, new_manifest, read_manifest,
-                            read_spot, spot_filename, write_manifest, write_spot)
+from recon.io.stack import (MANIFEST_NAME, StackError, has_variance, missing_spots, new_manifest, read_manifest,
+                            read_spot, read_variance, spot_filename, write_manifest, write_spot)
 
 from .budget import resolve_budget
 from .detect import check_engine, check_ideal, run_spot, to_uint32
 from .gate import auto_gate
 from .model import build_model
 from .params import DetectorParams
+from .render_noise import DEFAULT_THRESHOLD, NoiseRatio, unavailable, warning_line
 
 #: Version of the detector model recorded in counts manifests.
 MODEL_VERSION = 1
 _STANDARD_KEYS = {"format", "format_version", "status", "kind", "capture", "quantity", "width", "height",
                   "n_files", "time", "include_first_last", "geometry", "laser", "detector", "render",
-                  "source_ideal"}
+                  "source_ideal", "variance"}
 
 
 def spot_rng(seed: int, spot: int) -> np.random.Generator:
@@ -65,7 +68,7 @@ def _check_output(out: Path, ideal: Path, overwrite: bool) -> None:
 
 def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pulses: int | None = None,
                  exposure_s: float | None = None, seed: int = 0, engine: str = "auto", progress: bool = True,
-                 overwrite: bool = False) -> Path:
+                 overwrite: bool = False, noise_threshold: float = DEFAULT_THRESHOLD, warn=None) -> Path:
     """Detect a whole ideal capture and write the counts capture.
 
     Parameters
@@ -89,6 +92,11 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         Draw a progress bar (when stderr is a terminal, see ``recon._progress``).
     overwrite : bool
         Replace an existing counts capture in ``out_dir``.
+    noise_threshold : float
+        Largest acceptable ratio of rendering variance to photon variance
+        (:mod:`.render_noise`); above it a one-line warning is given.
+    warn : callable, optional
+        ``warn(line)`` receives that warning (default: printed on stderr).
 
     Returns
     -------
@@ -101,7 +109,10 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
     when inside it, else absolute), and under ``detector`` every parameter as
     given plus ``pulses``, ``exposure_s``, ``seed``, ``engine`` and
     ``resolved`` (repetition rate, photon scale, gate times, engine used per
-    spot, whether every draw was exact).
+    spot, whether every draw was exact) and ``render_noise``: how much of the
+    counts' variance is the ideal capture's rendering noise, per class of bins
+    and on per-pixel totals (:mod:`.render_noise`; ``available: false`` when
+    the ideal capture stores no variance).
     """
     params = (params if params is not None else DetectorParams()).validate()
     check_engine(engine)
@@ -142,6 +153,9 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         raise UserInputError(f"crosstalk_prob={params.crosstalk_prob!r}: a confocal capture's pixels were "
                              "recorded under different laser spots, so neighbour crosstalk cannot be modelled; "
                              "use crosstalk_prob=0")
+    if not (isinstance(noise_threshold, (int, float)) and not isinstance(noise_threshold, bool)
+            and math.isfinite(noise_threshold) and noise_threshold > 0):
+        raise UserInputError(f"noise_threshold={noise_threshold!r}: must be a finite number > 0")
     t = m["time"]
     H, W, T = m["height"], m["width"], t["n_bins"]
     model = build_model(run_params, bin_width_ps=t["bin_width_ps"], n_bins=T, t0_ps=t["t0_ps"],
@@ -190,6 +204,7 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
     try:
         write_manifest(tmp, manifest)
         engines_used, exact, regimes = [], True, {}
+        noise = NoiseRatio(threshold=float(noise_threshold)) if has_variance(m) else None
         N = budget.n_pulses
         with progress_bar(f"detect {ideal.name}", total=m["n_files"] * N,
                           disable=None if progress else True) as advance:
@@ -202,6 +217,10 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
                     run_params.replace(gate_open_ps=spot_gates[j][0], gate_close_ps=spot_gates[j][1]),
                     bin_width_ps=t["bin_width_ps"], n_bins=T, t0_ps=t["t0_ps"],
                     repetition_rate_hz=budget.repetition_rate_hz)
+                if noise is not None:
+                    var = read_variance(ideal, j, m)[0].reshape(H * W, T).astype(np.float64)
+                    noise.add_spot(spot_model, arr.reshape(H * W, T), var * budget.photon_scale ** 2, N)
+                    del var
                 counts, info = run_spot(spot_model, arr.reshape(H * W, T), N, spot_rng(seed, j), engine, (H, W),
                                         advance=advance)
                 write_spot(tmp, j, to_uint32(counts, where=spot_filename(j)).reshape(H, W, T), manifest)
@@ -209,7 +228,14 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
                 exact = exact and bool(info["exact"])
                 for k, v in info.get("pixels_by_regime", {}).items():
                     regimes[k] = regimes.get(k, 0) + v
-        resolved.update(engines_used=engines_used, exact=exact, analytic_pixels_by_regime=regimes or None)
+        if noise is not None:
+            render_noise = noise.report(spp=(m.get("render") or {}).get("spp"),
+                                        replicates=m["variance"].get("replicates"))
+        else:
+            render_noise = unavailable("the ideal capture stores no variance (rendered with one replicate or by "
+                                       "an older version): its rendering noise is unknown")
+        resolved.update(engines_used=engines_used, exact=exact, analytic_pixels_by_regime=regimes or None,
+                        render_noise=render_noise)
         manifest["detector"]["resolved"] = resolved
         manifest["status"] = "complete"
         write_manifest(tmp, manifest)
@@ -217,7 +243,15 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    line = warning_line(render_noise)
+    if line:
+        (warn or _stderr)(line)
     return out
+
+
+def _stderr(line: str) -> None:
+    sys.stderr.write(line + "\n")
+    sys.stderr.flush()
 
 
 def _move_into_place(tmp: Path, out: Path, n_files: int) -> None:
