@@ -20,8 +20,9 @@ rendering variance is
     V_b = N^2 \sum_j k_j^2 (\eta g)^2_{b - j} s^2_{b - j}
 
 (covariances between bins neglected: in a three-bounce NLOS capture each
-sample adds to one bin per spot, so they are small and negative, and the
-neglect overstates ``V`` slightly). The photon variance of a bin is ``mu_b``
+sample adds to one bin per spot, so they are negative, of relative size
+about the share of a pixel's light that falls within one jitter width; the
+neglect overstates ``V`` by that much at most). The photon variance of a bin is ``mu_b``
 (Poisson, the low-flux limit; dead time makes real counts less variable).
 The *noise ratio* of a set of bins is ``sum V_b / sum mu_b``: rendering
 variance over photon variance. Bins are grouped into classes by their mean
@@ -30,7 +31,10 @@ largest class ratio among the classes holding at least
 :data:`MIN_CLASS_SHARE` of the counts. Per-pixel totals (all bins of a
 pixel) are reported beside it: their ratio is larger, since the jitter
 averages rendering noise over ~``2 sqrt(pi) sigma / bin_width`` bins but a
-total averages over the whole histogram.
+total averages over the whole histogram. A total's rendering variance uses
+the capture's exact estimate of each pixel's total variance (covariances
+included), ``N^2 eta^2 gbar^2 Var(sum_b x_b)``, with ``gbar`` the
+light-weighted mean gate of the pixel.
 
 Rendering variance falls as ``1/spp`` for plain Monte Carlo (faster for the
 randomised QMC of the NLOS estimator), so ``spp * ratio / threshold``
@@ -75,7 +79,8 @@ class NoiseRatio:
     pixel_ratios: list = field(default_factory=list)
     mu_all: float = 0.0
 
-    def add_spot(self, model: DetectorModel, ideal: np.ndarray, variance: np.ndarray, n_pulses: int) -> None:
+    def add_spot(self, model: DetectorModel, ideal: np.ndarray, variance: np.ndarray, n_pulses: int,
+                 total_variance: np.ndarray | None = None) -> None:
         """Add one spot.
 
         Parameters
@@ -87,6 +92,9 @@ class NoiseRatio:
             estimated variance of each value (scale squared applied).
         n_pulses : int
             Pulses integrated per histogram.
+        total_variance : ndarray, shape (n_pixels,), optional
+            Estimated variance of each pixel's sum over time (scale squared
+            applied); without it, the per-bin variances are summed.
         """
         T = ideal.shape[-1]
         lam = model.intensity(np.asarray(ideal, dtype=np.float64))[:, :T]
@@ -101,7 +109,13 @@ class NoiseRatio:
             self.class_bins[c] += int(sel.sum())
         self.mu_all += float(mu.sum())
         pm = mu.sum(axis=1)
-        pv = var.sum(axis=1)
+        if total_variance is None:
+            pv = var.sum(axis=1)
+        else:
+            x = np.asarray(ideal, dtype=np.float64)
+            xs = x.sum(axis=1)
+            gbar = np.divide((x * model.gate_slots[None, :T]).sum(axis=1), xs, out=np.zeros_like(xs), where=xs > 0)
+            pv = (float(n_pulses) * model.params.pde * gbar) ** 2 * np.asarray(total_variance, dtype=np.float64)
         self.total_mu += float(pm.sum())
         self.total_var += float(pv.sum())
         ok = pm > 1.0

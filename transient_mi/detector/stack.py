@@ -130,25 +130,7 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         raise StackError(f"{ideal}: the capture is incomplete ({len(missing)} of {m['n_files']} spot files "
                          f"missing, status {m['status']!r}); finish the render first (--resume)")
     budget = resolve_budget(params, m.get("laser"), pulses=pulses, exposure_s=exposure_s)
-    run_params = params
-    gate_source = "none"
-    spot_gates = None  # per-spot (open, close) for array captures with auto_gate
-    if params.auto_gate:
-        if m["capture"] == "array":
-            # One gate per laser position (a gated SPAD array is re-timed for every acquisition): every
-            # three-bounce path from spot j is longer than j's own first-bounce path (triangle inequality),
-            # so the spot's window passes its hidden-volume light and blocks its wall return.
-            spot_gates = [auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
-                                    params.auto_gate_depth_max_m, spot=j) for j in range(m["n_files"])]
-            g_open, g_close = min(g[0] for g in spot_gates), max(g[1] for g in spot_gates)
-            gate_source = "auto_per_spot"
-        else:
-            g_open, g_close = auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
-                                        params.auto_gate_depth_max_m)
-            gate_source = "auto"
-        run_params = params.replace(gate_open_ps=g_open, gate_close_ps=g_close, auto_gate=False)
-    elif params.gate_open_ps is not None:
-        gate_source = "explicit"
+    run_params, gate_source, spot_gates = resolve_gates(m, params)
     if params.crosstalk_prob > 0 and m["capture"] == "confocal":
         raise UserInputError(f"crosstalk_prob={params.crosstalk_prob!r}: a confocal capture's pixels were "
                              "recorded under different laser spots, so neighbour crosstalk cannot be modelled; "
@@ -213,14 +195,13 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
                 arr = check_ideal(data, where=f"{ideal / spot_filename(j)}")
                 if budget.photon_scale != 1.0:
                     arr = arr * budget.photon_scale
-                spot_model = model if spot_gates is None else build_model(
-                    run_params.replace(gate_open_ps=spot_gates[j][0], gate_close_ps=spot_gates[j][1]),
-                    bin_width_ps=t["bin_width_ps"], n_bins=T, t0_ps=t["t0_ps"],
-                    repetition_rate_hz=budget.repetition_rate_hz)
+                spot_model = model if spot_gates is None else spot_model_for(m, run_params, spot_gates, j, budget)
                 if noise is not None:
-                    var = read_variance(ideal, j, m)[0].reshape(H * W, T).astype(np.float64)
-                    noise.add_spot(spot_model, arr.reshape(H * W, T), var * budget.photon_scale ** 2, N)
-                    del var
+                    var, tvar = read_variance(ideal, j, m)
+                    noise.add_spot(spot_model, arr.reshape(H * W, T),
+                                   var.reshape(H * W, T).astype(np.float64) * budget.photon_scale ** 2, N,
+                                   total_variance=tvar.reshape(-1).astype(np.float64) * budget.photon_scale ** 2)
+                    del var, tvar
                 counts, info = run_spot(spot_model, arr.reshape(H * W, T), N, spot_rng(seed, j), engine, (H, W),
                                         advance=advance)
                 write_spot(tmp, j, to_uint32(counts, where=spot_filename(j)).reshape(H, W, T), manifest)
@@ -229,7 +210,8 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
                 for k, v in info.get("pixels_by_regime", {}).items():
                     regimes[k] = regimes.get(k, 0) + v
         if noise is not None:
-            render_noise = noise.report(spp=(m.get("render") or {}).get("spp"),
+            spp_used = m["variance"].get("spp_per_spot") or [(m.get("render") or {}).get("spp")]
+            render_noise = noise.report(spp=max(spp_used) if None not in spp_used else None,
                                         replicates=m["variance"].get("replicates"))
         else:
             render_noise = unavailable("the ideal capture stores no variance (rendered with one replicate or by "
@@ -252,6 +234,44 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
 def _stderr(line: str) -> None:
     sys.stderr.write(line + "\n")
     sys.stderr.flush()
+
+
+def resolve_gates(m: dict, params: DetectorParams):
+    """``(run_params, gate_source, spot_gates)``: ``auto_gate`` resolved against the capture's geometry.
+
+    Array captures get one gate per laser spot (``spot_gates[j] = (open_ps,
+    close_ps)``; ``run_params`` then spans all of them), other captures one
+    gate; ``gate_source`` is ``auto_per_spot``, ``auto``, ``explicit`` or ``none``.
+    """
+    run_params = params
+    gate_source = "none"
+    spot_gates = None  # per-spot (open, close) for array captures with auto_gate
+    if params.auto_gate:
+        if m["capture"] == "array":
+            # One gate per laser position (a gated SPAD array is re-timed for every acquisition): every
+            # three-bounce path from spot j is longer than j's own first-bounce path (triangle inequality),
+            # so the spot's window passes its hidden-volume light and blocks its wall return.
+            spot_gates = [auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
+                                    params.auto_gate_depth_max_m, spot=j) for j in range(m["n_files"])]
+            g_open, g_close = min(g[0] for g in spot_gates), max(g[1] for g in spot_gates)
+            gate_source = "auto_per_spot"
+        else:
+            g_open, g_close = auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
+                                        params.auto_gate_depth_max_m)
+            gate_source = "auto"
+        run_params = params.replace(gate_open_ps=g_open, gate_close_ps=g_close, auto_gate=False)
+    elif params.gate_open_ps is not None:
+        gate_source = "explicit"
+    return run_params, gate_source, spot_gates
+
+
+def spot_model_for(m: dict, run_params: DetectorParams, spot_gates, j: int, budget):
+    """The detector model of spot ``j`` (its own gate when ``spot_gates`` is given)."""
+    t = m["time"]
+    if spot_gates is not None:
+        run_params = run_params.replace(gate_open_ps=spot_gates[j][0], gate_close_ps=spot_gates[j][1])
+    return build_model(run_params, bin_width_ps=t["bin_width_ps"], n_bins=t["n_bins"], t0_ps=t["t0_ps"],
+                       repetition_rate_hz=budget.repetition_rate_hz)
 
 
 def _move_into_place(tmp: Path, out: Path, n_files: int) -> None:

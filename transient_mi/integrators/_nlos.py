@@ -577,7 +577,7 @@ def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp:
 
 
 def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spots, progress=None,
-                 replicate_offset: int = 0):
+                 replicate_offset: int = 0, replicates: int | None = None):
     """Render a group of laser spots of an array capture together (or the confocal capture, ``[0]``).
 
     The spots of a group share every sample's detector-side sub-path
@@ -606,6 +606,9 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
     replicate_offset : int
         Index of the first replicate (a later batch of a progressive render
         continues the replicate seeds where the earlier one stopped).
+    replicates : int, optional
+        Replicates of this call (default ``gcd(spp, variance_replicates)``);
+        must divide ``spp``.
 
     Returns
     -------
@@ -626,7 +629,7 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
             raise PluginParameterError(f"spad_array: spot={j} out of range [0, {setup.n_spots})")
     if len(set(spots)) != len(spots) or not spots:
         raise PluginParameterError(f"spad_array: spots={spots} must be distinct and non-empty")
-    R = effective_replicates(spp, options.get("variance_replicates", DEFAULT_REPLICATES))
+    R = replicates or effective_replicates(spp, options.get("variance_replicates", DEFAULT_REPLICATES))
     n = spp // R
     P = W * H
     total = P * spp

@@ -121,7 +121,7 @@ class TransientPath(mi.CppADIntegrator):
         return mi.TensorXf(result.histogram)
 
     def render_transient(self, scene, sensor, *, seed: int = 0, spp: int = 0, spot: int | None = None,
-                         spots=None, progress=None, replicate_offset: int = 0):
+                         spots=None, progress=None, replicate_offset: int = 0, replicates: int | None = None):
         """Render one transient image (or one laser spot of an NLOS capture).
 
         Parameters
@@ -143,6 +143,9 @@ class TransientPath(mi.CppADIntegrator):
             Index of the first replicate: a later batch of a progressive
             render (``render --noise-target``) continues the replicate seeds
             (see :mod:`transient_mi.integrators._replicates`).
+        replicates : int, optional
+            Replicates of this call (overrides ``variance_replicates``; must
+            divide ``spp``).
 
         Returns
         -------
@@ -163,30 +166,32 @@ class TransientPath(mi.CppADIntegrator):
         spp = spp or int(sensor.sampler().sample_count())
         if spp < 1:
             raise PluginParameterError(f"{self.NAME}: spp={spp} must be >= 1")
+        if replicates is not None and (replicates < 1 or spp % replicates):
+            raise PluginParameterError(f"{self.NAME}: replicates={replicates} must be >= 1 and divide spp={spp}")
         if hasattr(sensor, "nlos_estimator"):
             if spots is not None:
                 results = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spots=spots, progress=progress,
-                                                replicate_offset=replicate_offset)
+                                                replicate_offset=replicate_offset, replicates=replicates)
                 film.set_result(results[-1])
                 return results
             result = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spot=spot, progress=progress,
-                                           replicate_offset=replicate_offset)
+                                           replicate_offset=replicate_offset, replicates=replicates)
         else:
             if spot not in (None, 0) or spots not in (None, [0]):
                 raise PluginParameterError(f"{self.NAME}: spot={spot} given, but the sensor is a camera")
-            result = self._render_camera(scene, sensor, seed, spp, progress, replicate_offset)
+            result = self._render_camera(scene, sensor, seed, spp, progress, replicate_offset, replicates)
         film.set_result(result)
         return result
 
     # ------------------------------------------------------------- camera
 
-    def _render_camera(self, scene, sensor, seed, spp, progress, replicate_offset=0):
+    def _render_camera(self, scene, sensor, seed, spp, progress, replicate_offset=0, replicates=None):
         from transient_mi.films.transient_film import TransientResult
 
         film = sensor.film()
         W, H = film.width, film.height
         axis = film.time_axis()
-        R = effective_replicates(spp, self.variance_replicates)
+        R = replicates or effective_replicates(spp, self.variance_replicates)
         n = spp // R
         total = W * H * spp
         stats, steady, dropped, frac = None, 0.0, 0, 0.0
