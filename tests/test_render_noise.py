@@ -132,7 +132,7 @@ def _cli(*args):
 
 def test_noise_target_render_meets_target_and_resumes_to_the_same_bytes(tmp_path):
     """render --noise-target: pilot, fresh capture at the chosen spp, ratio met and recorded; resume is exact."""
-    from transient_mi.noise_target import GroupState, NoiseTargetSpec
+    from transient_mi.noise_target import PLAN_MARGIN, GroupState, NoiseTargetSpec
     from transient_mi.pipeline import prepare_render, run_render
 
     defines = dict(SMALL, spots_x="1", spots_y="1")
@@ -148,7 +148,7 @@ def test_noise_target_render_meets_target_and_resumes_to_the_same_bytes(tmp_path
     nt = m["render"]["noise_target"]
     s0 = nt["spots"][0]
     assert s0["pilot_spp"] == 16 and s0["spp"] > 16 and s0["spp"] % 8 == 0
-    assert s0["spp"] == spp_for_threshold(16, s0["pilot_ratio"], 0.5, 8)
+    assert s0["spp"] == spp_for_threshold(16, s0["pilot_ratio"], PLAN_MARGIN * 0.5, 8)
     assert s0["met"] == (s0["ratio"] <= 0.5) and nt["met"] == s0["met"]
     assert any("pilot at spp 16" in line for line in logs)
     assert not (a / ".partial").exists()

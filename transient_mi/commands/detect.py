@@ -49,6 +49,8 @@ def detect(
     seed: int = typer.Option(0, "--seed", help="Random seed; same seed, same bytes."),
     engine: str = typer.Option("auto", "--engine", help="auto, analytic or exact."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a counts capture already in OUT."),
+    noise_threshold: float = typer.Option(0.1, "--noise-threshold", help="Warn when the ideal capture's rendering "
+                                          "variance exceeds this share of the photon variance (docs/noise.md)."),
 ) -> None:
     """Turn an ideal capture into photon counts with the SPAD + TCSPC model (see docs/detector.md)."""
     from transient_mi.detector import DetectorParams, detect_stack
@@ -69,14 +71,18 @@ def detect(
         kwargs["auto_gate"] = True
     params = DetectorParams(**kwargs)
     path = detect_stack(ideal, out, params, pulses=pulses, exposure_s=exposure_s, seed=seed, engine=engine,
-                        overwrite=overwrite)
+                        overwrite=overwrite, noise_threshold=noise_threshold)
     from recon.io.stack import read_manifest
 
     m = read_manifest(path)
     d = m["detector"]
     used = sorted(set(d["resolved"]["engines_used"]))
+    rn = d["resolved"].get("render_noise") or {}
+    noise = (f"; rendering/photon noise {rn['ratio']:.3g}" if rn.get("available") else
+             "; rendering noise unknown (no variance stored)")
     typer.echo(f"wrote {path} ({m['n_files']} spot file(s), {d['pulses']} pulses per spot, "
-               f"engine {'/'.join(used)}{'' if d['resolved']['exact'] else ' (approximate, see docs/detector.md)'})")
+               f"engine {'/'.join(used)}{'' if d['resolved']['exact'] else ' (approximate, see docs/detector.md)'}"
+               f"{noise})")
 
 
 def register(app: typer.Typer) -> None:

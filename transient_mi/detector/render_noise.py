@@ -78,6 +78,9 @@ class NoiseRatio:
     total_var: float = 0.0
     pixel_ratios: list = field(default_factory=list)
     mu_all: float = 0.0
+    #: sum over bins of mu^2 and of V (count-weighted relative rendering error: sqrt(var_sum / mu2_sum))
+    mu2_sum: float = 0.0
+    var_sum: float = 0.0
 
     def add_spot(self, model: DetectorModel, ideal: np.ndarray, variance: np.ndarray, n_pulses: int,
                  total_variance: np.ndarray | None = None) -> None:
@@ -96,25 +99,39 @@ class NoiseRatio:
             Estimated variance of each pixel's sum over time (scale squared
             applied); without it, the per-bin variances are summed.
         """
-        T = ideal.shape[-1]
-        lam = model.intensity(np.asarray(ideal, dtype=np.float64))[:, :T]
+        x_all = np.asarray(ideal, dtype=np.float64)
+        T = x_all.shape[-1]
+        # only the bins the gated light (or its jitter) reaches: elsewhere the counts are background alone (light
+        # below 1e-12 of the peak, e.g. behind a closed gate, is neglected), with no rendering variance and far
+        # below the smallest class; their background is added to the totals in closed form below
+        gated_peak = (x_all * (model.params.pde * model.gate_slots[None, :T])).max(axis=0)
+        lit = np.flatnonzero(gated_peak > 1e-12 * max(float(gated_peak.max()), 1e-300))
+        reach = len(model.kernel) + abs(model.kernel_first) + 1
+        t_lo, t_hi = (0, 0) if lit.size == 0 else (max(0, int(lit[0]) - reach), min(T, int(lit[-1]) + reach + 1))
+        w_all = model.params.pde * model.gate_slots[:T]
+        bg = model.background[:T]
+        x = x_all[:, t_lo:t_hi]
+        lam = model.params.pde * model.gate_slots[None, t_lo:t_hi] * x + bg[None, t_lo:t_hi]
         mu = apply_jitter_kernel(lam, model.kernel_first, model.kernel) * n_pulses
-        w = model.params.pde * model.gate_slots[None, :T]
-        v_in = np.square(w) * np.asarray(variance, dtype=np.float64)
+        w = w_all[None, t_lo:t_hi]
+        v_in = np.square(w) * np.asarray(variance, dtype=np.float64)[:, t_lo:t_hi]
         var = apply_jitter_kernel(v_in, model.kernel_first, np.square(model.kernel)) * float(n_pulses) ** 2
+        bg_outside = float(n_pulses) * float(bg[:t_lo].sum() + bg[t_hi:].sum())
         for c, (lo, hi) in enumerate(BIN_CLASSES):
             sel = (mu > lo) & (mu <= hi)
             self.class_mu[c] += float(mu[sel].sum())
             self.class_var[c] += float(var[sel].sum())
             self.class_bins[c] += int(sel.sum())
-        self.mu_all += float(mu.sum())
-        pm = mu.sum(axis=1)
+        self.mu_all += float(mu.sum()) + bg_outside * x_all.shape[0]
+        self.mu2_sum += float(np.square(mu).sum())
+        self.var_sum += float(var.sum())
+        pm = mu.sum(axis=1) + bg_outside
         if total_variance is None:
             pv = var.sum(axis=1)
         else:
-            x = np.asarray(ideal, dtype=np.float64)
             xs = x.sum(axis=1)
-            gbar = np.divide((x * model.gate_slots[None, :T]).sum(axis=1), xs, out=np.zeros_like(xs), where=xs > 0)
+            gbar = np.divide((x * model.gate_slots[None, t_lo:t_hi]).sum(axis=1), xs, out=np.zeros_like(xs),
+                             where=xs > 0)
             pv = (float(n_pulses) * model.params.pde * gbar) ** 2 * np.asarray(total_variance, dtype=np.float64)
         self.total_mu += float(pm.sum())
         self.total_var += float(pv.sum())
