@@ -165,8 +165,9 @@ def _figure_histograms(path: Path, hists: dict, s: DemoSettings) -> None:
     for ax, n in zip(axes, arrays):
         t, ideal, counts, resolved = hists[n]
         pulses = s.exposure_s * 50e6
-        ax.semilogy(t, np.clip(ideal * pulses * 0.7, 1e-3, None), color="0.6", lw=0.8,
-                    label="expected photons x PDE (no gate)")
+        expected = _jittered(ideal, t, paper_detector()) * pulses * 0.7
+        ax.semilogy(t, np.clip(expected, 1e-3, None), color="0.6", lw=0.8,
+                    label="expected counts: photons x PDE, jitter (no gate)")
         ax.semilogy(t, np.clip(counts, 0.5, None), color="C3", lw=0.8, label="detected counts (gated)")
         g0, g1 = resolved.get("gate_open_ps"), resolved.get("gate_close_ps")
         if g0 is not None and g1 is not None:
@@ -181,6 +182,16 @@ def _figure_histograms(path: Path, hists: dict, s: DemoSettings) -> None:
                  fontsize=10)
     fig.tight_layout()
     _savefig(fig, path)
+
+
+def _jittered(values: np.ndarray, t_ns: np.ndarray, params) -> np.ndarray:
+    """``values`` (per bin, bin centres ``t_ns``) convolved with the detector's jitter kernel."""
+    from transient_mi.detector.jitter import Jitter
+    from transient_mi.detector.model import apply_jitter_kernel
+
+    bw_ps = float(t_ns[1] - t_ns[0]) * 1000.0 if len(t_ns) > 1 else 1.0
+    first, kernel = Jitter.from_params(params).bin_kernel(bw_ps, max_shift_bins=len(values))
+    return apply_jitter_kernel(np.asarray(values, dtype=np.float64)[None], first, kernel)[0]
 
 
 def _figure_reconstructions(path: Path, root: Path, results: list[ArrayResult], mesh, s: DemoSettings) -> None:

@@ -83,9 +83,11 @@ array's current spot, or in confocal mode the spot on patch ``k``):
 * **Randomised QMC:** the patch point and the five numbers used at the
   patch point (strategy, hidden shape, point on it, BSDF direction) come
   from an R_d Kronecker sequence over the pixel's samples with a uniform
-  random shift per pixel (Cranley-Patterson rotation): every sample is
-  still uniformly distributed (unbiased); the error falls faster than
-  ``1/sqrt(spp)``. Deeper dimensions use PCG32 streams.
+  random shift per pixel and replicate (Cranley-Patterson rotation): every
+  sample is still uniformly distributed (unbiased); the error falls faster
+  than ``1/sqrt(spp)``. Deeper dimensions use PCG32 streams. ``rqmc=false``
+  (integrator parameter) draws every dimension from PCG32 (plain Monte
+  Carlo), for comparisons.
 * **Spot groups (array captures):** :func:`render_spots` renders several
   spots together; they share each sample's detector-side sub-path and
   differ only in the final spot connection (each estimate unbiased).
@@ -481,6 +483,7 @@ class _Consts:
     confocal: bool
     spot_is_vertex1: bool
     n_group: object
+    rqmc: bool = True
 
 
 #: Histogram floats held per kernel launch when an array capture renders a group of spots at once.
@@ -714,6 +717,7 @@ def _render_replicate(setup: NLOSSetup, scene, film, options: dict, *, seed: int
         # spot from the hidden vertex is the (already traced) segment from the wall point
         spot_is_vertex1=confocal and center,
         n_group=dr.opaque(mi.UInt32, G),
+        rqmc=bool(options.get("rqmc", True)),
     )
     if setup.hidden_shapes:
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
@@ -909,7 +913,10 @@ def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr
 
     while (j < j_end) & (k + j * K < spp):
         i_sample = k + j * K
-        u = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
+        if dr.hint(c.rqmc, mode="scalar"):
+            u = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
+        else:  # plain Monte Carlo (for comparisons: integrator parameter rqmc=false)
+            u = [rng.next_float32() for d in range(QMC_DIMS)]
         # ---- patch point p (vertex 1) and the sensor weight
         if dr.hint(c.center_only, mode="scalar"):
             si = si_c

@@ -11,7 +11,7 @@ from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_s
                                              seed_rng, to_mono)
 from transient_mi.integrators._replicates import (DEFAULT_REPLICATES, ReplicateStats, effective_replicates,
                                                   replicate_seed)
-from transient_mi.props import PluginParameterError, get_float, get_int
+from transient_mi.props import PluginParameterError, get_bool, get_float, get_int
 
 PLUGIN = ("integrator", "transient_path", "TransientPath")
 
@@ -64,6 +64,12 @@ class TransientPath(mi.CppADIntegrator):
            (default 8): the capture stores their mean and the variance of
            every bin (see :mod:`transient_mi.integrators._replicates`);
            ``gcd(spp, variance_replicates)`` are used; 1 records no variance.
+       * - ``rqmc``
+         - boolean
+         - NLOS only: randomised quasi-Monte Carlo (a shifted Kronecker
+           sequence) for the patch point and the first bounce (default
+           true); false draws them from PCG32 (plain Monte Carlo), for
+           comparisons.
        * - ``hidden_geometry_prob``
          - float
          - NLOS only: probability of hidden-geometry sampling (vs BSDF
@@ -104,6 +110,7 @@ class TransientPath(mi.CppADIntegrator):
         """
         return {
             "variance_replicates": self.variance_replicates,
+            "rqmc": get_bool(props, self.NAME, "rqmc", True),
             "hidden_geometry_prob": get_float(props, self.NAME, "hidden_geometry_prob", 0.8,
                                               min_value=0.0, max_value=1.0),
         }
@@ -333,5 +340,7 @@ class TransientPath(mi.CppADIntegrator):
             si = si_next
 
     def to_string(self):
+        o = self.nlos_options
         return (f"TransientPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}, "
-                f"variance_replicates={self.variance_replicates}]")
+                f"variance_replicates={self.variance_replicates}, hidden_geometry_prob={o['hidden_geometry_prob']:g}, "
+                f"rqmc={str(o['rqmc']).lower()}]")
