@@ -109,9 +109,8 @@ def main(argv=None) -> int:
     ap.add_argument("--spp", type=int, default=1024)
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "noise_target.json")
     a = ap.parse_args(argv)
+    import transient_mi  # first: it sets up LLVM before drjit loads
     import mitsuba as mi
-
-    import transient_mi
 
     result = {"benchmark": "noise_target",
               "command": "python bench/bench_noise.py " + " ".join(argv if argv is not None else sys.argv[1:]),

@@ -37,9 +37,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "render_variance_cost.json")
     a = ap.parse_args(argv)
 
+    import transient_mi  # first: it sets up LLVM before drjit loads
     import mitsuba as mi
-
-    import transient_mi
     from recon.io import stack
     from transient_mi.experiment import PaperConfig, scene_file
     from transient_mi.pipeline import prepare_render, run_render
