@@ -289,7 +289,7 @@ def _open(browser, url, show: str):
     page = browser.new_page(viewport={"width": 1500, "height": 1100})
     page.goto(f"{url}?show={quote(show)}")
     page.wait_for_function("() => window.Bokeh && Bokeh.documents.length > 0 && "
-                           "Bokeh.documents[0].get_model_by_name('capture_status') !== null", timeout=30000)
+                           "Bokeh.documents[0].get_model_by_name('tabs') !== null", timeout=30000)
     return page
 
 
@@ -479,7 +479,7 @@ def scene_captures(tmp_path_factory):
     from transient_mi.pipeline import prepare_render, run_render
 
     root = tmp_path_factory.mktemp("scenes")
-    nlos = {"width": "4", "height": "4", "spots_x": "2", "spots_y": "1", "n_bins": "256"}
+    nlos = {"width": "4", "height": "4", "spots_x": "2", "spots_y": "1"}  # 512 bins: the hidden objects arrive late
     settings = {
         "cornell_box": {"width": "8", "height": "6", "n_bins": "60"},
         "nlos_letter": nlos, "nlos_point_targets": nlos, "nlos_tilted_plane": nlos,

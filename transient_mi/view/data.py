@@ -115,7 +115,16 @@ class Library:
             return None
         if not src:
             return None
-        for cand in (Path(src), p / src, self.base / src):
+        return self._find_moved(Path(src), p)
+
+    def _find_moved(self, recorded: Path, near: Path) -> Path | None:
+        """A capture of the library at ``recorded`` (absolute, or relative to ``near``), or, when its
+        directory was moved (the demo and datasets build under a temporary name), the capture whose path
+        ends with the longest tail of ``recorded``."""
+        cands = [recorded] if recorded.is_absolute() else [near / recorded, self.base / recorded]
+        parts = recorded.parts
+        cands += [self.base.joinpath(*parts[-k:]) for k in range(min(len(parts), 6), 0, -1)]
+        for cand in cands:
             try:
                 c = cand.resolve()
             except OSError:
@@ -346,9 +355,14 @@ class CaptureData:
         if self.kind == "ideal" and self.quantity == "photons_per_pulse" and self.capture is not None:
             return self
         src = self.manifest.get("source_ideal")
-        if self.kind == "counts" and src and self.path.is_dir():
-            p = (self.path / src).resolve() if not os.path.isabs(src) else Path(src).resolve()
-            if lib.contains(p) and p in lib.captures:
-                other = CaptureData(p)
-                return other if other.kind == "ideal" and other.capture is not None else None
+        if self.kind != "counts" or not src or not self.path.is_dir():
+            return None
+        # The recorded path, else where it is after its directory moved (see Library._find_moved).
+        p = lib._find_moved(Path(src), self.path)
+        if p is None or p == self.path:
+            return None
+        other = CaptureData(p)
+        if (other.kind == "ideal" and other.capture is not None and other.manifest["time"] == self.manifest["time"]
+                and (other.n_files, other.height, other.width) == (self.n_files, self.height, self.width)):
+            return other
         return None

@@ -85,7 +85,8 @@ class ReconPanel:
                              css_classes=["method-select"], width=140)
         self.voxels = Select(title="voxels per axis (voxel size)",
                              value="stored" if stored is not None else str(DEFAULT_VOXELS),
-                             options=self._voxel_options(), disabled=capture is None, name="voxels_select", width=240)
+                             options=self._voxel_options(), disabled=capture is None, name="voxels_select", width=240,
+                             css_classes=["voxels-select"])
         self.filter = Select(title="filter", value="paper", options=["paper", "none"], name="filter_select",
                              width=110)
         self.threshold = Select(title="threshold", value="rel:0.3", options=list(THRESHOLDS),
