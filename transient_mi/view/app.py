@@ -104,9 +104,13 @@ class Page:
             msg = _message(f"cannot show {self.lib.label(p)}: {e}", "load_error")
             for name in TAB_NAMES:
                 children.setdefault(name, msg if name == "Capture" else _message("(see the Capture tab)", "x"))
-        tabs = Tabs(tabs=[TabPanel(child=children[n], title=n) for n in TAB_NAMES], name="tabs")
-        tabs.on_change("active", lambda a, o, n: self._activate(TAB_NAMES[n]))
-        self.holder.children = [tabs]
+        # Panels are built and computed when their tab is first opened (a lighter first page).
+        self._builders = {n: c for n, c in children.items() if callable(c)}
+        for n in self._builders:
+            children[n] = _message("opening...", f"{n.lower()}_placeholder")
+        self.tabs = Tabs(tabs=[TabPanel(child=children[n], title=n) for n in TAB_NAMES], name="tabs")
+        self.tabs.on_change("active", lambda a, o, n: self.open_tab(TAB_NAMES[n]))
+        self.holder.children = [self.tabs]
 
     def _detector(self, data):
         if data is None:
@@ -120,8 +124,7 @@ class Page:
             return _message(f"The detector panel needs an ideal NLOS capture: {why}.", "detector_unavailable")
         from .detector_panel import DetectorPanel
 
-        self.panels["detector"] = DetectorPanel(ideal, self.doc)
-        return self.panels["detector"].layout
+        return lambda: DetectorPanel(ideal, self.doc)
 
     def _recon(self, kind, p, data):
         from .recon_panel import ReconPanel
@@ -141,11 +144,22 @@ class Page:
         gt = self.lib.ground_truth_for(p if kind == "recon" else data.path)
         if gt is None and data is not None:
             gt = self.lib.ground_truth_for(data.path)
-        self.panels["recon"] = ReconPanel(capture, self.doc, stored=stored, ground_truth=gt, bounds=bounds)
-        return self.panels["recon"].layout
+        return lambda: ReconPanel(capture, self.doc, stored=stored, ground_truth=gt, bounds=bounds)
 
-    def _activate(self, name: str) -> None:
-        panel = self.panels.get({"Detector": "detector", "Reconstruction": "recon"}.get(name, ""))
+    def open_tab(self, name: str) -> None:
+        """What opening tab ``name`` does: build its panel on first opening, then compute it once."""
+        key = {"Detector": "detector", "Reconstruction": "recon"}.get(name)
+        if key is None:
+            return
+        builder = self._builders.pop(name, None)
+        if builder is not None:
+            self.panels[key] = builder()
+            from bokeh.models import TabPanel
+
+            panels = list(self.tabs.tabs)  # a new list: BokehJS rebuilds the tab's view
+            panels[TAB_NAMES.index(name)] = TabPanel(child=self.panels[key].layout, title=name)
+            self.tabs.tabs = panels
+        panel = self.panels.get(key)
         if panel is not None and not panel.computed:
             panel.update()
 

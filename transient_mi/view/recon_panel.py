@@ -60,6 +60,7 @@ class ReconPanel:
 
         self.capture, self.doc, self.stored, self.bounds = capture, doc, stored, bounds
         self.rec = stored
+        self._raw = None  # ((method, voxels), reconstruction) of the last run, re-filtered without rerunning
         self.status = Status("recon")
         self.metrics_status = Status("metrics")
         self.computed = False
@@ -178,14 +179,21 @@ class ReconPanel:
             if self.stored is not None and not self.computed:
                 self.rec = self.stored  # as written by transient-mi recon, filter included
             elif self.capture is not None:
-                if self.voxels.value == "stored":
-                    kw = {"grid": self.stored.grid}
+                key = (self.method.value, self.voxels.value)
+                if self._raw is not None and self._raw[0] == key:
+                    # only the filter or threshold changed: filter the same raw volume again
+                    f = paper_filter if self.filter.value == "paper" else no_filter
+                    self.rec = f(self._raw[1], threshold=self.threshold.value)
                 else:
-                    kw = {"voxels": int(self.voxels.value)}
-                    if self.bounds is not None:
-                        kw["bounds"] = self.bounds
-                self.rec = reconstruct(self.capture, self.method.value, filter=self.filter.value,
-                                       threshold=self.threshold.value, **kw)
+                    if self.voxels.value == "stored":
+                        kw = {"grid": self.stored.grid}
+                    else:
+                        kw = {"voxels": int(self.voxels.value)}
+                        if self.bounds is not None:
+                            kw["bounds"] = self.bounds
+                    self.rec = reconstruct(self.capture, self.method.value, filter=self.filter.value,
+                                           threshold=self.threshold.value, **kw)
+                    self._raw = (key, self.rec)
             elif self.stored is not None:
                 f = paper_filter if self.filter.value == "paper" else no_filter
                 self.rec = f(self.stored, threshold=self.threshold.value)
