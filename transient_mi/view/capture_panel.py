@@ -68,7 +68,8 @@ class CapturePanel:
 
         self.hist_src = ColumnDataSource(data={"t": [], "v": [], "vlog": []})
         self.f_hist = figure(title="histogram of the clicked pixel", width=500, height=260,
-                             x_axis_label="time (ps)", y_axis_label=unit, tools="pan,wheel_zoom,box_zoom,reset", name="pixel_hist", css_classes=["tmv-pixel_hist"])
+                             x_axis_label="time (ps)", y_axis_label=unit, tools="pan,wheel_zoom,box_zoom,reset",
+                             name="pixel_hist", css_classes=["tmv-pixel_hist"])
         self.f_hist.line("t", "v", source=self.hist_src, color="#c0392b")
         self.f_hist_log = figure(title="histogram of the clicked pixel (log)", width=500, height=260,
                                  x_axis_label="time (ps)", y_axis_label=unit, y_axis_type="log",

@@ -5,7 +5,8 @@ histograms ``[H, W, n_bins]``, colour-mapped with one brightness scale for the
 whole video (``normalize="global"``: the 99.9th percentile of the shown bins,
 so the light front's fall-off stays visible) or per frame
 (``normalize="frame"``), enlarged ``scale`` times with nearest-neighbour
-pixels (the frame is widened, if needed, to hold the whole time stamp), below a banner with the bin's centre time in picoseconds.
+pixels (the frame is widened, if needed, to hold the whole time stamp), below a
+banner with the bin's centre time in picoseconds.
 """
 
 from __future__ import annotations
