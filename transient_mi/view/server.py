@@ -1,7 +1,8 @@
 """The local web server: a Bokeh server for the page plus a read-only route for the viewed files.
 
 Security: it binds to ``127.0.0.1`` unless told otherwise, accepts page connections
-(websockets) only from the address it serves, and serves files only from the
+(websockets) only from the address it serves (from any origin when bound to a network address
+with ``--host``, which the command warns about), and serves files only from the
 viewed path under ``/files/`` (:meth:`~transient_mi.view.data.Library.resolve`
 refuses ``..``, absolute names and symbolic links that leave it, with 403). Nothing
 is ever written.
@@ -75,9 +76,12 @@ def make_server(lib: Library, host: str = "127.0.0.1", port: int = 5006):
 
     if port == 0:
         port = free_port(host)
-    origins = [f"{host}:{port}"]
     if is_loopback(host):
-        origins += [f"localhost:{port}", f"127.0.0.1:{port}"]
+        origins = [f"{host}:{port}", f"localhost:{port}", f"127.0.0.1:{port}"]
+    else:
+        # Bound to a network address on purpose (--host): browsers elsewhere reach it under names this
+        # machine cannot know, so any origin may open the page; the command warns that the data is exposed.
+        origins = ["*"]
     app = Application(FunctionHandler(make_document(lib)))
     server = Server({"/": app}, address=host, port=port, allow_websocket_origin=sorted(set(origins)),
                     extra_patterns=[(r"/files/(.*)", _file_handler(lib))], num_procs=1,
