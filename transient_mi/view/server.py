@@ -73,6 +73,10 @@ def make_server(lib: Library, host: str = "127.0.0.1", port: int = 5006):
     from bokeh.server.server import Server
 
     from .app import make_document
+    # Import what the first page needs now, before the address is printed, not on the first request.
+    import bokeh.plotting  # noqa: F401
+
+    from . import capture_panel, detector_panel, recon_panel  # noqa: F401
 
     if port == 0:
         port = free_port(host)
