@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Quick start for transient-mi. Creates ./.venv (if missing), installs the
-# package with what it needs, then runs:
+# package with what it needs (and its test and view extras), then runs:
 #   bash run.sh demo [demo options]   the paper's NLOS experiment on the embedded default scene
 #   bash run.sh test [pytest options] the test suite
 #   bash run.sh <any transient-mi sub-command and options>
@@ -18,7 +18,7 @@ stamp="$venv/.transient-mi-installed"
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   echo "[run.sh] installing transient-mi and its dependencies into $venv" >&2
   "$venv/bin/python" -m pip install --quiet --upgrade pip
-  "$venv/bin/python" -m pip install --quiet -e ".[test]"
+  "$venv/bin/python" -m pip install --quiet -e ".[test,view]"
   touch "$stamp"
 fi
 
