@@ -51,7 +51,7 @@ def test_bp_with_ground_truth_writes_everything(captures, tmp_path):
     assert "wrote" in r.stdout and "localisation_error_m" in r.stdout
     names = {p.name for p in out.iterdir()}
     assert {"volume.npz", "recon.json", "metrics.json", "projection_x.png", "projection_y.png", "projection_z.png",
-            "depth_map.png"} <= names
+            "depth_map.png", "surface.ply", "maps.npz"} <= names
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]        # no temporary left behind
     with np.load(out / "volume.npz") as z:
         assert set(z.files) == {"volume", "raw", "x_m", "y_m", "z_m"}
