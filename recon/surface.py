@@ -36,8 +36,13 @@ _FLIP = (True, False, True)
 __all__ = ["isosurface", "reconstruction_surface", "normal_map", "write_ply"]
 
 
-def isosurface(field: np.ndarray, grid: VoxelGrid, level: float) -> tuple[np.ndarray, np.ndarray]:
+def isosurface(field: np.ndarray, grid: VoxelGrid, level: float, closed: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Surface-nets isosurface of ``field`` (``[z, y, x]`` on ``grid``) at ``level``.
+
+    With ``closed`` the field is padded by one voxel of a value below ``level``
+    on every side, so regions touching the grid's boundary get closed surfaces
+    (vertices up to one voxel outside the bounds); without it their surfaces
+    stay open there.
 
     Returns
     -------
@@ -51,6 +56,11 @@ def isosurface(field: np.ndarray, grid: VoxelGrid, level: float) -> tuple[np.nda
         raise UserInputError(f"field has shape {f.shape}, grid has {grid.shape}")
     if not np.isfinite(level):
         raise UserInputError(f"level={level!r} must be finite")
+    axes = [np.asarray(a, dtype=np.float64) for a in (grid.z_m, grid.y_m, grid.x_m)]
+    if closed:
+        f = np.pad(f, 1, constant_values=min(float(level), float(f.min()) if f.size else 0.0) - 1.0)
+        axes = [np.concatenate([[a[0] - st], a, [a[-1] + st]])
+                for a, st in zip(axes, (grid.voxel_size_m[2], grid.voxel_size_m[1], grid.voxel_size_m[0]))]
     nz, ny, nx = f.shape
     if min(nz, ny, nx) < 2:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
@@ -77,9 +87,9 @@ def isosurface(field: np.ndarray, grid: VoxelGrid, level: float) -> tuple[np.nda
         acc[cross] += pos[cross]
         cnt[cross] += 1
     local = acc / np.maximum(cnt, 1)[:, None]
-    vz = np.interp(cz + local[:, 0], np.arange(nz), grid.z_m)
-    vy = np.interp(cy + local[:, 1], np.arange(ny), grid.y_m)
-    vx = np.interp(cx + local[:, 2], np.arange(nx), grid.x_m)
+    vz = np.interp(cz + local[:, 0], np.arange(nz), axes[0])
+    vy = np.interp(cy + local[:, 1], np.arange(ny), axes[1])
+    vx = np.interp(cx + local[:, 2], np.arange(nx), axes[2])
     vertices = np.stack([vx, vy, vz], axis=1)
     # quads: one per voxel edge with a sign change, joining the 4 cells sharing that edge
     faces = []
@@ -95,7 +105,7 @@ def isosurface(field: np.ndarray, grid: VoxelGrid, level: float) -> tuple[np.nda
         e = np.argwhere(flip)
         others = [ax for ax in range(3) if ax != axis]
         o1, o2 = others
-        ok = (e[:, o1] >= 1) & (e[:, o2] >= 1) & (e[:, o1] <= active.shape[o1]) & (e[:, o2] <= active.shape[o2])
+        ok = (e[:, o1] >= 1) & (e[:, o2] >= 1) & (e[:, o1] < active.shape[o1]) & (e[:, o2] < active.shape[o2])
         ok &= e[:, axis] < active.shape[axis]
         e = e[ok]
         if len(e) == 0:

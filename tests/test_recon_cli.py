@@ -72,7 +72,7 @@ def test_ytal_input_fk_and_phasor(captures, tmp_path):
     r = cli(captures / "confocal.h5", "-o", tmp_path / "fk", "--method", "fk", "--filter", "none", "--no-plots",
             "--voxel-size-m", "0.05")
     assert r.returncode == 0, r.stderr
-    assert sorted(p.name for p in (tmp_path / "fk").iterdir()) == ["recon.json", "volume.npz"]
+    assert sorted(p.name for p in (tmp_path / "fk").iterdir()) == ["maps.npz", "recon.json", "surface.ply", "volume.npz"]
     r = cli(captures / "confocal.h5", "-o", tmp_path / "ph", "--method", "phasor", "--voxels", "16,16,12",
             "--threshold", "otsu", "--no-plots")
     assert r.returncode == 0, r.stderr

@@ -51,6 +51,11 @@ def test_reconstruction_surface_encloses_the_kept_voxels_and_ply_round_trips(tmp
     h = np.array(GRID.voxel_size_m)
     np.testing.assert_allclose(b[0], [x[5] - h[0] / 2, y[12] - h[1] / 2, z[10] - h[2] / 2], atol=1e-9)
     np.testing.assert_allclose(b[1], [x[14] + h[0] / 2, y[29] + h[1] / 2, z[19] + h[2] / 2], atol=1e-9)
+    # a region touching the boundary is closed by the padding (open with closed=False)
+    vol2 = np.zeros(GRID.shape, dtype=np.float32)
+    vol2[:5, :, :] = 1.0
+    assert trimesh.Trimesh(*isosurface(vol2, GRID, 0.5), process=True).is_watertight
+    assert not trimesh.Trimesh(*isosurface(vol2, GRID, 0.5, closed=False), process=True).is_watertight
     write_ply(tmp_path / "s.ply", v, faces)
     back = trimesh.load(tmp_path / "s.ply", process=False)
     np.testing.assert_allclose(back.vertices, v.astype(np.float32))
