@@ -32,6 +32,10 @@ Definitions (all distances in metres; "occupied" voxels are those with
     ``completeness_m`` of even a perfect front-surface reconstruction is
     about half the object's thickness. (The visible surface is sampled per
     projected area: steep parts count less than in ``completeness_m``.)
+``silhouette_iou``
+    Intersection over union of the columns ``[y, x]`` holding any occupied
+    voxel and the columns whose line along +z meets the mesh inside the z
+    bounds (the front view a person reads a letter from).
 ``normal_error_deg``, ``normal_error_median_deg``
     Mean and median angle between the normal maps
     (:func:`recon.surface.normal_map`) of the reconstructed and the
@@ -267,6 +271,10 @@ def compute_metrics(rec: Reconstruction, ground_truth: GroundTruth, seed: int = 
         out["depth_coverage"] = float(np.count_nonzero(both) / n_gt) if n_gt else None
         out["depth_false_columns"] = float(np.count_nonzero(np.isfinite(rec_depth) & ~np.isfinite(gt_depth)) / n_rec) \
             if n_rec else None
+        sil_gt = np.isfinite(gt_depth)
+        sil_rec = occ.any(axis=0)
+        u = np.count_nonzero(sil_gt | sil_rec)
+        out["silhouette_iou"] = float(np.count_nonzero(sil_gt & sil_rec) / u) if u else None
         vis = chamfer(centres, visible_surface_points(mesh, g))
         out.update({f"visible_{k}": v for k, v in vis.items()})
         from .surface import normal_map, reconstruction_surface

@@ -99,4 +99,6 @@ def test_visible_metrics_ignore_the_back_and_normals_match():
     # the whole-mesh completeness also counts the back square, 9 cm behind the voxels
     assert m["completeness_m"] > m["visible_completeness_m"] + 0.03
     assert m["normal_error_deg"] == pytest.approx(0.0, abs=1e-9)
+    # the occupied columns are exactly those the 20 cm square covers (|x|, |y| < 0.1 on a 2 cm grid)
+    assert m["silhouette_iou"] == pytest.approx(1.0)
     assert m["surface_faces"] > 0 and m["surface_chamfer_m"] is not None
