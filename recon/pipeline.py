@@ -16,6 +16,16 @@ __all__ = ["METHODS", "FILTERS", "reconstruct", "run"]
 METHODS = ("bp", "fbp", "lct", "fk", "phasor", "midpoint-lct", "midpoint-fk")
 FILTERS = ("paper", "none")
 CONFOCAL_ONLY = ("lct", "fk")
+#: Default threshold of the paper's filter per method (others: ``filters.DEFAULT_THRESHOLD``, rel:0.3).
+#: midpoint-fk's volume is an intensity ``|rho|^2``, whose dynamic range is the square of an amplitude's:
+#: rel:0.1 keeps about what rel:0.3 keeps of an amplitude; measured on the paper mannequin (32x32 array,
+#: paper budget) it keeps the arms and legs that rel:0.3 drops (docs/recon.md).
+METHOD_THRESHOLDS = {"midpoint-fk": "rel:0.1"}
+
+
+def default_threshold(method: str) -> str:
+    """The paper filter's default threshold for ``method``."""
+    return METHOD_THRESHOLDS.get(method, DEFAULT_THRESHOLD)
 
 
 def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = None, *,
@@ -40,7 +50,8 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
     sigma_m : float, optional
         Gaussian sigma of the paper filter, metres (default one voxel).
     threshold : str, optional
-        Threshold spec (default ``rel:0.3`` for ``paper``, ``none`` for ``none``).
+        Threshold spec (default for ``paper``: :func:`default_threshold`, ``rel:0.3`` except
+        ``rel:0.1`` for midpoint-fk; ``none`` for ``none``).
     **options
         Method options: ``voxel_integration`` (bp), ``fbp_sigma_m`` (fbp),
         ``snr`` (lct, midpoint-lct), ``wavelength_m``, ``pulse_sigma_m``, ``phasor_method`` (phasor),
@@ -91,7 +102,7 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
         rec = phasor_fields(capture, grid, wavelength_m=opts.get("wavelength_m"),
                             pulse_sigma_m=opts.get("pulse_sigma_m"), method=opts.get("phasor_method", "auto"))
     if filter == "paper":
-        return paper_filter(rec, sigma_m=sigma_m, threshold=DEFAULT_THRESHOLD if threshold is None else threshold)
+        return paper_filter(rec, sigma_m=sigma_m, threshold=default_threshold(method) if threshold is None else threshold)
     return no_filter(rec, threshold="none" if threshold is None else threshold)
 
 

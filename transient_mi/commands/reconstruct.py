@@ -55,7 +55,7 @@ def recon_command(
     sigma_m: Optional[float] = typer.Option(None, "--sigma-m", help="Gaussian sigma of the paper filter, metres "
                                                                    "(default one voxel)."),
     threshold: Optional[str] = typer.Option(
-        None, "--threshold", help="none | otsu | rel:F | abs:V (default rel:0.3 with --filter paper)."),
+        None, "--threshold", help="none | otsu | rel:F | abs:V (default with --filter paper: rel:0.3; rel:0.1 for midpoint-fk)."),
     ground_truth: Optional[Path] = typer.Option(
         None, "--ground-truth", help="Mesh (.obj/.ply/.stl/...) or points (.json/.npy/.csv) for metrics.json."),
     pileup_correction: bool = typer.Option(False, "--pileup-correction",

@@ -4,7 +4,7 @@ For every array size: render the scene's ideal capture once (``-D array=N``,
 or ``-D width=N -D height=N``); for every exposure detect it in memory
 (:class:`~transient_mi.study.detection.Detection`, detection seed
 ``seed + 1``, the same counts ``transient-mi detect`` writes); reconstruct
-the counts with every method (+ the paper's filter, threshold ``rel:0.3``)
+the counts with every method (+ the paper's filter with each method's default threshold)
 on the same voxel grid and score each against the ground truth
 (:func:`recon.metrics.compute_metrics`: Chamfer, completeness, IoU, depth
 MAE, the visible-surface distances, silhouette IoU, normal error). Each
@@ -85,7 +85,7 @@ def scene_ground_truth(scene) -> object:
 def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, arrays=DEFAULT_ARRAYS,
                       exposures_s=DEFAULT_EXPOSURES_S, methods=DEFAULT_METHODS, defines=None, voxels=(64, 64, 32),
                       seed: int = 0, quick: bool = False, progress: bool | None = None, ground_truth=None,
-                      bounds=None, threshold: str = "rel:0.3", overwrite: bool = False, log=None):
+                      bounds=None, threshold: str | None = None, overwrite: bool = False, log=None):
     """Run the methods study (see the module docstring); returns ``(out_dir, rows)``.
 
     Parameters
@@ -100,7 +100,10 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         :data:`recon.pipeline.METHODS` that accept array captures.
     defines : dict, optional
         Scene parameters (``-D``), e.g. ``{"spp": 16384, "bin_width_ps": 4, "n_bins": 2875}``.
-    voxels, seed, quick, progress, ground_truth, bounds, threshold, overwrite, log
+    threshold : str, optional
+        Threshold of the paper's filter for every method; default each method's
+        own (:func:`recon.pipeline.default_threshold`).
+    voxels, seed, quick, progress, ground_truth, bounds, overwrite, log
         As for :func:`~transient_mi.study.run_array_size_study`.
     """
     log = log or (lambda msg: None)
@@ -167,7 +170,8 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         settings = {"scene": sc.name, "scene_file": sc.path.name, "defines": dict(sorted(sc.defines.items())),
                     "spp": sc.spp, "arrays": list(arrays), "exposures_s": list(exposures), "methods": list(methods),
                     "voxels": list(vox), "bounds_m": list(bnds) if bnds is not None else None,
-                    "threshold": threshold, "render_seed": seed, "detection_seed": seed + 1,
+                    "threshold": threshold or "each method's default (recon.pipeline.default_threshold)",
+                    "render_seed": seed, "detection_seed": seed + 1,
                     "detector": params.to_dict(), "ground_truth": gt_desc,
                     "total_s": time.perf_counter() - t_start}
         write_csv(tmp / "leaderboard.csv", rows, ROW_COLUMNS)
