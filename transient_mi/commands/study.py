@@ -171,6 +171,9 @@ def methods(
         None, "--exposures-ms", help="Exposure per laser spot, ms, comma-separated or repeated (default 1,10)."),
     methods: str = typer.Option("bp,fbp,phasor,midpoint-lct,midpoint-fk", "--methods",
                                 help="Reconstruction methods, comma-separated."),
+    bounds: Optional[str] = typer.Option(
+        None, "--bounds", help="xmin,xmax,ymin,ymax,zmin,zmax in metres (default: the paper's volume for the paper "
+                               "scene, else recon's default from the first capture)."),
     voxels: Optional[str] = VOXELS_OPT,
     seed: int = SEED_OPT,
     ground_truth: Optional[Path] = GT_OPT,
@@ -194,6 +197,10 @@ def methods(
     ex = _numbers(exposures_ms, "--exposures-ms", scale=1e-3)
     if ex is not None:
         kw["exposures_s"] = ex
+    if bounds is not None:
+        from recon.grid import parse_bounds
+
+        kw["bounds"] = parse_bounds(bounds)
     names = tuple(m.strip() for m in methods.split(",") if m.strip())
     path, rows = run_methods_study(scene, out, arrays=sizes, methods=names, defines=defines, seed=seed, quick=quick,
                                    ground_truth=ground_truth, overwrite=overwrite, log=_log, **kw)
