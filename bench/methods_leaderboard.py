@@ -76,7 +76,8 @@ def table() -> str:
     """The README table: per scene, the largest array at the largest exposure, ranked by Chamfer; and the
     64^3 timings of bench/results/recon_methods.json."""
     lines = []
-    for path in sorted(RESULTS.glob("study_methods_*.json")):
+    order = {f"study_methods_{k}.json": i for i, k in enumerate(RUNS)}   # the paper scene first
+    for path in sorted(RESULTS.glob("study_methods_*.json"), key=lambda p: (order.get(p.name, len(order)), p.name)):
         doc = json.loads(path.read_text())
         rows = doc["rows"]
         n = max(r["array"] for r in rows)
