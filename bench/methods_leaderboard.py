@@ -35,8 +35,7 @@ RUNS = {
     "paper_mannequin": dict(arrays=(8, 16, 32), exposures_s=(0.001, 0.01),
                             defines={"spp": 16384, "bin_width_ps": 4, "n_bins": 2875}),
     # the NLOS scenes: a 16x16 array of 5 cm patches (0.8 m of wall) and 4x4 laser spots 0.2 m apart (a wider
-    # scan than the scenes' defaults, 3 cm patches and 0.1 m: the F is not readable from those); volume around
-    # the objects at 0.5 m
+    # array and scan than the scenes' defaults, 3 cm patches and 0.1 m); volume around the objects at 0.5 m
     "nlos_letter": dict(arrays=(8, 16), exposures_s=(0.01,), bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
                         defines={"spp": 4096, "pixel_footprint_m": 0.05, "spot_spacing_m": 0.2}),
     "nlos_tilted_plane": dict(arrays=(8, 16), exposures_s=(0.01,), bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
