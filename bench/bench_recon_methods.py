@@ -97,7 +97,8 @@ def main(argv=None) -> int:
         "command": "python bench/bench_recon_methods.py " + " ".join(argv if argv is not None else sys.argv[1:]),
         "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-                    "cpu_count": os.cpu_count(), "python": platform.python_version()},
+                    "cpu_count": os.cpu_count(), "python": platform.python_version(),
+                    "load_average_1_5_15_at_end": list(os.getloadavg())},
         "small": a.small, "repeat": a.repeat, "voxels": 16 if a.small else 64, "bounds_m": list(BOUNDS),
         "goal": GOAL, "results": results,
     }
