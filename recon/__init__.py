@@ -10,6 +10,7 @@ Public API (imported lazily, so ``import recon`` stays cheap)::
     backprojection, filtered_backprojection  recon.backprojection
     lct, fk_migration                        recon.confocal
     phasor_fields                            recon.phasor
+    midpoint_confocal                        recon.midpoint
     paper_filter, projections, depth_map     recon.filters
     reconstruct, run                         recon.pipeline
     Reconstruction                           recon.result
@@ -31,7 +32,7 @@ _EXPORTS = {
     "VoxelGrid": "grid", "make_grid": "grid", "default_bounds": "grid",
     "backprojection": "backprojection", "filtered_backprojection": "backprojection",
     "lct": "confocal", "fk_migration": "confocal",
-    "phasor_fields": "phasor",
+    "phasor_fields": "phasor", "midpoint_confocal": "midpoint",
     "paper_filter": "filters", "projections": "filters", "depth_map": "filters",
     "reconstruct": "pipeline", "run": "pipeline", "METHODS": "pipeline",
     "Reconstruction": "result",

@@ -23,6 +23,26 @@ Definitions (all distances in metres; "occupied" voxels are those with
 ``iou``
     Occupancy intersection over union: occupied voxels vs the voxels that
     contain mesh surface samples.
+``visible_accuracy_m``, ``visible_completeness_m``, ``visible_chamfer_m``
+    The same distances against the *visible* surface only: the first hits of
+    lines along +z from the wall (:func:`recon.ground_truth.ground_truth_depth_map`)
+    on an (x, y) grid four times finer than the voxels, inside the bounds.
+    Three-bounce light only comes from surface the relay wall sees, so no
+    NLOS method can place voxels on a body's back; the whole-mesh
+    ``completeness_m`` of even a perfect front-surface reconstruction is
+    about half the object's thickness. (The visible surface is sampled per
+    projected area: steep parts count less than in ``completeness_m``.)
+``silhouette_iou``
+    Intersection over union of the columns ``[y, x]`` holding any occupied
+    voxel and the columns whose line along +z meets the mesh inside the z
+    bounds (the front view a person reads a letter from).
+``normal_error_deg``, ``normal_error_median_deg``
+    Mean and median angle between the normal maps
+    (:func:`recon.surface.normal_map`) of the reconstructed and the
+    ground-truth depth maps, over columns where both are defined.
+``surface_accuracy_m``, ``surface_completeness_m``, ``surface_chamfer_m``, ``surface_faces``
+    Distances between the vertices of the isosurface of ``volume``
+    (:func:`recon.surface.reconstruction_surface`) and the mesh samples.
 ``localisation_error_m`` (point targets)
     Point targets are given as points, or are the mesh's connected
     components smaller than two voxel diagonals (their centroids). The
@@ -47,7 +67,7 @@ from .grid import VoxelGrid
 from .result import Reconstruction
 
 __all__ = ["load_ground_truth", "compute_metrics", "mesh_depth_map", "mesh_occupancy", "localisation_errors",
-           "chamfer"]
+           "chamfer", "visible_surface_points"]
 
 _MAX_SAMPLES = 4_000_000
 
@@ -143,6 +163,23 @@ def mesh_depth_map(mesh, grid: VoxelGrid) -> np.ndarray:
     return d
 
 
+def visible_surface_points(mesh, grid: VoxelGrid, oversample: int = 4) -> np.ndarray:
+    """Points ``(n, 3)`` of the surface seen from the wall along +z, on an (x, y) grid ``oversample`` times
+    finer than the voxels, inside the grid's bounds (see the module docstring)."""
+    from .ground_truth import ground_truth_depth_map
+
+    b = np.array(grid.bounds).reshape(3, 2)
+    dx, dy, _ = grid.voxel_size_m
+    nx = max(1, int(round((b[0, 1] - b[0, 0]) / dx * oversample)))
+    ny = max(1, int(round((b[1, 1] - b[1, 0]) / dy * oversample)))
+    x = b[0, 0] + (np.arange(nx) + 0.5) * (b[0, 1] - b[0, 0]) / nx
+    y = b[1, 0] + (np.arange(ny) + 0.5) * (b[1, 1] - b[1, 0]) / ny
+    d = ground_truth_depth_map(mesh, x, y)
+    X, Y = np.meshgrid(x, y, indexing="xy")
+    ok = np.isfinite(d) & (d >= b[2, 0]) & (d <= b[2, 1])
+    return np.stack([X[ok], Y[ok], d[ok]], axis=1)
+
+
 def _point_targets_from_mesh(mesh, grid: VoxelGrid) -> np.ndarray | None:
     diag = float(np.linalg.norm(grid.voxel_size_m))
     parts = mesh.split(only_watertight=False) if len(mesh.faces) < 200_000 else [mesh]
@@ -234,6 +271,24 @@ def compute_metrics(rec: Reconstruction, ground_truth: GroundTruth, seed: int = 
         out["depth_coverage"] = float(np.count_nonzero(both) / n_gt) if n_gt else None
         out["depth_false_columns"] = float(np.count_nonzero(np.isfinite(rec_depth) & ~np.isfinite(gt_depth)) / n_rec) \
             if n_rec else None
+        sil_gt = np.isfinite(gt_depth)
+        sil_rec = occ.any(axis=0)
+        u = np.count_nonzero(sil_gt | sil_rec)
+        out["silhouette_iou"] = float(np.count_nonzero(sil_gt & sil_rec) / u) if u else None
+        vis = chamfer(centres, visible_surface_points(mesh, g))
+        out.update({f"visible_{k}": v for k, v in vis.items()})
+        from .surface import normal_map, reconstruction_surface
+
+        n_rec = normal_map(rec_depth, g)
+        n_gt = normal_map(gt_depth, g)
+        cosang = np.sum(n_rec * n_gt, axis=-1)
+        ok = np.isfinite(cosang)
+        ang = np.degrees(np.arccos(np.clip(cosang[ok], -1.0, 1.0)))
+        out["normal_error_deg"] = float(np.mean(ang)) if ang.size else None
+        out["normal_error_median_deg"] = float(np.median(ang)) if ang.size else None
+        verts, faces = reconstruction_surface(rec)
+        out["surface_faces"] = int(len(faces))
+        out.update({f"surface_{k}": v for k, v in chamfer(verts, samples).items()})
         if points is None:
             points = _point_targets_from_mesh(mesh, g)
     if points is not None:

@@ -8,6 +8,8 @@
       projection_y.png  along y (top view, [z, x])
       projection_x.png  along x (side view, [z, y])
       depth_map.png     depth (z) of each column's maximum of the filtered volume
+      surface.ply       isosurface of the filtered volume (surface nets, metres; recon.surface)
+      maps.npz          depth_m [y, x] and normals [y, x, 3] (facing the wall), x_m, y_m
       recon.json        method, parameters, grid, capture, timings
       metrics.json      only with a ground truth
 
@@ -109,6 +111,19 @@ def _plots(d: Path, rec: Reconstruction, title: str) -> list[str]:
     return names
 
 
+def _surface_outputs(d: Path, rec: Reconstruction) -> list[str]:
+    """``surface.ply`` (isosurface of the filtered volume) and ``maps.npz`` (``depth_m [y, x]``,
+    ``normals [y, x, 3]``, ``x_m``, ``y_m``); see :mod:`recon.surface`."""
+    from .surface import normal_map, reconstruction_surface, write_ply
+
+    verts, faces = reconstruction_surface(rec)
+    write_ply(d / "surface.ply", verts, faces)
+    dm = depth_map(rec.volume, rec.grid)
+    np.savez_compressed(d / "maps.npz", depth_m=dm.astype(np.float32),
+                        normals=normal_map(dm, rec.grid).astype(np.float32), x_m=rec.grid.x_m, y_m=rec.grid.y_m)
+    return ["surface.ply", "maps.npz"]
+
+
 def check_output_dir(out_dir: str | os.PathLike, overwrite: bool = False) -> Path:
     """Check (creating nothing) that a reconstruction can be written to ``out_dir``; return its parent.
 
@@ -146,7 +161,7 @@ def write_outputs(out_dir: str | os.PathLike, rec: Reconstruction, meta: dict | 
     tmp = temp_dir_beside(out)
     try:
         save_volume(tmp / "volume.npz", rec)
-        files = ["volume.npz"]
+        files = ["volume.npz"] + _surface_outputs(tmp, rec)
         if plots:
             files += _plots(tmp, rec, f"{rec.method}: {(meta or {}).get('capture', {}).get('source', '')}")
         info = {"method": rec.method, "params": rec.params, "filter": rec.filter,

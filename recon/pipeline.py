@@ -13,9 +13,19 @@ from .result import Reconstruction
 
 __all__ = ["METHODS", "FILTERS", "reconstruct", "run"]
 
-METHODS = ("bp", "fbp", "lct", "fk", "phasor")
+METHODS = ("bp", "fbp", "lct", "fk", "phasor", "midpoint-lct", "midpoint-fk")
 FILTERS = ("paper", "none")
 CONFOCAL_ONLY = ("lct", "fk")
+#: Default threshold of the paper's filter per method (others: ``filters.DEFAULT_THRESHOLD``, rel:0.3).
+#: midpoint-fk's volume is an intensity ``|rho|^2``, whose dynamic range is the square of an amplitude's:
+#: rel:0.1 keeps about what rel:0.3 keeps of an amplitude; measured on the paper mannequin (32x32 array,
+#: paper budget) it keeps the arms and legs that rel:0.3 drops (docs/recon.md).
+METHOD_THRESHOLDS = {"midpoint-fk": "rel:0.1"}
+
+
+def default_threshold(method: str) -> str:
+    """The paper filter's default threshold for ``method``."""
+    return METHOD_THRESHOLDS.get(method, DEFAULT_THRESHOLD)
 
 
 def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = None, *,
@@ -26,9 +36,11 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
     Parameters
     ----------
     capture : Capture
-    method : {"bp", "fbp", "lct", "fk", "phasor"}
+    method : {"bp", "fbp", "lct", "fk", "phasor", "midpoint-lct", "midpoint-fk"}
         Backprojection, filtered backprojection, light-cone transform
-        (confocal), f-k migration (confocal), phasor fields.
+        (confocal), f-k migration (confocal), phasor fields, and LCT / f-k of
+        an array capture converted to approximately confocal data
+        (:func:`recon.midpoint.midpoint_confocal`).
     grid : VoxelGrid, optional
         Default :func:`recon.grid.make_grid` from ``bounds``, ``voxels``,
         ``voxel_size_m``.
@@ -38,10 +50,12 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
     sigma_m : float, optional
         Gaussian sigma of the paper filter, metres (default one voxel).
     threshold : str, optional
-        Threshold spec (default ``rel:0.3`` for ``paper``, ``none`` for ``none``).
+        Threshold spec (default for ``paper``: :func:`default_threshold`, ``rel:0.3`` except
+        ``rel:0.1`` for midpoint-fk; ``none`` for ``none``).
     **options
         Method options: ``voxel_integration`` (bp), ``fbp_sigma_m`` (fbp),
-        ``snr`` (lct), ``wavelength_m``, ``pulse_sigma_m``, ``phasor_method`` (phasor).
+        ``snr`` (lct, midpoint-lct), ``wavelength_m``, ``pulse_sigma_m``, ``phasor_method`` (phasor),
+        ``midpoint_pitch_m`` (midpoint-*).
     """
     if method not in METHODS:
         raise UserInputError(f"--method {method!r}: allowed {', '.join(METHODS)}")
@@ -50,11 +64,16 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
     if method in CONFOCAL_ONLY and capture.mode != "confocal":
         raise UserInputError(
             f"--method {method} needs a confocal capture (laser on each pixel's wall patch); "
-            f"{capture.source or 'this capture'} is an {capture.describe()}: use bp, fbp or phasor")
+            f"{capture.source or 'this capture'} is an {capture.describe()}: use bp, fbp or phasor, or "
+            f"midpoint-{method} (converts it to approximately confocal data)")
+    if method.startswith("midpoint-") and capture.mode != "array":
+        raise UserInputError(f"--method {method} converts an array capture; this is a {capture.mode} capture: "
+                             f"use {method.split('-', 1)[1]}")
     if grid is None:
         grid = make_grid(capture, bounds=bounds, voxels=voxels, voxel_size_m=voxel_size_m)
     allowed = {"bp": {"voxel_integration"}, "fbp": {"fbp_sigma_m"}, "lct": {"snr"}, "fk": set(),
-               "phasor": {"wavelength_m", "pulse_sigma_m", "phasor_method"}}[method]
+               "phasor": {"wavelength_m", "pulse_sigma_m", "phasor_method"},
+               "midpoint-lct": {"snr", "midpoint_pitch_m"}, "midpoint-fk": {"midpoint_pitch_m"}}[method]
     opts = {k: v for k, v in options.items() if v is not None}
     bad = sorted(set(opts) - allowed)
     if bad:
@@ -75,14 +94,45 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
         from .confocal import fk_migration
 
         rec = fk_migration(capture, grid)
+    elif method.startswith("midpoint-"):
+        rec = _midpoint(capture, grid, method, opts)
     else:
         from .phasor import phasor_fields
 
         rec = phasor_fields(capture, grid, wavelength_m=opts.get("wavelength_m"),
                             pulse_sigma_m=opts.get("pulse_sigma_m"), method=opts.get("phasor_method", "auto"))
     if filter == "paper":
-        return paper_filter(rec, sigma_m=sigma_m, threshold=DEFAULT_THRESHOLD if threshold is None else threshold)
+        return paper_filter(rec, sigma_m=sigma_m, threshold=default_threshold(method) if threshold is None else threshold)
     return no_filter(rec, threshold="none" if threshold is None else threshold)
+
+
+def _midpoint(capture: Capture, grid: VoxelGrid, method: str, opts: dict) -> Reconstruction:
+    """LCT or f-k of the midpoint conversion of an array capture, with a time axis just deep enough for ``grid``."""
+    import math
+
+    import numpy as np
+
+    from .confocal import fk_migration, lct
+    from .midpoint import default_midpoint_bin_width_ps, midpoint_confocal
+    from .units import C_M_PER_PS
+
+    w_ps = default_midpoint_bin_width_ps(capture, grid)
+    # deepest round trip the volume needs: from the farthest midpoint to the farthest voxel corner
+    mids = (capture.spots[:, None, :2] + capture.pixel_centers.reshape(-1, 3)[None, :, :2]).reshape(-1, 2) / 2
+    b = np.array(grid.bounds).reshape(3, 2)
+    lat = max(float(np.max(np.abs(mids[:, 0, None] - b[0][None]))), float(np.max(np.abs(mids[:, 1, None] - b[1][None]))))
+    r_need = math.sqrt(b[2, 1] ** 2 + 2 * lat ** 2)
+    n_bins = int(math.ceil(2 * r_need / (w_ps * C_M_PER_PS))) + 2
+    conf = midpoint_confocal(capture, pitch_m=opts.get("midpoint_pitch_m"), bin_width_ps=w_ps, n_bins=n_bins)
+    if method == "midpoint-lct":
+        rec = lct(conf, grid, **({"snr": opts["snr"]} if "snr" in opts else {}))
+    else:
+        rec = fk_migration(conf, grid)
+    rec.method = method
+    rec.params = {**rec.params, **conf.manifest["midpoint"], "bin_width_ps": w_ps,
+                  "midpoint_grid": [conf.height, conf.width]}
+    rec.params.pop("source_capture", None)
+    return rec
 
 
 def run(capture_path, out_dir, method: str = "bp", *, bounds=None, voxels=None, voxel_size_m=None,

@@ -51,7 +51,7 @@ def test_bp_with_ground_truth_writes_everything(captures, tmp_path):
     assert "wrote" in r.stdout and "localisation_error_m" in r.stdout
     names = {p.name for p in out.iterdir()}
     assert {"volume.npz", "recon.json", "metrics.json", "projection_x.png", "projection_y.png", "projection_z.png",
-            "depth_map.png"} <= names
+            "depth_map.png", "surface.ply", "maps.npz"} <= names
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]        # no temporary left behind
     with np.load(out / "volume.npz") as z:
         assert set(z.files) == {"volume", "raw", "x_m", "y_m", "z_m"}
@@ -72,7 +72,7 @@ def test_ytal_input_fk_and_phasor(captures, tmp_path):
     r = cli(captures / "confocal.h5", "-o", tmp_path / "fk", "--method", "fk", "--filter", "none", "--no-plots",
             "--voxel-size-m", "0.05")
     assert r.returncode == 0, r.stderr
-    assert sorted(p.name for p in (tmp_path / "fk").iterdir()) == ["recon.json", "volume.npz"]
+    assert sorted(p.name for p in (tmp_path / "fk").iterdir()) == ["maps.npz", "recon.json", "surface.ply", "volume.npz"]
     r = cli(captures / "confocal.h5", "-o", tmp_path / "ph", "--method", "phasor", "--voxels", "16,16,12",
             "--threshold", "otsu", "--no-plots")
     assert r.returncode == 0, r.stderr

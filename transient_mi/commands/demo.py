@@ -14,6 +14,9 @@ def demo(
     arrays: Optional[str] = typer.Option(None, "--arrays", help="Array sizes, comma-separated (default 4,8,16,32)."),
     seed: int = typer.Option(0, "--seed", help="Seed of rendering and detection."),
     exposure_ms: Optional[float] = typer.Option(None, "--exposure-ms", help="Exposure per laser spot, ms (default 10)."),
+    spots: Optional[int] = typer.Option(
+        None, "--spots", help="Laser scan grid side N (N x N spots over the 1 m wall; default 2). Render time and "
+                              "data grow as N^2; docs/recon.md, 'Sampling designs'."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty output directory (an earlier "
                                    "demo's output is replaced without it)."),
 ) -> None:
@@ -37,6 +40,10 @@ def demo(
         if not exposure_ms > 0:
             raise UserInputError(f"--exposure-ms {exposure_ms:g}: must be > 0")
         changes["exposure_s"] = exposure_ms * 1e-3
+    if spots is not None:
+        if not 1 <= spots <= 64:
+            raise UserInputError(f"--spots {spots}: must be between 1 and 64 (N x N laser spots)")
+        changes["spots"] = spots
     if not 0 <= seed < 2**31:
         raise UserInputError(f"--seed {seed}: must be in [0, 2**31)")
     run_demo(out, settings=dataclasses.replace(s, **changes), quick=quick, overwrite=overwrite,

@@ -44,7 +44,8 @@ def recon_command(
     capture: Path = typer.Argument(..., help="Capture: an EXR stack directory or a y-tal HDF5 file (.h5/.hdf5)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output directory (written atomically)."),
     method: str = typer.Option("bp", "--method", "-m",
-                               help="bp (backprojection), fbp (filtered BP), lct / fk (confocal only), phasor."),
+                               help="bp (backprojection), fbp (filtered BP), lct / fk (confocal only), phasor, "
+                                    "midpoint-lct / midpoint-fk (array captures via the midpoint approximation)."),
     voxel_size_m: Optional[float] = typer.Option(None, "--voxel-size-m", help="Cubic voxel side in metres."),
     voxels: Optional[str] = typer.Option(None, "--voxels", help="Voxels per axis: N or NX,NY,NZ (default 64)."),
     bounds: Optional[str] = typer.Option(
@@ -54,7 +55,7 @@ def recon_command(
     sigma_m: Optional[float] = typer.Option(None, "--sigma-m", help="Gaussian sigma of the paper filter, metres "
                                                                    "(default one voxel)."),
     threshold: Optional[str] = typer.Option(
-        None, "--threshold", help="none | otsu | rel:F | abs:V (default rel:0.3 with --filter paper)."),
+        None, "--threshold", help="none | otsu | rel:F | abs:V (default with --filter paper: rel:0.3; rel:0.1 for midpoint-fk)."),
     ground_truth: Optional[Path] = typer.Option(
         None, "--ground-truth", help="Mesh (.obj/.ply/.stl/...) or points (.json/.npy/.csv) for metrics.json."),
     pileup_correction: bool = typer.Option(False, "--pileup-correction",
@@ -71,6 +72,8 @@ def recon_command(
     pulse_sigma_m: Optional[float] = typer.Option(None, "--pulse-sigma-m",
                                                   help="phasor: virtual pulse sigma, metres (default 1 wavelength)."),
     snr: Optional[float] = typer.Option(None, "--snr", help="lct: Wiener filter signal-to-noise ratio."),
+    midpoint_pitch_m: Optional[float] = typer.Option(
+        None, "--midpoint-pitch-m", help="midpoint-*: spacing of the midpoint grid, metres (default half a pixel)."),
     fbp_sigma_m: Optional[float] = typer.Option(None, "--fbp-sigma-m",
                                                 help="fbp: width of the time filter, metres of path."),
     no_voxel_integration: bool = typer.Option(False, "--no-voxel-integration",
@@ -86,6 +89,7 @@ def recon_command(
     if voxels is not None and voxel_size_m is not None:
         raise UserInputError("give either --voxels or --voxel-size-m, not both")
     options = {"wavelength_m": wavelength_m, "pulse_sigma_m": pulse_sigma_m, "snr": snr, "fbp_sigma_m": fbp_sigma_m,
+               "midpoint_pitch_m": midpoint_pitch_m,
                "voxel_integration": False if no_voxel_integration else None}
     rec, metrics, path = run(
         capture, out, method, bounds=parse_bounds(bounds) if bounds is not None else None, voxels=_voxels(voxels),

@@ -173,5 +173,51 @@ def array_size(
     typer.echo(f"wrote {r.out_dir}: {len(r.rows)} array sizes; summary {r.summary}")
 
 
+@study_app.command("methods")
+def methods(
+    scene: str = SCENE_ARG,
+    out: Path = OUT_OPT,
+    define: Optional[List[str]] = DEFINE_OPT,
+    arrays: str = typer.Option("8,16,32", "--arrays", help="SPAD array sides, comma-separated."),
+    exposures_ms: Optional[List[str]] = typer.Option(
+        None, "--exposures-ms", help="Exposure per laser spot, ms, comma-separated or repeated (default 1,10)."),
+    methods: str = typer.Option("bp,fbp,phasor,midpoint-lct,midpoint-fk", "--methods",
+                                help="Reconstruction methods, comma-separated."),
+    bounds: Optional[str] = typer.Option(
+        None, "--bounds", help="xmin,xmax,ymin,ymax,zmin,zmax in metres (default: the paper's volume for the paper "
+                               "scene, else recon's default from the first capture)."),
+    voxels: Optional[str] = VOXELS_OPT,
+    seed: int = SEED_OPT,
+    ground_truth: Optional[Path] = GT_OPT,
+    quick: bool = QUICK_OPT,
+    overwrite: bool = OVERWRITE_OPT,
+) -> None:
+    """Leaderboard: every reconstruction method x SPAD array size x photon budget on SCENE (one render per array
+    size): Chamfer, completeness, IoU, depth MAE, visible-surface errors, time and peak memory (CSV, JSON, plots,
+    summary.md)."""
+    from recon.errors import UserInputError
+    from transient_mi.study import run_methods_study
+
+    scene, defines, vox = _common(scene, define, voxels)
+    sizes = _ints(arrays, "--arrays", "8,16,32")
+    for n in sizes:
+        if not 1 <= n <= 256:
+            raise UserInputError(f"--arrays {arrays!r}: sizes must be between 1 and 256")
+    if not 0 <= seed < 2**32:
+        raise UserInputError(f"--seed {seed}: must be in [0, 2**32)")
+    kw = {"voxels": vox} if vox is not None else {}
+    ex = _numbers(exposures_ms, "--exposures-ms", scale=1e-3)
+    if ex is not None:
+        kw["exposures_s"] = ex
+    if bounds is not None:
+        from recon.grid import parse_bounds
+
+        kw["bounds"] = parse_bounds(bounds)
+    names = tuple(m.strip() for m in methods.split(",") if m.strip())
+    path, rows = run_methods_study(scene, out, arrays=sizes, methods=names, defines=defines, seed=seed, quick=quick,
+                                   ground_truth=ground_truth, overwrite=overwrite, log=_log, **kw)
+    typer.echo(f"wrote {path}: {len(rows)} reconstructions; summary {path / 'summary.md'}")
+
+
 def register(app: typer.Typer) -> None:
     app.add_typer(study_app, name="study")

@@ -1,0 +1,145 @@
+"""Run the methods leaderboard on the shipped scenes and regenerate its README table from the JSON results.
+
+``python bench/methods_leaderboard.py`` runs ``transient-mi study methods``
+(:func:`transient_mi.study.run_methods_study`) on each scene of
+:data:`RUNS` with its settings, stores each leaderboard as
+``bench/results/study_methods_<scene>.json`` (rows, settings, command,
+machine, date), copies its figures to ``docs/img/methods_<scene>_*.png`` and
+rewrites the table between ``<!-- methods-leaderboard:start -->`` and
+``<!-- methods-leaderboard:end -->`` in README.md.
+
+``python bench/methods_leaderboard.py --table-only`` only regenerates the
+README table from the stored JSON files (``bench/results/study_methods_*.json``
+and ``bench/results/recon_methods.json``); ``--scenes`` picks scenes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "bench" / "results"
+START, END = "<!-- methods-leaderboard:start -->", "<!-- methods-leaderboard:end -->"
+
+#: scene -> study settings. The paper scene: 4 ps bins (the demo's 1 ps bins are finer than any voxel) at
+#: 16384 spp, so Monte Carlo noise is small next to the detector's at the paper's budget.
+RUNS = {
+    "paper_mannequin": dict(arrays=(8, 16, 32), exposures_s=(0.001, 0.01),
+                            defines={"spp": 16384, "bin_width_ps": 4, "n_bins": 2875}),
+    # the NLOS scenes: a 16x16 array of 5 cm patches (0.8 m of wall) and 4x4 laser spots 0.2 m apart (a wider
+    # array and scan than the scenes' defaults, 3 cm patches and 0.1 m); volume around the objects at 0.5 m
+    "nlos_letter": dict(arrays=(8, 16), exposures_s=(0.01,), bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
+                        defines={"spp": 4096, "pixel_footprint_m": 0.05, "spot_spacing_m": 0.2}),
+    "nlos_tilted_plane": dict(arrays=(8, 16), exposures_s=(0.01,), bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
+                              defines={"spp": 4096, "pixel_footprint_m": 0.05, "spot_spacing_m": 0.2}),
+}
+
+
+def run(scenes, argv) -> None:
+    import transient_mi  # noqa: F401
+    from recon._atomic import atomic_file
+    from transient_mi.study import run_methods_study
+
+    for scene in scenes:
+        kw = RUNS[scene]
+        with tempfile.TemporaryDirectory(dir=ROOT / "bench") as tmp:
+            out, rows = run_methods_study(scene, Path(tmp) / "study", progress=False, log=print, **kw)
+            doc = json.loads((out / "leaderboard.json").read_text())
+            doc.update({
+                "command": "python bench/methods_leaderboard.py " + " ".join(argv),
+                "study_call": f"run_methods_study({scene!r}, **{kw!r})",
+                "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+                "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(),
+                            "python": platform.python_version()},
+            })
+            with atomic_file(RESULTS / f"study_methods_{scene}.json") as t:
+                Path(t).write_text(json.dumps(doc, indent=1) + "\n")
+            for name in ("leaderboard.png", "reconstructions.png"):
+                with atomic_file(ROOT / "docs" / "img" / f"methods_{scene}_{name}") as t:
+                    shutil.copyfile(out / name, t)
+
+
+def _cm(v):
+    return "-" if v is None else f"{100 * v:.2f}"
+
+
+def table() -> str:
+    """The README table: per scene, the largest array at the largest exposure, ranked by Chamfer; and the
+    64^3 timings of bench/results/recon_methods.json."""
+    lines = []
+    order = {f"study_methods_{k}.json": i for i, k in enumerate(RUNS)}   # the paper scene first
+    for path in sorted(RESULTS.glob("study_methods_*.json"), key=lambda p: (order.get(p.name, len(order)), p.name)):
+        doc = json.loads(path.read_text())
+        rows = doc["rows"]
+        n = max(r["array"] for r in rows)
+        e = max(r["exposure_s"] for r in rows)
+        sel = sorted((r for r in rows if r["array"] == n and r["exposure_s"] == e),
+                     key=lambda r: (r["chamfer_m"] is None, r["chamfer_m"] or 0))
+        spp = doc["settings"]["defines"].get("spp")
+        lines.append(f"**{doc['settings']['scene_file']}**, {n}x{n} array, {e * 1e3:g} ms per laser spot, "
+                     f"{spp} spp (`{path.relative_to(ROOT)}`, {doc['date_utc']}):\n")
+        lines.append("| method | Chamfer (cm) | completeness (cm) | IoU | depth MAE (cm) | visible Chamfer (cm) | "
+                     "silhouette IoU | normal error (deg) | time (s) |")
+        lines.append("|---|---|---|---|---|---|---|---|---|")
+        for r in sel:
+            lines.append(f"| {r['method']} | {_cm(r['chamfer_m'])} | {_cm(r['completeness_m'])} | "
+                         f"{r['iou']:.3f} | {_cm(r['depth_mae_m'])} | {_cm(r['visible_chamfer_m'])} | "
+                         f"{r['silhouette_iou']:.3f} | {r['normal_error_deg']:.1f} | {r['reconstruct_s']:.2f} |")
+        lines.append("")
+    bench = RESULTS / "recon_methods.json"
+    if bench.is_file():
+        doc = json.loads(bench.read_text())
+        lines.append(f"Each method at 64^3 on a closed-form 32x32-pixel, 2x2-spot capture (`{doc['command']}`, "
+                     f"{doc['machine']['cpu_count']} cores, {doc['date_utc']}; best of {doc['repeat']}, peak RSS "
+                     "of a fresh process):\n")
+        lines.append("| method | time (s) | peak RSS (MB) | <= 2 s and <= 1 GB |")
+        lines.append("|---|---|---|---|")
+        for r in doc["results"]:
+            if r.get("status") == "ok":
+                lines.append(f"| {r['method']} | {r['best_s']:.2f} | {r['peak_rss_mb']:.0f} | "
+                             f"{'yes' if r['meets_goal'] else 'no'} |")
+        lines.append("")
+    lines.append("Generated by `python bench/methods_leaderboard.py --table-only` from the JSON files named above.")
+    return "\n".join(lines)
+
+
+def write_readme(text: str) -> None:
+    from recon._atomic import atomic_file
+
+    readme = ROOT / "README.md"
+    s = readme.read_text()
+    if START not in s or END not in s:
+        raise SystemExit(f"README.md has no {START} ... {END} block")
+    head, rest = s.split(START, 1)
+    _, tail = rest.split(END, 1)
+    with atomic_file(readme) as t:
+        Path(t).write_text(head + START + "\n" + text + "\n" + END + tail)
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--table-only", action="store_true")
+    ap.add_argument("--scenes", default=",".join(RUNS))
+    a = ap.parse_args(argv)
+    sys.path.insert(0, str(ROOT))
+    if not a.table_only:
+        scenes = [s for s in a.scenes.split(",") if s]
+        bad = [s for s in scenes if s not in RUNS]
+        if bad:
+            raise SystemExit(f"error: --scenes {bad[0]!r}: allowed {', '.join(RUNS)}")
+        run(scenes, argv)
+    write_readme(table())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,296 @@
+"""The methods study: a leaderboard of every reconstruction method x SPAD array size x photon budget.
+
+For every array size: render the scene's ideal capture once (``-D array=N``,
+or ``-D width=N -D height=N``); for every exposure detect it in memory
+(:class:`~transient_mi.study.detection.Detection`, detection seed
+``seed + 1``, the same counts ``transient-mi detect`` writes); reconstruct
+the counts with every method (+ the paper's filter with each method's default threshold)
+on the same voxel grid and score each against the ground truth
+(:func:`recon.metrics.compute_metrics`: Chamfer, completeness, IoU, depth
+MAE, the visible-surface distances, silhouette IoU, normal error). Each
+reconstruction is timed (wall clock, in this process, after an untimed
+warm-up of every method so numba's compilation is not charged) and its
+peak memory measured with :mod:`tracemalloc` (numpy's allocations; FFT
+scratch inside scipy is not traced, so this is a lower bound of the
+process's peak).
+
+Ground truth: the paper scene knows its mannequin; for other scenes the
+study builds it from the scene itself (every mesh shape except the relay
+wall, :func:`scene_ground_truth`), unless one is given.
+
+Outputs (``out_dir``, atomic): ``leaderboard.csv``/``leaderboard.json``
+(one row per scene x array x exposure x method; metrics and time/memory),
+``leaderboard.png`` (Chamfer, visible completeness and time against array
+size per method, at each exposure), ``reconstructions.png`` (front views of
+every method at the largest array and exposure), ``summary.md`` (the ranked
+table).
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+from recon._progress import progress_bar
+from recon.errors import UserInputError
+from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv, write_json
+
+from . import validate as V
+from .common import bar_enabled, front_view, quiet_inner_bars, render
+from .scene import array_size_defines, base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
+
+#: Every method that reconstructs array captures.
+DEFAULT_METHODS = ("bp", "fbp", "phasor", "midpoint-lct", "midpoint-fk")
+DEFAULT_ARRAYS = (8, 16, 32)
+#: Per laser spot: a tenth of the paper's budget, the paper's (10 ms = 5e5 pulses at 50 MHz).
+DEFAULT_EXPOSURES_S = (0.001, 0.01)
+LEADERBOARD_METRICS = ("chamfer_m", "accuracy_m", "completeness_m", "iou", "depth_mae_m", "visible_chamfer_m",
+                       "visible_completeness_m", "silhouette_iou", "normal_error_deg", "surface_chamfer_m")
+ROW_COLUMNS = ("scene", "array", "exposure_s", "method", "counts_per_pixel_per_spot") + LEADERBOARD_METRICS + (
+    "reconstruct_s", "peak_traced_mb")
+
+
+def scene_ground_truth(scene) -> object:
+    """The hidden geometry of a scene as a ``recon.metrics.GroundTruth``: every mesh shape but ``relay_wall``.
+
+    Loads the scene with Mitsuba (its ``-D`` values applied) and joins the
+    world-space triangles of every shape that is a mesh (Mitsuba's
+    rectangles, discs and PLY/OBJ shapes are) other than the relay wall.
+    """
+    import transient_mi  # noqa: F401  (sets the variant before mitsuba is used)
+    import mitsuba as mi
+    import trimesh
+
+    from recon.metrics import GroundTruth
+    from transient_mi.scene_io import load_scene
+
+    sc = load_scene(scene.path, scene.defines)
+    parts = []
+    for shape in sc.shapes():
+        if shape.id() == "relay_wall" or not isinstance(shape, mi.Mesh):
+            continue
+        v = np.array(shape.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+        f = np.array(shape.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+        parts.append(trimesh.Trimesh(v, f, process=False))
+    if not parts:
+        raise UserInputError(f"SCENE {scene.path.name}: no mesh shape besides relay_wall to score against; "
+                             "pass a ground truth")
+    return GroundTruth(mesh=trimesh.util.concatenate(parts), source=f"{scene.path.name} (its shapes)")
+
+
+def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, arrays=DEFAULT_ARRAYS,
+                      exposures_s=DEFAULT_EXPOSURES_S, methods=DEFAULT_METHODS, defines=None, voxels=(64, 64, 32),
+                      seed: int = 0, quick: bool = False, progress: bool | None = None, ground_truth=None,
+                      bounds=None, threshold: str | None = None, overwrite: bool = False, log=None):
+    """Run the methods study (see the module docstring); returns ``(out_dir, rows)``.
+
+    Parameters
+    ----------
+    scene : str or path
+        Shipped scene name or XML file with ``array`` or ``width``/``height``.
+    arrays : sequence of int
+        SPAD array sides.
+    exposures_s : sequence of float
+        Exposure per laser spot, seconds.
+    methods : sequence of str
+        :data:`recon.pipeline.METHODS` that accept array captures.
+    defines : dict, optional
+        Scene parameters (``-D``), e.g. ``{"spp": 16384, "bin_width_ps": 4, "n_bins": 2875}``.
+    threshold : str, optional
+        Threshold of the paper's filter for every method; default each method's
+        own (:func:`recon.pipeline.default_threshold`).
+    voxels, seed, quick, progress, ground_truth, bounds, overwrite, log
+        As for :func:`~transient_mi.study.run_array_size_study`.
+    """
+    log = log or (lambda msg: None)
+    arrays = tuple(sorted(V.integers_list(arrays, "arrays", 1, 257)))
+    exposures = tuple(sorted(V.numbers_list(exposures_s, "exposures_s")))
+    methods = tuple(V.method(m) for m in methods)
+    if not methods:
+        raise UserInputError("methods: give at least one reconstruction method")
+    from recon.pipeline import CONFOCAL_ONLY
+
+    bad = [m for m in methods if m in CONFOCAL_ONLY]
+    if bad:
+        raise UserInputError(f"methods: {', '.join(bad)} need confocal captures; the study renders array captures "
+                             f"(use midpoint-{bad[0]})")
+    vox = V.voxels(voxels)
+    seed = V.integer(seed, "seed", 0, 2**32)
+    progress = V.progress(progress)
+    sc = study_scene(scene, defines, quick=V.flag(quick, "quick"))
+    if any(k in (defines or {}) for k in array_size_defines(sc, arrays[0])):
+        raise UserInputError(f"defines: {', '.join(array_size_defines(sc, arrays[0]))} are set by the study; "
+                             "choose the sizes with arrays (--arrays)")
+    if ground_truth is None and not sc.is_paper:
+        gt, gt_desc = scene_ground_truth(sc), f"{sc.path.name}: its shapes except the relay wall"
+    else:
+        gt, gt_desc = load_study_ground_truth(sc, ground_truth)
+    bnds = reconstruction_bounds(sc, bounds)
+    params = base_detector(sc)
+    out = Path(out_dir)
+    t_start = time.perf_counter()
+    rows, previews = [], []
+    n_steps = len(arrays) * (1 + len(exposures) * len(methods))
+    with atomic_output_dir(out, V.flag(overwrite, "overwrite")) as tmp, quiet_inner_bars():
+        with progress_bar("methods study", total=n_steps, disable=not bar_enabled(progress)) as advance:
+            warmed = False
+            for n in arrays:
+                log(f"{n}x{n}: render")
+                cap_dir = tmp / "captures" / f"array_{n:02d}"
+                cap_dir.mkdir(parents=True)
+                ideal_dir = render(sc.with_defines(**array_size_defines(sc, n)), cap_dir / "ideal", seed)
+                advance(1)
+                for e in exposures:
+                    cap, counts_per = _detect(ideal_dir, params, e, seed + 1)
+                    if bnds is None:
+                        from recon.grid import default_bounds
+
+                        bnds = tuple(float(b) for b in default_bounds(cap))
+                    if not warmed:   # numba compiles on first use: not charged to the first timed method
+                        for m in methods:
+                            _reconstruct(cap, m, bnds, vox, threshold)
+                        warmed = True
+                    for m in methods:
+                        log(f"{n}x{n}, {e * 1e3:g} ms per spot: {m}")
+                        rec, dt, peak = _reconstruct(cap, m, bnds, vox, threshold)
+                        metrics = _metrics(rec, gt, seed)
+                        rows.append({"scene": sc.path.stem, "array": n, "exposure_s": e, "method": m,
+                                     "counts_per_pixel_per_spot": counts_per,
+                                     **{k: metrics.get(k) for k in LEADERBOARD_METRICS},
+                                     "reconstruct_s": dt, "peak_traced_mb": peak / 2**20})
+                        if n == arrays[-1] and e == exposures[-1]:
+                            previews.append((m, front_view(rec)))
+                        advance(1)
+                shutil.rmtree(tmp / "captures" / f"array_{n:02d}")
+        shutil.rmtree(tmp / "captures", ignore_errors=True)
+        settings = {"scene": sc.name, "scene_file": sc.path.name, "defines": dict(sorted(sc.defines.items())),
+                    "spp": sc.spp, "arrays": list(arrays), "exposures_s": list(exposures), "methods": list(methods),
+                    "voxels": list(vox), "bounds_m": list(bnds) if bnds is not None else None,
+                    "threshold": threshold or "each method's default (recon.pipeline.default_threshold)",
+                    "render_seed": seed, "detection_seed": seed + 1,
+                    "detector": params.to_dict(), "ground_truth": gt_desc,
+                    "total_s": time.perf_counter() - t_start}
+        write_csv(tmp / "leaderboard.csv", rows, ROW_COLUMNS)
+        write_json(tmp / "leaderboard.json", {"study": "methods", "settings": settings, "rows": rows})
+        if gt is not None and gt.mesh is not None:
+            gt.mesh.export(tmp / "ground_truth.ply")
+        leaderboard_figure(tmp / "leaderboard.png", rows)
+        from .figures import reconstruction_strip
+
+        reconstruction_strip(tmp / "reconstructions.png", previews, gt.mesh if gt is not None else None,
+                             title=f"{sc.path.stem}: {arrays[-1]}x{arrays[-1]} array, {exposures[-1] * 1e3:g} ms "
+                                   "per spot, filtered front views per method")
+        (tmp / "summary.md").write_text(summary_markdown(rows, settings))
+    log(f"wrote {out} in {time.perf_counter() - t_start:.1f} s")
+    return out, rows
+
+
+def _detect(ideal_dir: Path, params, exposure_s: float, seed: int):
+    from .detection import Detection, IdealCapture
+
+    det = Detection(IdealCapture(ideal_dir), params, exposure_s=exposure_s)
+    cap = det.capture(seed)
+    data = cap.data   # detect every spot once; the methods then share the cached counts
+    n_px = cap.height * cap.width * cap.n_files
+    return cap, float(data.sum(dtype=np.int64)) / n_px
+
+
+def _reconstruct(cap, method: str, bounds, voxels, threshold: str):
+    import recon
+
+    tracemalloc.start()
+    try:
+        t0 = time.perf_counter()
+        rec = recon.reconstruct(cap, method, bounds=bounds, voxels=voxels, filter="paper", threshold=threshold)
+        dt = time.perf_counter() - t0
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    return rec, dt, peak
+
+
+def _metrics(rec, gt, seed: int) -> dict:
+    if gt is None:
+        return {}
+    from recon.metrics import compute_metrics
+
+    return compute_metrics(rec, gt, seed=seed)
+
+
+# ------------------------------------------------------------------ reporting
+
+
+def ranked(rows: list[dict], key: str = "chamfer_m") -> list[dict]:
+    """Rows sorted by ``key`` (missing values last)."""
+    return sorted(rows, key=lambda r: (r.get(key) is None, r.get(key) if r.get(key) is not None else 0.0))
+
+
+def summary_markdown(rows: list[dict], settings: dict) -> str:
+    """The leaderboard as markdown: per scene, the largest array at each exposure, ranked by Chamfer."""
+    def cm(v):
+        return "-" if v is None else f"{100 * v:.2f}"
+
+    def f3(v):
+        return "-" if v is None else f"{v:.3f}"
+
+    headers = ["scene", "array", "ms/spot", "method", "Chamfer (cm)", "completeness (cm)", "IoU", "depth MAE (cm)",
+               "visible Chamfer (cm)", "visible compl. (cm)", "silhouette IoU", "normal err (deg)", "time (s)",
+               "peak MB"]
+    table = []
+    for r in ranked(rows):
+        table.append([r["scene"], f"{r['array']}x{r['array']}", f"{r['exposure_s'] * 1e3:g}", r["method"],
+                      cm(r["chamfer_m"]), cm(r["completeness_m"]), f3(r["iou"]), cm(r["depth_mae_m"]),
+                      cm(r["visible_chamfer_m"]), cm(r["visible_completeness_m"]), f3(r["silhouette_iou"]),
+                      "-" if r["normal_error_deg"] is None else f"{r['normal_error_deg']:.1f}",
+                      f"{r['reconstruct_s']:.2f}", f"{r['peak_traced_mb']:.0f}"])
+    s = settings
+    return f"""# Methods study (leaderboard)
+
+Scene `{s['scene_file']}` (-D {', '.join(f'{k}={v}' for k, v in s['defines'].items()) or 'defaults'}), arrays
+{', '.join(f'{a}x{a}' for a in s['arrays'])}, exposures {', '.join(f'{e * 1e3:g} ms' for e in s['exposures_s'])}
+per laser spot, methods {', '.join(s['methods'])}; {s['voxels'][0]}x{s['voxels'][1]}x{s['voxels'][2]} voxels over
+{s['bounds_m']} m, the paper's filter (threshold `{s['threshold']}`). Ground truth: {s['ground_truth']}.
+Total {s['total_s']:.0f} s.
+
+Ranked by Chamfer distance. "visible" distances use only the surface the relay wall sees (the back of an
+object sends no three-bounce light; definitions in `recon/metrics.py`). Time: wall clock of reconstruction +
+filter in this process; peak MB: numpy allocations traced by tracemalloc (a lower bound of the process's peak).
+
+{markdown_table(headers, table)}
+"""
+
+
+def leaderboard_figure(path: Path, rows: list[dict]) -> Path:
+    """Chamfer, visible completeness and time against array size, one line per method, per exposure."""
+    from transient_mi.reporting import save_figure, subplots
+
+    exposures = sorted({r["exposure_s"] for r in rows})
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    keys = (("chamfer_m", "Chamfer (cm)", 100), ("visible_completeness_m", "visible completeness (cm)", 100),
+            ("reconstruct_s", "reconstruction time (s)", 1))
+    fig, axes = subplots(len(exposures), len(keys), figsize=(4.4 * len(keys), 3.4 * len(exposures)), squeeze=False)
+    for i, e in enumerate(exposures):
+        for k, (key, label, scale) in enumerate(keys):
+            ax = axes[i, k]
+            for j, m in enumerate(methods):
+                rr = sorted((r for r in rows if r["exposure_s"] == e and r["method"] == m), key=lambda r: r["array"])
+                xs = [r["array"] for r in rr]
+                ys = [np.nan if r.get(key) is None else scale * r[key] for r in rr]
+                ax.plot(xs, ys, marker="o", label=m, color=f"C{j}")
+            ax.set_xscale("log", base=2)
+            xs = sorted({r["array"] for r in rows})
+            ax.set_xticks(xs, [f"{a}x{a}" for a in xs])
+            ax.set_ylabel(label)
+            ax.set_title(f"{e * 1e3:g} ms per spot", fontsize=9)
+            if key == "reconstruct_s":
+                ax.set_yscale("log")
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    for ax in axes[-1]:
+        ax.set_xlabel("SPAD array side (pixels)")
+    fig.tight_layout()
+    return save_figure(fig, path)
