@@ -6,6 +6,7 @@ import time
 from pathlib import Path
 
 from .capture import Capture, load_capture
+from ._lock import output_lock
 from .errors import UserInputError
 from .filters import DEFAULT_THRESHOLD, no_filter, paper_filter
 from .grid import VoxelGrid, make_grid
@@ -91,8 +92,24 @@ def run(capture_path, out_dir, method: str = "bp", *, bounds=None, voxels=None, 
         plots: bool = True, seed: int = 0, **options) -> tuple[Reconstruction, dict | None, Path]:
     """Load, preprocess, reconstruct, filter, score and write (the ``recon`` command).
 
-    Returns ``(reconstruction, metrics or None, output directory)``.
+    Returns ``(reconstruction, metrics or None, output directory)``. The output's lock
+    (:mod:`recon._lock`) is held from the first check to the last write: a second run into the same
+    directory is refused.
     """
+    from .output import check_output_dir
+
+    check_output_dir(out_dir, overwrite)  # fail before any work (and before taking the lock)
+    with output_lock(out_dir):
+        return _run_locked(capture_path, out_dir, method, bounds=bounds, voxels=voxels, voxel_size_m=voxel_size_m,
+                           filter=filter, sigma_m=sigma_m, threshold=threshold, ground_truth=ground_truth,
+                           pileup_correction=pileup_correction, pulses=pulses, blind_cycles=blind_cycles,
+                           time_crop_ps=time_crop_ps, time_downsample=time_downsample, overwrite=overwrite,
+                           plots=plots, seed=seed, **options)
+
+
+def _run_locked(capture_path, out_dir, method, *, bounds, voxels, voxel_size_m, filter, sigma_m, threshold,
+                ground_truth, pileup_correction, pulses, blind_cycles, time_crop_ps, time_downsample, overwrite,
+                plots, seed, **options):
     from . import preprocess
     from .metrics import compute_metrics, load_ground_truth
     from .output import check_output_dir, write_outputs

@@ -48,6 +48,8 @@ def detect(
     wavelength_nm: Optional[float] = typer.Option(None, "--wavelength-nm", help="Laser wavelength override, nm (rescales the photons)."),
     seed: int = typer.Option(0, "--seed", help="Random seed; same seed, same bytes."),
     engine: str = typer.Option("auto", "--engine", help="auto, analytic or exact."),
+    force: bool = typer.Option(False, "--force", help="With --engine exact, run even when the estimated work "
+                               "exceeds the limit (it is estimated first and refused past the limit)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a counts capture already in OUT."),
 ) -> None:
     """Turn an ideal capture into photon counts with the SPAD + TCSPC model (see docs/detector.md)."""
@@ -69,7 +71,7 @@ def detect(
         kwargs["auto_gate"] = True
     params = DetectorParams(**kwargs)
     path = detect_stack(ideal, out, params, pulses=pulses, exposure_s=exposure_s, seed=seed, engine=engine,
-                        overwrite=overwrite)
+                        overwrite=overwrite, force=force)
     from recon.io.stack import read_manifest
 
     m = read_manifest(path)
