@@ -7,14 +7,16 @@ from typing import List, Optional
 
 import typer
 
+from ._options import whole_number
+
 
 def render(
     scene: Path = typer.Argument(..., help="Mitsuba XML scene (transient_path integrator, transient_film/spad_film)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output capture directory."),
     define: Optional[List[str]] = typer.Option(None, "-D", "--define", help="Scene parameter name=value ($name in the XML). Repeatable."),
-    spp: Optional[int] = typer.Option(None, "--spp", help="Samples per pixel, >= 1 (default: the scene's sampler "
+    spp: Optional[int] = typer.Option(None, "--spp", parser=whole_number("--spp"), metavar="<int>", help="Samples per pixel, >= 1 (default: the scene's sampler "
                                                          "value)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed; same seed, same bytes."),
+    seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed; same seed, same bytes."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Mitsuba variant (default llvm_ad_mono or $TRANSIENT_MI_VARIANT)."),
     resume: bool = typer.Option(False, "--resume", help="Continue an interrupted capture in OUT (same settings)."),
 ) -> None:
