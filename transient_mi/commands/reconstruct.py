@@ -52,11 +52,13 @@ def recon_command(
     bounds: Optional[str] = typer.Option(
         None, "--bounds", help="xmin,xmax,ymin,ymax,zmin,zmax in metres (default: the wall extent, z from the "
                                "time axis)."),
-    filter: str = typer.Option("paper", "--filter", help="paper (Gaussian, Laplacian, threshold) or none."),
+    filter: Optional[str] = typer.Option(None, "--filter", help="paper (Gaussian, Laplacian, threshold) or none "
+                                         "(default: paper for bp, none for fbp, lct, fk and phasor, which filter "
+                                         "in their own way)."),
     sigma_m: Optional[float] = typer.Option(None, "--sigma-m", help="Gaussian sigma of the paper filter, metres "
                                                                    "(default one voxel)."),
     threshold: Optional[str] = typer.Option(
-        None, "--threshold", help="none | otsu | rel:F | abs:V (default rel:0.3 with --filter paper)."),
+        None, "--threshold", help="none | otsu | rel:F | abs:V (default rel:0.3; none with an explicit --filter none)."),
     ground_truth: Optional[Path] = typer.Option(
         None, "--ground-truth", help="Mesh (.obj/.ply/.stl/...) or points (.json/.npy/.csv) for metrics.json."),
     pileup_correction: bool = typer.Option(False, "--pileup-correction",
