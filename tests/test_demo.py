@@ -112,6 +112,11 @@ def test_demo_quick_writes_every_output(quick_demo):
     assert mesh.is_watertight
     summary = (out / "summary.md").read_text()
     assert "fig4_histograms.png" in summary and "| 32x32 |" in summary
+    # --quick renders without a noise target and says by how much rendering noise exceeds it
+    assert "## Rendering noise against photon noise" in summary and "no noise target" in summary
+    rows = json.loads((out / "metrics.json").read_text())["rows"]
+    assert all(r["render_noise_ratio"] > 0 and r["spp"] == 256 for r in rows)
+    assert all(r["render_noise_ratio_pixel_totals"] > 0 for r in rows)
     for n in (4, 8, 16, 32):
         m, data = read_stack(out / "captures" / f"array_{n:02d}" / "counts")
         assert m["kind"] == "counts" and data.shape[1:3] == (n, n) and data.sum() > 0

@@ -12,8 +12,8 @@ import pytest
 
 from stats_helpers import z_bound
 
-#: 8x8 array, 2x2 laser spots, 8 ps bins, 64 spp; 32x32x16 voxels.
-TINY = dict(defines={"array": 8, "spp": 64}, quick=True, dark_count_rates_cps=(25.0,), dead_times_ns=(10.0,),
+#: 8x8 array, 2x2 laser spots, 8 ps bins, 256 spp (8 replicates of 32); 32x32x16 voxels.
+TINY = dict(defines={"array": 8, "spp": 256}, quick=True, dark_count_rates_cps=(25.0,), dead_times_ns=(10.0,),
             seeds=(0, 1, 2), voxels=(32, 32, 16), progress=False)
 #: Starved (5 pulses, ~0.07 detected counts per pixel per spot) to plenty (5000 pulses, ~70).
 EXPOSURES = (1e-7, 1e-6, 1e-4)

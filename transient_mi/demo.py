@@ -50,14 +50,17 @@ class DemoSettings:
     voxels: tuple[int, int, int] = (64, 64, 32)
     threshold: str = "rel:0.3"
     seed: int = 0
+    #: Largest ratio of rendering to photon variance (None: render ``spp`` and report the ratio); with a target,
+    #: ``spp`` is the pilot (transient_mi.noise_target).
+    noise_target: float | None = 0.1
 
     def config(self, array: int) -> PaperConfig:
         return PaperConfig(array=array, spots=self.spots, power_w=self.power_w, spp=self.spp,
                            t0_ps=self.t0_ps, n_bins=self.n_bins, bin_width_ps=self.bin_width_ps)
 
 
-#: ``--quick``: coarser time bins and fewer samples (same physics).
-QUICK = DemoSettings(spp=256, bin_width_ps=8.0, n_bins=1438)
+#: ``--quick``: coarser time bins and fewer samples (same physics), no noise target (the ratio is reported).
+QUICK = DemoSettings(spp=256, bin_width_ps=8.0, n_bins=1438, noise_target=None)
 
 
 @dataclass
@@ -68,6 +71,8 @@ class ArrayResult:
     pulses_per_spot: int
     counts_per_pixel_per_spot: float
     files: dict = field(default_factory=dict)
+    spp: int = 0
+    render_noise: dict = field(default_factory=dict)
 
 
 def _is_previous_demo(out: Path) -> bool:
@@ -118,7 +123,8 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
         cap.mkdir(parents=True)
         log(f"[{i + 1}/{len(s.arrays)}] {n}x{n} SPAD array: render, detect, reconstruct")
         t0 = time.perf_counter()
-        ideal = render_ideal(cfg, cap / "ideal", seed=s.seed, progress=progress)
+        ideal = render_ideal(cfg, cap / "ideal", seed=s.seed, progress=progress, noise_target=s.noise_target,
+                             exposure_s=s.exposure_s, params=params, log=log)
         t1 = time.perf_counter()
         counts = detect_counts(ideal, cap / "counts", params=params, exposure_s=s.exposure_s,
                                seed=s.seed + 1, progress=progress is not False)
@@ -134,8 +140,11 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
         pulses = int(m["detector"]["pulses"])
         hists[n] = (t_ideal, h_ideal, h_counts, m["detector"]["resolved"])
         n_spots = m["n_files"]
+        rn = m["detector"]["resolved"].get("render_noise") or {}
+        nt = ((json.loads((ideal / "manifest.json").read_text()).get("render") or {}).get("noise_target") or {})
+        spp_used = max(sp["spp"] for sp in nt["spots"]) if nt else s.spp
         results.append(ArrayResult(
-            array=n, metrics=metrics, pulses_per_spot=pulses,
+            array=n, metrics=metrics, pulses_per_spot=pulses, spp=spp_used, render_noise=rn,
             counts_per_pixel_per_spot=float(h_counts.sum() / (n * n * n_spots)),
             times_s={"render": t1 - t0, "detect": t2 - t1, "reconstruct": t3 - t2},
             files={"ideal": f"captures/array_{n:02d}/ideal", "counts": f"captures/array_{n:02d}/counts",
@@ -156,8 +165,9 @@ def _figure_histograms(path: Path, hists: dict, s: DemoSettings) -> None:
     for ax, n in zip(axes, arrays):
         t, ideal, counts, resolved = hists[n]
         pulses = s.exposure_s * 50e6
-        ax.semilogy(t, np.clip(ideal * pulses * 0.7, 1e-3, None), color="0.6", lw=0.8,
-                    label="expected photons x PDE (no gate)")
+        expected = _jittered(ideal, t, paper_detector()) * pulses * 0.7
+        ax.semilogy(t, np.clip(expected, 1e-3, None), color="0.6", lw=0.8,
+                    label="expected counts: photons x PDE, jitter (no gate)")
         ax.semilogy(t, np.clip(counts, 0.5, None), color="C3", lw=0.8, label="detected counts (gated)")
         g0, g1 = resolved.get("gate_open_ps"), resolved.get("gate_close_ps")
         if g0 is not None and g1 is not None:
@@ -174,6 +184,16 @@ def _figure_histograms(path: Path, hists: dict, s: DemoSettings) -> None:
                  fontsize=10)
     fig.tight_layout(rect=(0, 0.07, 1, 1))
     _savefig(fig, path)
+
+
+def _jittered(values: np.ndarray, t_ns: np.ndarray, params) -> np.ndarray:
+    """``values`` (per bin, bin centres ``t_ns``) convolved with the detector's jitter kernel."""
+    from transient_mi.detector.jitter import Jitter
+    from transient_mi.detector.model import apply_jitter_kernel
+
+    bw_ps = float(t_ns[1] - t_ns[0]) * 1000.0 if len(t_ns) > 1 else 1.0
+    first, kernel = Jitter.from_params(params).bin_kernel(bw_ps, max_shift_bins=len(values))
+    return apply_jitter_kernel(np.asarray(values, dtype=np.float64)[None], first, kernel)[0]
 
 
 def _figure_reconstructions(path: Path, root: Path, results: list[ArrayResult], mesh, s: DemoSettings) -> None:
@@ -215,7 +235,9 @@ def _write_metrics(root: Path, results: list[ArrayResult]) -> None:
     for r in results:
         row = {"array": f"{r.array}x{r.array}", "pixels": r.array * r.array}
         row.update({k: (r.metrics or {}).get(k) for k in METRIC_KEYS})
-        row.update({"counts_per_pixel_per_spot": r.counts_per_pixel_per_spot, "pulses_per_spot": r.pulses_per_spot})
+        row.update({"counts_per_pixel_per_spot": r.counts_per_pixel_per_spot, "pulses_per_spot": r.pulses_per_spot,
+                    "spp": r.spp, "render_noise_ratio": r.render_noise.get("ratio"),
+                    "render_noise_ratio_pixel_totals": (r.render_noise.get("pixel_totals") or {}).get("ratio_pooled")})
         row.update({f"{k}_s": round(v, 3) for k, v in r.times_s.items()})
         rows.append(row)
     write_csv(root / "metrics.csv", rows)
@@ -228,15 +250,38 @@ def metrics_table_markdown(rows: list[dict]) -> str:
     def cm(v):
         return "n/a" if v is None else f"{100 * v:.2f}"
 
+    def ratio(v):
+        return "n/a" if v is None else f"{v:.3g}"
+
     lines = ["| array | Chamfer (cm) | accuracy (cm) | completeness (cm) | depth MAE (cm) | depth coverage | IoU | "
-             "counts / pixel / spot |",
-             "|---|---|---|---|---|---|---|---|"]
+             "counts / pixel / spot | spp | rendering / photon noise (bins; pixel totals) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cov = "n/a" if r["depth_coverage"] is None else f"{r['depth_coverage']:.2f}"
         iou = "n/a" if r["iou"] is None else f"{r['iou']:.3f}"
         lines.append(f"| {r['array']} | {cm(r['chamfer_m'])} | {cm(r['accuracy_m'])} | {cm(r['completeness_m'])} | "
-                     f"{cm(r['depth_mae_m'])} | {cov} | {iou} | {r['counts_per_pixel_per_spot']:.0f} |")
+                     f"{cm(r['depth_mae_m'])} | {cov} | {iou} | {r['counts_per_pixel_per_spot']:.0f} | "
+                     f"{r.get('spp', 'n/a')} | {ratio(r.get('render_noise_ratio'))}; "
+                     f"{ratio(r.get('render_noise_ratio_pixel_totals'))} |")
     return "\n".join(lines)
+
+
+def _spp_text(s: DemoSettings) -> str:
+    if s.noise_target is None:
+        return f"{s.spp} samples per pixel per spot"
+    return (f"Samples per pixel per spot chosen per spot so that rendering noise is at most {s.noise_target:g} x "
+            f"the photon noise at the budget (pilot {s.spp} spp; `transient-mi render --noise-target`)")
+
+
+def _noise_text(s: DemoSettings, results: list) -> str:
+    worst = max((r.render_noise.get("ratio") or 0.0) for r in results)
+    if s.noise_target is None:
+        return (f"This run used a fixed {s.spp} spp and no noise target: the ratio reaches {worst:.3g}, so the "
+                "detected counts here show rendering noise as much as photon noise (run without --quick for "
+                "captures rendered to a noise target of 0.1).")
+    ok = worst <= s.noise_target
+    return (f"Target {s.noise_target:g}: " + ("met for every array" if ok else
+            f"NOT met (largest ratio {worst:.3g}, by a factor {worst / s.noise_target:.2g})") + ".")
 
 
 def _write_summary(path: Path, results: list[ArrayResult], s: DemoSettings, quick: bool, total_s: float) -> None:
@@ -248,7 +293,7 @@ def _write_summary(path: Path, results: list[ArrayResult], s: DemoSettings, quic
 Scene `scenes/paper_mannequin.xml`: 1 m x 1 m Lambertian relay wall (albedo 0.8) at z = 0, a
 70 cm x 60 cm mannequin (albedo 0.5) centred 50 cm in front of it, 1550 nm laser at 50 MHz and
 {s.power_w * 1e3:g} mW scanned over {s.spots} x {s.spots} wall spots, SPAD arrays whose pixels each see
-1 cm^2 of wall spread over the whole wall. {s.spp} samples per pixel per spot, {s.n_bins} bins of
+1 cm^2 of wall spread over the whole wall. {_spp_text(s)}, {s.n_bins} bins of
 {s.bin_width_ps:g} ps from {s.t0_ps / 1000:g} ns. Detector: the paper's (70 % PDE, 25 ps FWHM jitter,
 25 cps dark counts, automatic gate with 120 ps transitions, 20 MHz TCSPC), {s.exposure_s * 1e3:g} ms per
 laser spot. Reconstruction: ellipsoidal backprojection, Gaussian + Laplacian filter, threshold
@@ -262,6 +307,14 @@ z in [0.25, 0.75] m. Seed {s.seed}. Total time {total_s:.0f} s.
 Chamfer = mean of accuracy (reconstructed voxels to the surface) and completeness (surface to the
 reconstruction); depth MAE over the columns where both exist; IoU of occupied voxels
 (definitions: `recon/metrics.py`).
+
+## Rendering noise against photon noise
+
+The ideal capture is a Monte Carlo estimate; detection draws photon counts around it, so the counts carry
+the render's noise as well as the photon noise. "rendering / photon noise" is the ratio of the two variances
+in the detected bins (after gate, PDE and jitter; the largest over classes of bins holding >= 1 % of the
+counts), and on per-pixel totals; `detect` computes it from the variance every ideal capture stores
+(`variance/`, from independent replicates). {_noise_text(s, results)}
 
 ## Figures
 

@@ -118,12 +118,26 @@ def write_ground_truth(cfg: PaperConfig, path) -> Path:
 
 
 def render_ideal(cfg: PaperConfig, out_dir, *, seed: int = 0, resume: bool = False,
-                 progress: bool | None = None) -> Path:
-    """Render the ideal capture of ``cfg`` into ``out_dir`` (an EXR stack); returns it."""
+                 progress: bool | None = None, noise_target: float | None = None, exposure_s: float | None = None,
+                 params=None, log=None) -> Path:
+    """Render the ideal capture of ``cfg`` into ``out_dir`` (an EXR stack); returns it.
+
+    With ``noise_target`` (e.g. 0.1), ``cfg.spp`` is the pilot and every laser
+    spot is rendered until its rendering variance is at most that share of the
+    photon variance for ``exposure_s`` per spot and the detector ``params``
+    (default :func:`paper_detector`); see :mod:`transient_mi.noise_target`.
+    """
     from transient_mi.pipeline import prepare_render, run_render
 
-    job = prepare_render(scene_file(), out_dir, defines=cfg.defines(), spp=cfg.spp, seed=seed, resume=resume)
-    return run_render(job, progress=progress)
+    spec = None
+    if noise_target is not None:
+        from transient_mi.noise_target import NoiseTargetSpec
+
+        spec = NoiseTargetSpec(target=noise_target, params=params if params is not None else paper_detector(),
+                               exposure_s=exposure_s)
+    job = prepare_render(scene_file(), out_dir, defines=cfg.defines(), spp=cfg.spp, seed=seed, resume=resume,
+                         noise_target=spec)
+    return run_render(job, progress=progress, log=log)
 
 
 def detect_counts(ideal_dir, out_dir, *, params=None, pulses: int | None = None, exposure_s: float | None = None,

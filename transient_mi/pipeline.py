@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import platform
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -63,6 +64,7 @@ class RenderJob:
     layout: dict = field(default_factory=dict)
     manifest: dict = field(default_factory=dict)
     detect_kwargs: dict | None = None
+    noise_target: object = None  # transient_mi.noise_target.NoiseTargetSpec
 
     @property
     def ideal_dir(self) -> Path:
@@ -100,8 +102,13 @@ def _versions() -> dict:
 
 
 def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int = 0,
-                   variant: str | None = None, resume: bool = False) -> RenderJob:
+                   variant: str | None = None, resume: bool = False, noise_target=None) -> RenderJob:
     """Validate everything and load the scene; creates nothing on disk.
+
+    ``noise_target``: a :class:`transient_mi.noise_target.NoiseTargetSpec`
+    (render each spot until its rendering noise is at most that share of the
+    photon noise; its ``params`` may be None to use the scene's ``spad_film``
+    or else the default detector).
 
     Raises
     ------
@@ -146,6 +153,8 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         raise UserInputError(f"{scene_file}: a spad_film needs an NLOS sensor (spad_array) that records "
                              "photons per laser pulse; under a camera use transient_film")
 
+    if noise_target is not None:
+        noise_target = _resolve_noise_target(noise_target, integrator, spp, layout, detect_kwargs, scene_file)
     axis = film.time_axis()
     config = {
         "scene_sha256": file_sha256(scene_file),
@@ -158,6 +167,8 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         "sensor": layout.get("geometry"),
         "laser": layout.get("laser"),
     }
+    if noise_target is not None:
+        config["noise_target"] = noise_target.to_dict()
     render_info = {
         "scene_file": str(scene_file.resolve()),
         "scene_sha256": config["scene_sha256"],
@@ -189,12 +200,83 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         render=render_info,
         dropped={"contributions": 0, "fraction": 0.0},
     )
+    manifest["variance"] = variance_block(integrator, spp, layout["quantity"])
+    if noise_target is not None:
+        manifest["render"]["noise_target"] = dict(noise_target.to_dict(), spots=[None] * layout["n_files"])
     job = RenderJob(scene_file, out_dir, dict(defines or {}), spp, seed, tm.variant(), resume,
-                    scene, sensor, integrator, layout, manifest, detect_kwargs)
+                    scene, sensor, integrator, layout, manifest, detect_kwargs, noise_target)
     if resume and job.ideal_dir.exists() and stack.manifest_path(job.ideal_dir).exists():
         old = stack.read_manifest(job.ideal_dir)
         _check_resumable(old, manifest, job.ideal_dir)
     return job
+
+
+def _resolve_noise_target(spec, integrator, spp: int, layout: dict, detect_kwargs, scene_file):
+    """Validate a noise-target request; fill in the detector and budget from the scene's spad_film if unset."""
+    from transient_mi.detector import DetectorParams
+    from transient_mi.integrators._replicates import DEFAULT_REPLICATES, effective_replicates
+
+    if layout["quantity"] != "photons_per_pulse":
+        raise UserInputError(f"--noise-target: {scene_file} renders {layout['quantity']} (a camera view), which "
+                             "has no photon budget; noise targets apply to NLOS captures (spad_array sensor)")
+    if spec.params is None:
+        if detect_kwargs is not None:
+            spec.params = detect_kwargs["params"]
+            if spec.pulses is None and spec.exposure_s is None:
+                spec.pulses, spec.exposure_s = detect_kwargs.get("pulses"), detect_kwargs.get("exposure_s")
+        else:
+            spec.params = DetectorParams(auto_gate=True)
+    spec.params = spec.params.validate()
+    R = effective_replicates(spp, getattr(integrator, "variance_replicates", DEFAULT_REPLICATES))
+    return spec.validate(spp, R)
+
+
+def variance_block(integrator, spp: int, quantity: str) -> dict:
+    """The manifest's ``variance`` entry for a render of ``spp`` samples (summary filled in at the end)."""
+    from transient_mi.integrators._replicates import DEFAULT_REPLICATES, effective_replicates
+
+    R = effective_replicates(spp, getattr(integrator, "variance_replicates", DEFAULT_REPLICATES))
+    block = {
+        "directory": stack.VARIANCE_DIR if R >= 2 else None,
+        "replicates": R,
+        "degrees_of_freedom": R - 1,
+        "estimator": "sample variance of the mean over independent replicates (unbiased; randomised QMC "
+                     "replicates have independent random shifts)",
+        "quantity": f"({quantity})^2",
+        "summary": None,
+    }
+    if R < 2:
+        block["reason"] = (f"spp={spp} and variance_replicates={getattr(integrator, 'variance_replicates', '?')} "
+                           "give a single replicate: no variance is recorded")
+    return block
+
+
+def variance_summary(directory: Path, manifest: dict) -> dict | None:
+    """Relative Monte Carlo error of a complete capture (read back spot by spot).
+
+    ``pixel_total_rel_std``: median, 90th percentile and maximum over
+    (spot, pixel) of ``sqrt(Var(total)) / total`` for pixels whose total is
+    above 1e-6 of the largest; ``bin_rel_std_weighted``: the value-weighted
+    mean of ``sqrt(Var(x_b)) / x_b`` over all bins, i.e.
+    ``sum sqrt(Var(x_b)) / sum x_b``.
+    """
+    if not stack.has_variance(manifest):
+        return None
+    rel, sd_sum, x_sum = [], 0.0, 0.0
+    for j in range(manifest["n_files"]):
+        x = stack.read_spot(directory, j, manifest).astype(np.float64)
+        var, tvar = stack.read_variance(directory, j, manifest)
+        tot = x.sum(axis=-1)
+        ok = tot > 1e-6 * max(float(tot.max()), 1e-300)
+        rel.extend((np.sqrt(tvar[ok].astype(np.float64)) / tot[ok]).tolist())
+        sd_sum += float(np.sqrt(var.astype(np.float64)).sum())
+        x_sum += float(x.sum())
+    if not rel:
+        return {"pixel_total_rel_std": None, "bin_rel_std_weighted": None}
+    r = np.asarray(rel)
+    return {"pixel_total_rel_std": {"median": float(np.median(r)), "p90": float(np.percentile(r, 90)),
+                                    "max": float(r.max())},
+            "bin_rel_std_weighted": sd_sum / x_sum if x_sum > 0 else None}
 
 
 def _check_resumable(old: dict, new: dict, where: Path) -> None:
@@ -211,7 +293,7 @@ def _check_resumable(old: dict, new: dict, where: Path) -> None:
                          + "; ".join(diffs) + "); use a new output directory")
 
 
-def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Path:
+def run_render(job: RenderJob, progress: bool | None = None, on_spot=None, log=None) -> Path:
     """Render every (missing) spot of ``job`` and write the capture.
 
     Parameters
@@ -223,6 +305,8 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Pa
     on_spot : callable, optional
         ``on_spot(j)`` after spot ``j`` is written (used by tests to
         interrupt a render).
+    log : callable, optional
+        ``log(line)`` for the noise-target steps (default: stderr).
 
     Returns
     -------
@@ -232,17 +316,22 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None) -> Pa
     with output_lock(job.out_dir):
         # re-checked under the lock: another run may have written OUT since prepare_render looked
         _check_output(job.out_dir, job.resume)
-        return _run_render_locked(job, progress, on_spot)
+        return _run_render_locked(job, progress, on_spot, log)
 
 
-def _run_render_locked(job: RenderJob, progress: bool | None, on_spot) -> Path:
+def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> Path:
     d = job.ideal_dir
     d.mkdir(parents=True, exist_ok=True)
+    if log is None:
+        def log(line: str) -> None:
+            sys.stderr.write(line + "\n")
+            sys.stderr.flush()
     if job.resume:
         _remove_stale_temporaries(d)
     m = dict(job.manifest)
     n_files = m["n_files"]
-    todo = [j for j in range(n_files) if not (job.resume and stack.spot_is_complete(d, j, m))]
+    todo = [j for j in range(n_files) if not (job.resume and stack.spot_is_complete(d, j, m)
+                                              and stack.variance_is_complete(d, j, m))]
     if job.resume and stack.manifest_path(d).exists():
         old = stack.read_manifest(d)
         m["dropped"] = old.get("dropped", m["dropped"])
@@ -262,6 +351,16 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot) -> Path:
         groups = [[j] for j in range(n_files)]
     todo_set = set(todo)
     groups = [g for g in groups if todo_set.intersection(g)]
+    target_run = None
+    if job.noise_target is not None:
+        from .noise_target import TargetRun
+
+        target_run = TargetRun(job.noise_target, m)
+        if job.resume and stack.manifest_path(d).exists():
+            old_nt = (stack.read_manifest(d).get("render") or {}).get("noise_target") or {}
+            for j, inf in enumerate(old_nt.get("spots") or []):
+                if inf is not None and j not in todo_set:
+                    m["render"]["noise_target"]["spots"][j] = inf
     with progress_bar(f"render {job.scene_file.name}", total=sum(len(g) for g in groups) * paths_per_spot,
                       disable=None if progress is None else not progress) as advance:
         for group in groups:
@@ -272,7 +371,16 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot) -> Path:
                 _d[0] = done
 
             seed_g = job.seed if n_files == 1 else spot_seed(job.seed, group[0])
-            if len(group) == 1:
+            ckpt = None
+            if job.noise_target is not None:
+                from .noise_target import render_group
+
+                results, info, ckpt = render_group(job, target_run, group, seed_g, m["render"]["config_sha256"],
+                                                   log=log, progress=None)
+                for j, inf in zip(group, info):
+                    m["render"]["noise_target"]["spots"][j] = inf
+                advance(len(group) * paths_per_spot)
+            elif len(group) == 1:
                 results = [job.integrator.render_transient(
                     job.scene, job.sensor, seed=seed_g, spp=job.spp,
                     spot=None if m["capture"] == "camera" else group[0], progress=cb)]
@@ -282,6 +390,8 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot) -> Path:
             for j, res in zip(group, results):
                 if j not in todo_set:
                     continue  # complete from an earlier run (and identical)
+                if stack.has_variance(m):  # first: a complete spot file implies a complete variance file
+                    stack.write_variance(d, j, res.variance, res.total_variance, m)
                 stack.write_spot(d, j, res.histogram, m)
                 dropped_n += res.dropped_contributions
                 frac_sum += res.dropped_fraction
@@ -290,6 +400,9 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot) -> Path:
                 if on_spot is not None:
                     on_spot(j)
             del results
+            if ckpt is not None:
+                stack.write_manifest(d, dict(m, status="incomplete"))  # per-spot noise-target results so far
+                ckpt.unlink(missing_ok=True)
     elapsed = time.perf_counter() - t_start
     m["render"]["render_time_s"] = float(m["render"].get("render_time_s", 0.0) or 0.0) + elapsed
     m["dropped"] = {"contributions": dropped_n, "fraction": frac_sum / n_files}
@@ -298,6 +411,14 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot) -> Path:
     from .preview import write_preview
 
     write_preview(d / "preview.png", preview_data[1], m, spot=preview_data[0])
+    if stack.has_variance(m):
+        m["variance"] = dict(m["variance"], summary=variance_summary(d, m))
+    if job.noise_target is not None:
+        spots_nt = m["render"]["noise_target"]["spots"]
+        m["variance"]["spp_per_spot"] = [s_["spp"] for s_ in spots_nt]
+        m["variance"]["replicates_per_spot"] = [s_["replicates"] for s_ in spots_nt]
+        m["render"]["noise_target"]["met"] = all(s_["met"] for s_ in spots_nt)
+        shutil.rmtree(d / ".partial", ignore_errors=True)
     m["status"] = "complete"
     stack.write_manifest(d, m)
     if job.detect_kwargs is None:
@@ -328,8 +449,8 @@ def _detect_into(job: RenderJob, ideal_dir: Path) -> Path:
 
 
 def render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int = 0, variant: str | None = None,
-           resume: bool = False, progress: bool | None = None) -> Path:
+           resume: bool = False, progress: bool | None = None, noise_target=None) -> Path:
     """Validate, render and write a capture; see :mod:`transient_mi.pipeline`."""
     job = prepare_render(scene_file, out_dir, defines=defines, spp=spp, seed=seed, variant=variant,
-                         resume=resume)
+                         resume=resume, noise_target=noise_target)
     return run_render(job, progress=progress)

@@ -17,6 +17,20 @@ as header attributes (prefix ``tmi_``) so one file is self-describing.
 A confocal capture (laser spot k on pixel k's wall patch) is one file,
 ``spot_00000.exr``, whose pixel k was recorded with the laser on patch k.
 
+Ideal captures rendered with several independent replicates also hold the
+estimated variance of every value (the render's Monte Carlo error)::
+
+    capture/
+      variance/spot_00000.exr ...   same layout: channel tNNNNN = variance of
+                                    bin NNNNN (unit of the data, squared),
+                                    channel ``total`` = variance of the pixel's
+                                    sum over all bins (covariances included)
+
+described by the manifest's ``variance`` entry (``directory``,
+``replicates``, ``estimator``, ``summary``); it is written before its spot
+file, so a complete spot file implies a complete variance file. Readers of
+the data ignore the directory.
+
 Writes are atomic: data goes to a temporary name in the same directory and is
 renamed into place, so a file with a final name is always complete. Readers
 check format version, shapes, channel names and types against the manifest
@@ -49,8 +63,14 @@ __all__ = [
     "FORMAT", "FORMAT_VERSION", "MANIFEST_NAME", "KINDS", "CAPTURES", "StackError", "spot_filename",
     "channel_names", "dtype_for", "new_manifest", "validate_manifest", "write_manifest", "read_manifest",
     "config_digest", "spot_path", "write_spot", "read_spot", "spot_is_complete", "missing_spots",
-    "iter_spots", "read_stack", "write_stack",
+    "iter_spots", "read_stack", "write_stack", "VARIANCE_DIR", "TOTAL_CHANNEL", "has_variance",
+    "write_variance", "read_variance", "variance_is_complete",
 ]
+
+#: Sub-directory of an ideal capture holding the per-bin variance files.
+VARIANCE_DIR = "variance"
+#: Channel of a variance file holding the variance of each pixel's total over time.
+TOTAL_CHANNEL = "total"
 
 _DTYPES = {"ideal": np.dtype(np.float32), "counts": np.dtype(np.uint32)}
 
@@ -508,3 +528,92 @@ def write_stack(directory: str | os.PathLike, manifest: dict, data: np.ndarray) 
     m["status"] = "complete"
     write_manifest(d, m)
     return d
+
+
+# ------------------------------------------------------------------------ variance
+
+
+def has_variance(manifest: dict) -> bool:
+    """True if the capture stores per-bin variance files (``manifest['variance']['directory']``)."""
+    v = manifest.get("variance")
+    return isinstance(v, dict) and bool(v.get("directory"))
+
+
+def _variance_dir(directory, manifest: dict) -> Path:
+    if not has_variance(manifest):
+        raise StackError(f"{directory}: the capture stores no variance (rendered with a single replicate)")
+    return Path(directory) / manifest["variance"]["directory"]
+
+
+def write_variance(directory: str | os.PathLike, index: int, variance: np.ndarray, total_variance: np.ndarray,
+                   manifest: dict) -> Path:
+    """Atomically write the variance of laser spot ``index`` (``variance/spot_NNNNN.exr``).
+
+    Parameters
+    ----------
+    variance : ndarray, shape (height, width, n_bins)
+        Estimated variance of every stored value (>= 0, finite).
+    total_variance : ndarray, shape (height, width)
+        Estimated variance of each pixel's sum over time.
+    """
+    import OpenEXR
+
+    vd = _variance_dir(directory, manifest)
+    vd.mkdir(exist_ok=True)
+    H, W, T = manifest["height"], manifest["width"], manifest["time"]["n_bins"]
+    var = np.asarray(variance, dtype=np.float32)
+    tot = np.asarray(total_variance, dtype=np.float32)
+    path = vd / spot_filename(index)
+    if var.shape != (H, W, T) or tot.shape != (H, W):
+        raise StackError(f"{path}: variance shapes {var.shape} and {tot.shape}, expected ({H}, {W}, {T}) "
+                         f"and ({H}, {W})")
+    if not (np.all(np.isfinite(var)) and np.all(np.isfinite(tot))) or (var.size and var.min() < 0) \
+            or (tot.size and tot.min() < 0):
+        raise StackError(f"{path}: variance must be finite and >= 0")
+    channels = {name: np.ascontiguousarray(var[:, :, b]) for b, name in enumerate(channel_names(T))}
+    channels[TOTAL_CHANNEL] = np.ascontiguousarray(tot)
+    header = dict(_header(manifest, index), tmi_layer="variance")
+    with atomic_file(path, fsync=True) as tmp:
+        OpenEXR.File(header, channels).write(str(tmp))
+    return path
+
+
+def variance_is_complete(directory: str | os.PathLike, index: int, manifest: dict) -> bool:
+    """True if the variance file of spot ``index`` exists and matches ``manifest`` (used by resume)."""
+    if not has_variance(manifest):
+        return True
+    path = _variance_dir(directory, manifest) / spot_filename(index)
+    if not path.is_file():
+        return False
+    try:
+        header, _ = _open_exr(path, header_only=True)
+        _check_header(path, header, manifest, index)
+    except StackError:
+        return False
+    return header.get("tmi_layer") == "variance"
+
+
+def read_variance(directory: str | os.PathLike, index: int, manifest: dict | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """``(variance[height, width, n_bins] float32, total_variance[height, width] float32)`` of spot ``index``.
+
+    Raises
+    ------
+    StackError
+        If the capture stores no variance, or the file is missing or disagrees with the manifest.
+    """
+    d = Path(directory)
+    m = read_manifest(d) if manifest is None else manifest
+    path = _variance_dir(d, m) / spot_filename(index)
+    header, chans = _open_exr(path, header_only=False)
+    _check_header(path, header, m, index)
+    if header.get("tmi_layer") != "variance":
+        raise StackError(f"{path}: header tmi_layer={header.get('tmi_layer')!r}, expected 'variance'")
+    names = channel_names(m["time"]["n_bins"])
+    if set(chans) != set(names) | {TOTAL_CHANNEL}:
+        raise StackError(f"{path}: has {len(chans)} channels, expected {len(names)} time bins and "
+                         f"{TOTAL_CHANNEL!r}")
+    var = np.empty((m["height"], m["width"], len(names)), dtype=np.float32)
+    for b, name in enumerate(names):
+        var[:, :, b] = chans[name].pixels
+    return var, np.asarray(chans[TOTAL_CHANNEL].pixels, dtype=np.float32)

@@ -53,6 +53,8 @@ def detect(
     force: bool = typer.Option(False, "--force", help="With --engine exact, run even when the estimated work "
                                "exceeds the limit (it is estimated first and refused past the limit)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a counts capture already in OUT."),
+    noise_threshold: float = typer.Option(0.1, "--noise-threshold", help="Warn when the ideal capture's rendering "
+                                          "variance exceeds this share of the photon variance (docs/noise.md)."),
 ) -> None:
     """Turn an ideal capture into photon counts with the SPAD + TCSPC model (see docs/detector.md)."""
     from transient_mi.detector import DetectorParams, detect_stack
@@ -73,18 +75,21 @@ def detect(
         kwargs["auto_gate"] = True
     params = DetectorParams(**kwargs)
     path = detect_stack(ideal, out, params, pulses=pulses, exposure_s=exposure_s, seed=seed, engine=engine,
-                        overwrite=overwrite, force=force)
+                        overwrite=overwrite, noise_threshold=noise_threshold, force=force)
     from recon.io.stack import read_manifest
 
     m = read_manifest(path)
     d = m["detector"]
     used = sorted(set(d["resolved"]["engines_used"]))
+    rn = d["resolved"].get("render_noise") or {}
+    noise = (f"; rendering/photon noise {rn['ratio']:.3g}" if rn.get("available") else
+             "; rendering noise unknown (no variance stored)")
     typer.echo(f"wrote {path} ({m['n_files']} spot file(s), {d['pulses']} pulses per spot, "
-               f"engine {'/'.join(used)}{engine_note(engine, d['resolved']['exact'])})")
+               f"engine {'/'.join(used)}{engine_note(engine, d['resolved']['exact'])}{noise})")
 
 
 def engine_note(engine: str, exact: bool) -> str:
-    """What the engine message adds: nothing when every draw was exact, else why it was approximate.
+    """What the engine message adds: ``(exact)`` when every draw was exact, else why it was approximate.
 
     The wording follows docs/detector.md ("Engines") and the README: ``auto`` runs the analytic engine
     where it is exact, else the exact engine when affordable, else the analytic one (approximate).

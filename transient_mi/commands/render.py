@@ -19,21 +19,58 @@ def render(
     seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed; same seed, same bytes."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Mitsuba variant (default llvm_ad_mono or $TRANSIENT_MI_VARIANT)."),
     resume: bool = typer.Option(False, "--resume", help="Continue an interrupted capture in OUT (same settings)."),
+    noise_target: Optional[float] = typer.Option(
+        None, "--noise-target", help="Render each laser spot until its rendering variance is at most this share of "
+        "the photon variance at the budget (--pulses/--exposure-s, else the scene's spad_film, else 1e6 pulses), "
+        "e.g. 0.1. NLOS captures only."),
+    pulses: Optional[float] = typer.Option(None, "--pulses", help="With --noise-target: laser pulses per spot."),
+    exposure_s: Optional[float] = typer.Option(None, "--exposure-s",
+                                               help="With --noise-target: exposure per spot, seconds."),
+    max_spp: Optional[float] = typer.Option(None, "--max-spp", help="With --noise-target: cap on samples per "
+                                            "pixel per spot (default 2**20)."),
 ) -> None:
-    """Render SCENE into a capture directory: manifest.json, spot_NNNNN.exr, preview.png."""
+    """Render SCENE into a capture directory: manifest.json, spot_NNNNN.exr, variance/, preview.png."""
     from recon.errors import UserInputError
     from transient_mi.pipeline import prepare_render, run_render
     from transient_mi.scene_io import parse_defines
 
     if spp is not None and spp < 1:
         raise UserInputError(f"--spp {spp}: must be >= 1 (omit --spp for the scene's sampler value)")
+    spec = None
+    if noise_target is None:
+        for name, v in (("--pulses", pulses), ("--exposure-s", exposure_s), ("--max-spp", max_spp)):
+            if v is not None:
+                raise UserInputError(f"{name} {v:g}: only used with --noise-target")
+    else:
+        from transient_mi.noise_target import DEFAULT_MAX_SPP, NoiseTargetSpec
 
+        if pulses is not None and exposure_s is not None:
+            raise UserInputError("--pulses and --exposure-s: give one photon budget, not both")
+        spec = NoiseTargetSpec(target=noise_target, params=None, pulses=_whole("--pulses", pulses),
+                               exposure_s=exposure_s,
+                               max_spp=_whole("--max-spp", max_spp) if max_spp is not None else DEFAULT_MAX_SPP)
     job = prepare_render(scene, out, defines=parse_defines(define), spp=spp or 0, seed=seed, variant=variant,
-                         resume=resume)
+                         resume=resume, noise_target=spec)
     path = run_render(job)
     m = job.manifest
+    spp_txt = f"spp {job.spp}"
+    nt = (m.get("render") or {}).get("noise_target")
+    if nt:
+        spp_used = [s["spp"] for s in nt["spots"]]
+        spp_txt = (f"spp {min(spp_used)}-{max(spp_used)} for noise target {nt['target']:g}: "
+                   + ("met" if nt.get("met") else "NOT met (max spp reached)"))
     typer.echo(f"wrote {path} ({m['n_files']} spot file(s), {m['height']}x{m['width']} pixels, "
-               f"{m['time']['n_bins']} bins of {m['time']['bin_width_ps']:g} ps, spp {job.spp})")
+               f"{m['time']['n_bins']} bins of {m['time']['bin_width_ps']:g} ps, {spp_txt})")
+
+
+def _whole(name: str, v):
+    from recon.errors import UserInputError
+
+    if v is None:
+        return None
+    if not float(v).is_integer() or v < 1:
+        raise UserInputError(f"{name} {v!r}: must be a whole number >= 1")
+    return int(v)
 
 
 def register(app: typer.Typer) -> None:

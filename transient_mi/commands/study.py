@@ -98,6 +98,10 @@ def photon_budget(
     ground_truth: Optional[Path] = GT_OPT,
     quick: bool = QUICK_OPT,
     overwrite: bool = OVERWRITE_OPT,
+    noise_target: Optional[str] = typer.Option(
+        None, "--noise-target", help="Render until rendering variance <= this share of the photon variance at the "
+                                     "largest budget; 'none' renders the scene's spp (default 0.1, none with "
+                                     "--quick; docs/noise.md)."),
 ) -> None:
     """One render of SCENE, then detection over decades of photon budget x dark-count rates x dead times x seeds,
     reconstruction of each; reconstruction error and per-bin SNR against detected photons (CSV, JSON, plots,
@@ -121,6 +125,14 @@ def photon_budget(
                              "them)")
     if not 0 <= seed < 2**32:
         raise UserInputError(f"--seed {seed}: must be in [0, 2**32)")
+    if noise_target is not None:
+        if noise_target.strip().lower() == "none":
+            kw["noise_target"] = None
+        else:
+            try:
+                kw["noise_target"] = float(noise_target)
+            except ValueError:
+                raise UserInputError(f"--noise-target {noise_target!r}: expected a number > 0 or 'none'") from None
     r = run_photon_budget_study(scene, out, defines=defines, seeds=tuple(range(seeds)), seed=seed, quick=quick,
                                 ground_truth=ground_truth, overwrite=overwrite, log=_log, **kw)
     typer.echo(f"wrote {r.out_dir}: {len(r.rows)} runs; summary {r.summary}")

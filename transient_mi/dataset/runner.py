@@ -77,6 +77,9 @@ class DatasetReport:
     cluster: str = ""
     dry_run: bool = False
     items: list[Item] = field(default_factory=list)
+    #: Largest rendering / photon noise ratio over the indexed items with counts (None if unknown).
+    render_noise_max: float | None = None
+    render_noise_items: int = 0
 
     def summary(self) -> str:
         if self.dry_run:
@@ -89,7 +92,13 @@ class DatasetReport:
             s += f" on {self.cluster}"
         if self.retried:
             s += f"; {len(self.retried)} item(s) redone after a worker died ({', '.join(r[0] for r in self.retried)})"
-        return s + f"; index {self.out_dir / INDEX_CSV}"
+        s += f"; index {self.out_dir / INDEX_CSV}"
+        if self.render_noise_max is not None:
+            over = self.render_noise_max > 0.1
+            s += (f"; rendering/photon noise up to {self.render_noise_max:.3g} over {self.render_noise_items} items"
+                  + (f" (above 0.1 by a factor {self.render_noise_max / 0.1:.3g}: raise spp, see docs/noise.md)"
+                     if over else " (below 0.1)"))
+        return s
 
 
 # ----------------------------------------------------------------------------- output
@@ -449,7 +458,9 @@ def run_dataset(spec_file: str | Path, out_dir: str | Path, *, scheduler: str | 
         with _locked_output(out):
             report.cleaned_tmp = clean_temporaries(out / ITEMS_DIR)
             _write_dataset_json(out, spec, len(items), variant)
-            write_index(out, _rows(out, items))
+            rows = _rows(out, items)
+            write_index(out, rows)
+        _noise_summary(report, rows)
         report.elapsed_s = time.perf_counter() - t0
         return report
     workers = workers or (None if scheduler else default_workers())
@@ -476,7 +487,9 @@ def run_dataset(spec_file: str | Path, out_dir: str | Path, *, scheduler: str | 
             finally:
                 conn.close()  # local workers stop before their temporary directories are removed
                 report.cleaned_tmp += clean_temporaries(items_dir)
-                write_index(out, _rows(out, items))
+                rows = _rows(out, items)
+                write_index(out, rows)
+                _noise_summary(report, rows)
     finally:
         conn.close()
     report.elapsed_s = time.perf_counter() - t0
@@ -486,6 +499,13 @@ def run_dataset(spec_file: str | Path, out_dir: str | Path, *, scheduler: str | 
                            f"{'; ...' if len(report.failed) > 3 else ''}); the others are in {out}; "
                            "rerun the same command to retry the failed ones")
     return report
+
+
+def _noise_summary(report: DatasetReport, rows: dict) -> None:
+    """The largest rendering / photon noise ratio over the indexed items (docs/noise.md)."""
+    ratios = [r["render_noise_ratio"] for r in rows.values() if r.get("render_noise_ratio") is not None]
+    report.render_noise_items = len(ratios)
+    report.render_noise_max = max(ratios) if ratios else None
 
 
 @contextmanager

@@ -272,10 +272,13 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
             times["detect_time_s"] = time.perf_counter() - t
         counts = ideal != capture
         detector_seed = None
+        render_noise = None
         if counts:
             from recon.io import stack
 
-            detector_seed = (stack.read_manifest(capture).get("detector") or {}).get("seed")
+            det_m = stack.read_manifest(capture).get("detector") or {}
+            detector_seed = det_m.get("seed")
+            render_noise = (det_m.get("resolved") or {}).get("render_noise")
     except UserInputError as e:
         raise ItemError(f"{where}: {e}") from None
     _write_json(tmp / PARAMS_NAME, rec)
@@ -286,6 +289,9 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
         "kind": "counts" if counts else "ideal",
         "ideal": ideal.relative_to(tmp).as_posix(),
         "detector_seed": detector_seed,
+        # rendering variance / photon variance of the counts (transient_mi.detector.render_noise), None without
+        # a detector or without stored variance
+        "render_noise_ratio": (render_noise or {}).get("ratio"),
         **times,
         "total_time_s": time.perf_counter() - t_start,
         "worker": _worker_id(),
@@ -302,4 +308,4 @@ def _detect(ideal: Path, out: Path, det: dict) -> None:
 
     params = DetectorParams.from_dict(det["params"])
     detect_stack(ideal, out, params, pulses=det["pulses"], exposure_s=det["exposure_s"], seed=det["seed"],
-                 engine=det["engine"], progress=False)
+                 engine=det["engine"], progress=False, warn=lambda line: None)  # the ratio goes to the index

@@ -11,8 +11,10 @@ so a spot's counts do not depend on the others.
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +23,8 @@ from recon._progress import progress_bar
 from recon._atomic import check_output_location, temp_dir_beside
 from recon._lock import output_lock
 from recon.errors import UserInputError
-from recon.io.stack import (MANIFEST_NAME, StackError, missing_spots, new_manifest, read_manifest,
-                            read_spot, spot_filename, write_manifest, write_spot)
+from recon.io.stack import (MANIFEST_NAME, StackError, has_variance, missing_spots, new_manifest, read_manifest,
+                            read_spot, read_variance, spot_filename, write_manifest, write_spot)
 
 from .budget import resolve_budget
 from .detect import check_engine, check_ideal, run_spot, to_uint32
@@ -30,6 +32,7 @@ from .engines import estimated_events
 from .gate import auto_gate
 from .model import build_model
 from .params import DetectorParams
+from .render_noise import DEFAULT_THRESHOLD, NoiseRatio, unavailable, warning_line
 
 #: ``engine="exact"`` refuses (unless forced) a capture whose estimated number of simulated triggering
 #: events (:func:`~transient_mi.detector.engines.exact.estimated_events`, summed over spots) exceeds this.
@@ -38,7 +41,7 @@ EXACT_MAX_EVENTS = 5e8
 MODEL_VERSION = 1
 _STANDARD_KEYS = {"format", "format_version", "status", "kind", "capture", "quantity", "width", "height",
                   "n_files", "time", "include_first_last", "geometry", "laser", "detector", "render",
-                  "source_ideal"}
+                  "source_ideal", "variance"}
 
 
 def spot_rng(seed: int, spot: int) -> np.random.Generator:
@@ -70,7 +73,8 @@ def _check_output(out: Path, ideal: Path, overwrite: bool) -> None:
 
 def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pulses: int | None = None,
                  exposure_s: float | None = None, seed: int = 0, engine: str = "auto", progress: bool = True,
-                 overwrite: bool = False, force: bool = False) -> Path:
+                 overwrite: bool = False, noise_threshold: float = DEFAULT_THRESHOLD, warn=None,
+                 force: bool = False) -> Path:
     """Detect a whole ideal capture and write the counts capture.
 
     Parameters
@@ -94,6 +98,11 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         Draw a progress bar (when stderr is a terminal, see ``recon._progress``).
     overwrite : bool
         Replace an existing counts capture in ``out_dir``.
+    noise_threshold : float
+        Largest acceptable ratio of rendering variance to photon variance
+        (:mod:`.render_noise`); above it a one-line warning is given.
+    warn : callable, optional
+        ``warn(line)`` receives that warning (default: printed on stderr).
     force : bool
         With ``engine="exact"``, run even when the estimated work exceeds
         :data:`EXACT_MAX_EVENTS` (otherwise refused before any work).
@@ -109,7 +118,10 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
     when inside it, else absolute), and under ``detector`` every parameter as
     given plus ``pulses``, ``exposure_s``, ``seed``, ``engine`` and
     ``resolved`` (repetition rate, photon scale, gate times, engine used per
-    spot, whether every draw was exact).
+    spot, whether every draw was exact) and ``render_noise``: how much of the
+    counts' variance is the ideal capture's rendering noise, per class of bins
+    and on per-pixel totals (:mod:`.render_noise`; ``available: false`` when
+    the ideal capture stores no variance).
     """
     params = (params if params is not None else DetectorParams()).validate()
     check_engine(engine)
@@ -127,29 +139,14 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         raise StackError(f"{ideal}: the capture is incomplete ({len(missing)} of {m['n_files']} spot files "
                          f"missing, status {m['status']!r}); finish the render first (--resume)")
     budget = resolve_budget(params, m.get("laser"), pulses=pulses, exposure_s=exposure_s)
-    run_params = params
-    gate_source = "none"
-    spot_gates = None  # per-spot (open, close) for array captures with auto_gate
-    if params.auto_gate:
-        if m["capture"] == "array":
-            # One gate per laser position (a gated SPAD array is re-timed for every acquisition): every
-            # three-bounce path from spot j is longer than j's own first-bounce path (triangle inequality),
-            # so the spot's window passes its hidden-volume light and blocks its wall return.
-            spot_gates = [auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
-                                    params.auto_gate_depth_max_m, spot=j) for j in range(m["n_files"])]
-            g_open, g_close = min(g[0] for g in spot_gates), max(g[1] for g in spot_gates)
-            gate_source = "auto_per_spot"
-        else:
-            g_open, g_close = auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
-                                        params.auto_gate_depth_max_m)
-            gate_source = "auto"
-        run_params = params.replace(gate_open_ps=g_open, gate_close_ps=g_close, auto_gate=False)
-    elif params.gate_open_ps is not None:
-        gate_source = "explicit"
+    run_params, gate_source, spot_gates = resolve_gates(m, params)
     if params.crosstalk_prob > 0 and m["capture"] == "confocal":
         raise UserInputError(f"crosstalk_prob={params.crosstalk_prob!r}: a confocal capture's pixels were "
                              "recorded under different laser spots, so neighbour crosstalk cannot be modelled; "
                              "use crosstalk_prob=0")
+    if not (isinstance(noise_threshold, (int, float)) and not isinstance(noise_threshold, bool)
+            and math.isfinite(noise_threshold) and noise_threshold > 0):
+        raise UserInputError(f"noise_threshold={noise_threshold!r}: must be a finite number > 0")
     t = m["time"]
     H, W, T = m["height"], m["width"], t["n_bins"]
     model = build_model(run_params, bin_width_ps=t["bin_width_ps"], n_bins=T, t0_ps=t["t0_ps"],
@@ -195,11 +192,11 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         if engine == "exact":
             _check_exact_work(ideal, m, model, budget, spot_gates, run_params, force, progress)
         return _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_params, resolved, seed,
-                              engine, progress)
+                              engine, progress, noise_threshold, warn)
 
 
 def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_params, resolved, seed, engine,
-                   progress) -> Path:
+                   progress, noise_threshold, warn) -> Path:
     t = m["time"]
     H, W, T = m["height"], m["width"], t["n_bins"]
     try:
@@ -210,6 +207,7 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
     try:
         write_manifest(tmp, manifest)
         engines_used, exact, regimes = [], True, {}
+        noise = NoiseRatio(threshold=float(noise_threshold)) if has_variance(m) else None
         N = budget.n_pulses
         with progress_bar(f"detect {ideal.name}", total=m["n_files"] * N,
                           disable=None if progress else True) as advance:
@@ -218,10 +216,13 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
                 arr = check_ideal(data, where=f"{ideal / spot_filename(j)}")
                 if budget.photon_scale != 1.0:
                     arr = arr * budget.photon_scale
-                spot_model = model if spot_gates is None else build_model(
-                    run_params.replace(gate_open_ps=spot_gates[j][0], gate_close_ps=spot_gates[j][1]),
-                    bin_width_ps=t["bin_width_ps"], n_bins=T, t0_ps=t["t0_ps"],
-                    repetition_rate_hz=budget.repetition_rate_hz)
+                spot_model = model if spot_gates is None else spot_model_for(m, run_params, spot_gates, j, budget)
+                if noise is not None:
+                    var, tvar = read_variance(ideal, j, m)
+                    noise.add_spot(spot_model, arr.reshape(H * W, T),
+                                   var.reshape(H * W, T).astype(np.float64) * budget.photon_scale ** 2, N,
+                                   total_variance=tvar.reshape(-1).astype(np.float64) * budget.photon_scale ** 2)
+                    del var, tvar
                 counts, info = run_spot(spot_model, arr.reshape(H * W, T), N, spot_rng(seed, j), engine, (H, W),
                                         advance=advance)
                 write_spot(tmp, j, to_uint32(counts, where=spot_filename(j)).reshape(H, W, T), manifest)
@@ -229,7 +230,15 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
                 exact = exact and bool(info["exact"])
                 for k, v in info.get("pixels_by_regime", {}).items():
                     regimes[k] = regimes.get(k, 0) + v
-        resolved.update(engines_used=engines_used, exact=exact, analytic_pixels_by_regime=regimes or None)
+        if noise is not None:
+            spp_used = m["variance"].get("spp_per_spot") or [(m.get("render") or {}).get("spp")]
+            render_noise = noise.report(spp=max(spp_used) if None not in spp_used else None,
+                                        replicates=m["variance"].get("replicates"))
+        else:
+            render_noise = unavailable("the ideal capture stores no variance (rendered with one replicate or by "
+                                       "an older version): its rendering noise is unknown")
+        resolved.update(engines_used=engines_used, exact=exact, analytic_pixels_by_regime=regimes or None,
+                        render_noise=render_noise)
         manifest["detector"]["resolved"] = resolved
         manifest["status"] = "complete"
         write_manifest(tmp, manifest)
@@ -237,6 +246,9 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    line = warning_line(render_noise)
+    if line:
+        (warn or _stderr)(line)
     return out
 
 
@@ -257,10 +269,7 @@ def estimate_exact_work(ideal: Path, m: dict, model, budget, spot_gates=None, ru
             arr = check_ideal(read_spot(ideal, j, m), where=f"{ideal / spot_filename(j)}")
             if budget.photon_scale != 1.0:
                 arr = arr * budget.photon_scale
-            spot_model = model if spot_gates is None else build_model(
-                run_params.replace(gate_open_ps=spot_gates[j][0], gate_close_ps=spot_gates[j][1]),
-                bin_width_ps=t["bin_width_ps"], n_bins=T, t0_ps=t["t0_ps"],
-                repetition_rate_hz=budget.repetition_rate_hz)
+            spot_model = model if spot_gates is None else spot_model_for(m, run_params, spot_gates, j, budget)
             events += estimated_events(spot_model, arr.reshape(H * W, T), N)
             advance(1)
     return {"events": events, "pixel_pulses": float(H * W) * N * m["n_files"]}
@@ -275,6 +284,49 @@ def _check_exact_work(ideal, m, model, budget, spot_gates, run_params, force: bo
             f"{EXACT_MAX_EVENTS:.3g}; gate out the wall return, use fewer pulses or engine auto, "
             "or force it (--force)")
     return work
+
+
+def _stderr(line: str) -> None:
+    sys.stderr.write(line + "\n")
+    sys.stderr.flush()
+
+
+def resolve_gates(m: dict, params: DetectorParams):
+    """``(run_params, gate_source, spot_gates)``: ``auto_gate`` resolved against the capture's geometry.
+
+    Array captures get one gate per laser spot (``spot_gates[j] = (open_ps,
+    close_ps)``; ``run_params`` then spans all of them), other captures one
+    gate; ``gate_source`` is ``auto_per_spot``, ``auto``, ``explicit`` or ``none``.
+    """
+    run_params = params
+    gate_source = "none"
+    spot_gates = None  # per-spot (open, close) for array captures with auto_gate
+    if params.auto_gate:
+        if m["capture"] == "array":
+            # One gate per laser position (a gated SPAD array is re-timed for every acquisition): every
+            # three-bounce path from spot j is longer than j's own first-bounce path (triangle inequality),
+            # so the spot's window passes its hidden-volume light and blocks its wall return.
+            spot_gates = [auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
+                                    params.auto_gate_depth_max_m, spot=j) for j in range(m["n_files"])]
+            g_open, g_close = min(g[0] for g in spot_gates), max(g[1] for g in spot_gates)
+            gate_source = "auto_per_spot"
+        else:
+            g_open, g_close = auto_gate(m, params.gate_transition_ps, params.auto_gate_depth_min_m,
+                                        params.auto_gate_depth_max_m)
+            gate_source = "auto"
+        run_params = params.replace(gate_open_ps=g_open, gate_close_ps=g_close, auto_gate=False)
+    elif params.gate_open_ps is not None:
+        gate_source = "explicit"
+    return run_params, gate_source, spot_gates
+
+
+def spot_model_for(m: dict, run_params: DetectorParams, spot_gates, j: int, budget):
+    """The detector model of spot ``j`` (its own gate when ``spot_gates`` is given)."""
+    t = m["time"]
+    if spot_gates is not None:
+        run_params = run_params.replace(gate_open_ps=spot_gates[j][0], gate_close_ps=spot_gates[j][1])
+    return build_model(run_params, bin_width_ps=t["bin_width_ps"], n_bins=t["n_bins"], t0_ps=t["t0_ps"],
+                       repetition_rate_hz=budget.repetition_rate_hz)
 
 
 def _move_into_place(tmp: Path, out: Path, n_files: int) -> None:

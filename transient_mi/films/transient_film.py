@@ -34,6 +34,15 @@ class TransientResult:
         Their share of the steady-state total (0 when the total is 0).
     samples : int
         Paths traced (pixels x samples per pixel).
+    variance : ndarray of float32, shape ``(height, width, n_bins)``, or None
+        Estimated variance of every value of ``histogram`` (the Monte Carlo
+        error of the render, squared), from ``replicates`` independent
+        replicates (:mod:`transient_mi.integrators._replicates`); None when
+        the render used a single replicate.
+    total_variance : ndarray of float64, shape ``(height, width)``, or None
+        Estimated variance of each pixel's in-range total (sum over time).
+    replicates : int
+        Independent replicates the estimate averages (>= 1).
     """
 
     histogram: np.ndarray
@@ -41,6 +50,9 @@ class TransientResult:
     dropped_contributions: int
     dropped_fraction: float
     samples: int
+    variance: np.ndarray | None = None
+    total_variance: np.ndarray | None = None
+    replicates: int = 1
 
 
 class TransientFilm(mi.Film):

@@ -83,9 +83,11 @@ array's current spot, or in confocal mode the spot on patch ``k``):
 * **Randomised QMC:** the patch point and the five numbers used at the
   patch point (strategy, hidden shape, point on it, BSDF direction) come
   from an R_d Kronecker sequence over the pixel's samples with a uniform
-  random shift per pixel (Cranley-Patterson rotation): every sample is
-  still uniformly distributed (unbiased); the error falls faster than
-  ``1/sqrt(spp)``. Deeper dimensions use PCG32 streams.
+  random shift per pixel and replicate (Cranley-Patterson rotation): every
+  sample is still uniformly distributed (unbiased); the error falls faster
+  than ``1/sqrt(spp)``. Deeper dimensions use PCG32 streams. ``rqmc=false``
+  (integrator parameter) draws every dimension from PCG32 (plain Monte
+  Carlo), for comparisons.
 * **Spot groups (array captures):** :func:`render_spots` renders several
   spots together; they share each sample's detector-side sub-path and
   differ only in the final spot connection (each estimate unbiased).
@@ -112,6 +114,8 @@ import mitsuba as mi
 import numpy as np
 
 from transient_mi.integrators._lanes import LaneHistogram, LaneLayout, seed_rng, to_mono
+from transient_mi.integrators._replicates import (DEFAULT_REPLICATES, ReplicateStats, effective_replicates,
+                                                  replicate_seed)
 from transient_mi.time_axis import apply_kernel
 from transient_mi.props import PluginParameterError
 from transient_mi.wall import WallFrame, ray_plane_point
@@ -479,6 +483,7 @@ class _Consts:
     confocal: bool
     spot_is_vertex1: bool
     n_group: object
+    rqmc: bool = True
 
 
 #: Histogram floats held per kernel launch when an array capture renders a group of spots at once.
@@ -574,7 +579,8 @@ def render_spot(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp:
     return render_spots(setup, scene, film, options, seed=seed, spp=spp, spots=[spot], progress=progress)[0]
 
 
-def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spots, progress=None):
+def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spots, progress=None,
+                 replicate_offset: int = 0, replicates: int | None = None):
     """Render a group of laser spots of an array capture together (or the confocal capture, ``[0]``).
 
     The spots of a group share every sample's detector-side sub-path
@@ -593,18 +599,26 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
     film : transient_film
     options : dict
         ``max_depth`` (segments, -1 unlimited), ``rr_depth``,
-        ``hidden_geometry_prob`` (alpha in [0, 1]).
+        ``hidden_geometry_prob`` (alpha in [0, 1]), ``variance_replicates``
+        (independent replicates, see :mod:`._replicates`).
     seed, spp : int
     spots : sequence of int
         Laser spot indices (scan order); ``[0]`` for confocal captures.
     progress : callable, optional
         ``progress(done_paths, total_paths)``.
+    replicate_offset : int
+        Index of the first replicate (a later batch of a progressive render
+        continues the replicate seeds where the earlier one stopped).
+    replicates : int, optional
+        Replicates of this call (default ``gcd(spp, variance_replicates)``);
+        must divide ``spp``.
 
     Returns
     -------
     list of TransientResult
         One per spot, histograms ``[height, width, n_bins]`` in photons per
-        pulse per bin.
+        pulse per bin, with the variance of every bin estimated from the
+        independent replicates (:mod:`._replicates`).
     """
     from transient_mi.films.transient_film import TransientResult
 
@@ -618,6 +632,58 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
             raise PluginParameterError(f"spad_array: spot={j} out of range [0, {setup.n_spots})")
     if len(set(spots)) != len(spots) or not spots:
         raise PluginParameterError(f"spad_array: spots={spots} must be distinct and non-empty")
+    R = replicates or effective_replicates(spp, options.get("variance_replicates", DEFAULT_REPLICATES))
+    n = spp // R
+    P = W * H
+    total = P * spp
+    stats: list = [None] * len(spots)
+    steady = [np.zeros(P) for _ in spots]
+    dropped = [0] * len(spots)
+    frac = [0.0] * len(spots)
+    for r in range(R):
+        done = P * n * r
+
+        def rep_progress(d, _t, _done=done):
+            if progress is not None:
+                progress(_done + d, total)
+
+        outs = _render_replicate(setup, scene, film, options, seed=replicate_seed(seed, replicate_offset + r, R),
+                                 spp=n, spots=spots, progress=rep_progress)
+        for g, (h, st, dr_n, fr) in enumerate(outs):
+            if stats[g] is None:
+                stats[g] = ReplicateStats.first(h)
+            else:
+                stats[g].add(h)
+            steady[g] += st
+            dropped[g] += dr_n
+            frac[g] += fr
+        del outs
+    T = film.time_axis().n_bins
+    results = []
+    for g in range(len(spots)):
+        s = stats[g]
+        var = s.variance()
+        tvar = s.total_variance()
+        results.append(TransientResult(
+            histogram=s.mean.reshape(H, W, T),
+            steady=(steady[g] / R).astype(np.float32).reshape(H, W),
+            dropped_contributions=dropped[g],
+            dropped_fraction=frac[g] / R,
+            samples=total,
+            variance=None if var is None else var.reshape(H, W, T),
+            total_variance=None if tvar is None else tvar.reshape(H, W),
+            replicates=R,
+        ))
+    return results
+
+
+def _render_replicate(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spots, progress=None):
+    """One replicate of :func:`render_spots`: ``spp`` samples with the streams of ``seed``.
+
+    Returns one ``(hist[n_pixels, n_bins] float32, steady[n_pixels], dropped, fraction)`` per spot.
+    """
+    W, H = setup.width, setup.height
+    confocal = setup.capture == "confocal"
     taps = film.kernel_taps()
     pad = len(taps) // 2
     axis = film.time_axis()
@@ -651,6 +717,7 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
         # spot from the hidden vertex is the (already traced) segment from the wall point
         spot_is_vertex1=confocal and center,
         n_group=dr.opaque(mi.UInt32, G),
+        rqmc=bool(options.get("rqmc", True)),
     )
     if setup.hidden_shapes:
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
@@ -697,16 +764,7 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
                     sub=mi.UInt32(sub[sel]))
         hist.evaluate()
 
-    results = []
-    for h, steady, dropped, frac in hist.collect_all(taps, scale=setup.photons_per_pulse):
-        results.append(TransientResult(
-            histogram=h.reshape(H, W, axis.n_bins),
-            steady=steady.astype(np.float32).reshape(H, W),
-            dropped_contributions=dropped,
-            dropped_fraction=frac,
-            samples=total,
-        ))
-    return results
+    return list(hist.collect_all(taps, scale=setup.photons_per_pulse))
 
 
 @dr.syntax
@@ -855,7 +913,10 @@ def _nlos_pass(scene, hist, rng, layout, j0, j1, c, hidden_ptrs, distr, wall_ptr
 
     while (j < j_end) & (k + j * K < spp):
         i_sample = k + j * K
-        u = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
+        if dr.hint(c.rqmc, mode="scalar"):
+            u = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
+        else:  # plain Monte Carlo (for comparisons: integrator parameter rqmc=false)
+            u = [rng.next_float32() for d in range(QMC_DIMS)]
         # ---- patch point p (vertex 1) and the sensor weight
         if dr.hint(c.center_only, mode="scalar"):
             si = si_c

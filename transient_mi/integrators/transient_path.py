@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_streams,
                                              seed_rng, to_mono)
-from transient_mi.props import PluginParameterError, get_float, get_int
+from transient_mi.integrators._replicates import (DEFAULT_REPLICATES, ReplicateStats, effective_replicates,
+                                                  replicate_seed)
+from transient_mi.props import PluginParameterError, get_bool, get_float, get_int
 
 PLUGIN = ("integrator", "transient_path", "TransientPath")
 
@@ -55,6 +58,18 @@ class TransientPath(mi.CppADIntegrator):
        * - ``rr_depth``
          - integer
          - Depth at which Russian roulette starts, >= 1 (default 5).
+       * - ``variance_replicates``
+         - integer
+         - Independent replicates each render is split into, in [1, 1024]
+           (default 8): the capture stores their mean and the variance of
+           every bin (see :mod:`transient_mi.integrators._replicates`);
+           ``gcd(spp, variance_replicates)`` are used; 1 records no variance.
+       * - ``rqmc``
+         - boolean
+         - NLOS only: randomised quasi-Monte Carlo (a shifted Kronecker
+           sequence) for the patch point and the first bounce (default
+           true); false draws them from PCG32 (plain Monte Carlo), for
+           comparisons.
        * - ``hidden_geometry_prob``
          - float
          - NLOS only: probability of hidden-geometry sampling (vs BSDF
@@ -81,6 +96,8 @@ class TransientPath(mi.CppADIntegrator):
         self.max_depth_param = max_depth
         self.max_depth = max_depth if max_depth != -1 else 0xFFFFFFFF
         self.rr_depth = get_int(props, self.NAME, "rr_depth", 5, min_value=1)
+        self.variance_replicates = get_int(props, self.NAME, "variance_replicates", DEFAULT_REPLICATES,
+                                           min_value=1, max_value=1024)
         self.nlos_options = self._read_nlos_options(props)
 
     def _read_nlos_options(self, props) -> dict:
@@ -92,6 +109,8 @@ class TransientPath(mi.CppADIntegrator):
         see :mod:`transient_mi.integrators._nlos`); in [0, 1], default 0.8.
         """
         return {
+            "variance_replicates": self.variance_replicates,
+            "rqmc": get_bool(props, self.NAME, "rqmc", True),
             "hidden_geometry_prob": get_float(props, self.NAME, "hidden_geometry_prob", 0.8,
                                               min_value=0.0, max_value=1.0),
         }
@@ -109,7 +128,7 @@ class TransientPath(mi.CppADIntegrator):
         return mi.TensorXf(result.histogram)
 
     def render_transient(self, scene, sensor, *, seed: int = 0, spp: int = 0, spot: int | None = None,
-                         spots=None, progress=None):
+                         spots=None, progress=None, replicate_offset: int = 0, replicates: int | None = None):
         """Render one transient image (or one laser spot of an NLOS capture).
 
         Parameters
@@ -127,6 +146,13 @@ class TransientPath(mi.CppADIntegrator):
             see ``spad_array.spot_groups``); a list of results is returned.
         progress : callable, optional
             ``progress(done_paths, total_paths)`` after every kernel launch.
+        replicate_offset : int
+            Index of the first replicate: a later batch of a progressive
+            render (``render --noise-target``) continues the replicate seeds
+            (see :mod:`transient_mi.integrators._replicates`).
+        replicates : int, optional
+            Replicates of this call (overrides ``variance_replicates``; must
+            divide ``spp``).
 
         Returns
         -------
@@ -147,24 +173,66 @@ class TransientPath(mi.CppADIntegrator):
         spp = spp or int(sensor.sampler().sample_count())
         if spp < 1:
             raise PluginParameterError(f"{self.NAME}: spp={spp} must be >= 1")
+        if replicates is not None and (replicates < 1 or spp % replicates):
+            raise PluginParameterError(f"{self.NAME}: replicates={replicates} must be >= 1 and divide spp={spp}")
         if hasattr(sensor, "nlos_estimator"):
             if spots is not None:
-                results = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spots=spots, progress=progress)
+                results = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spots=spots, progress=progress,
+                                                replicate_offset=replicate_offset, replicates=replicates)
                 film.set_result(results[-1])
                 return results
-            result = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spot=spot, progress=progress)
+            result = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spot=spot, progress=progress,
+                                           replicate_offset=replicate_offset, replicates=replicates)
         else:
             if spot not in (None, 0) or spots not in (None, [0]):
                 raise PluginParameterError(f"{self.NAME}: spot={spot} given, but the sensor is a camera")
-            result = self._render_camera(scene, sensor, seed, spp, progress)
+            result = self._render_camera(scene, sensor, seed, spp, progress, replicate_offset, replicates)
         film.set_result(result)
         return result
 
     # ------------------------------------------------------------- camera
 
-    def _render_camera(self, scene, sensor, seed, spp, progress):
+    def _render_camera(self, scene, sensor, seed, spp, progress, replicate_offset=0, replicates=None):
         from transient_mi.films.transient_film import TransientResult
 
+        film = sensor.film()
+        W, H = film.width, film.height
+        axis = film.time_axis()
+        R = replicates or effective_replicates(spp, self.variance_replicates)
+        n = spp // R
+        total = W * H * spp
+        stats, steady, dropped, frac = None, 0.0, 0, 0.0
+        for r in range(R):
+            done0 = W * H * n * r
+
+            def rep_progress(d, _t, _done=done0):
+                if progress is not None:
+                    progress(_done + d, total)
+
+            h, st, dr_n, fr = self._render_camera_replicate(
+                scene, sensor, replicate_seed(seed, replicate_offset + r, R), n, rep_progress)
+            if stats is None:
+                stats = ReplicateStats.first(h)
+            else:
+                stats.add(h)
+            steady = steady + st.astype(np.float64)
+            dropped += dr_n
+            frac += fr
+            del h
+        var, tvar = stats.variance(), stats.total_variance()
+        return TransientResult(
+            histogram=stats.mean.reshape(H, W, axis.n_bins),
+            steady=(steady / R).astype(np.float32).reshape(H, W),
+            dropped_contributions=dropped,
+            dropped_fraction=frac / R,
+            samples=total,
+            variance=None if var is None else var.reshape(H, W, axis.n_bins),
+            total_variance=None if tvar is None else tvar.reshape(H, W),
+            replicates=R,
+        )
+
+    def _render_camera_replicate(self, scene, sensor, seed, spp, progress):
+        """One replicate: ``(hist[n_pixels, n_bins], steady[n_pixels], dropped, fraction)``."""
         film = sensor.film()
         W, H = film.width, film.height
         taps = film.kernel_taps()
@@ -176,21 +244,13 @@ class TransientPath(mi.CppADIntegrator):
         rng = seed_rng(seed, layout.n_lanes)
         center = mi.Point3f(sensor.world_transform().translation())
         total = layout.n_pixels * spp
-        done = 0
         for j0, j1 in layout.passes():
             rng = self._camera_pass(scene, sensor, hist, rng, layout, j0, j1, W, H, center)
             hist.evaluate(rng)
             done = min(total, layout.n_pixels * min(spp, j1 * K))
             if progress is not None:
                 progress(done, total)
-        h, steady, dropped, frac = hist.collect(taps)
-        return TransientResult(
-            histogram=h.reshape(H, W, axis.n_bins),
-            steady=steady.reshape(H, W),
-            dropped_contributions=dropped,
-            dropped_fraction=frac,
-            samples=total,
-        )
+        return hist.collect(taps)
 
     @dr.syntax
     def _camera_pass(self, scene, sensor, hist, rng, layout, j0, j1, W, H, center):
@@ -280,4 +340,7 @@ class TransientPath(mi.CppADIntegrator):
             si = si_next
 
     def to_string(self):
-        return f"TransientPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}]"
+        o = self.nlos_options
+        return (f"TransientPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}, "
+                f"variance_replicates={self.variance_replicates}, hidden_geometry_prob={o['hidden_geometry_prob']:g}, "
+                f"rqmc={str(o['rqmc']).lower()}]")

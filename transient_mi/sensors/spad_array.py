@@ -178,7 +178,7 @@ class SpadArray(mi.Sensor):
         }
 
     def nlos_estimator(self, integrator, scene, *, seed: int, spp: int, spot: int | None = None, spots=None,
-                       progress=None):
+                       progress=None, replicate_offset: int = 0, replicates: int | None = None):
         """Render one laser spot (``spot``), a group of spots (``spots``) or the confocal capture.
 
         Returns a ``TransientResult`` for ``spot``, a list of them for ``spots``.
@@ -190,7 +190,8 @@ class SpadArray(mi.Sensor):
         options.setdefault("rr_depth", getattr(integrator, "rr_depth", 5))
         group = [0 if spot is None else int(spot)] if spots is None else [int(j) for j in spots]
         res = render_spots(self.nlos_setup(scene), scene, self.film(), options, seed=seed, spp=spp, spots=group,
-                           progress=progress)
+                           progress=progress, replicate_offset=replicate_offset,
+                           replicates=replicates)
         return res if spots is not None else res[0]
 
     def spot_groups(self, scene, spp: int) -> list[list[int]]:

@@ -13,12 +13,16 @@ from transient_mi.reporting import METRIC_KEYS
 METRIC_COLUMNS = METRIC_KEYS + ("depth_rmse_m", "localisation_error_m", "occupied_voxels")
 
 
-def render(scene, out_dir, seed: int) -> Path:
-    """Render ``scene``'s ideal capture into ``out_dir`` (no progress bar of its own)."""
+def render(scene, out_dir, seed: int, noise_target=None, log=None) -> Path:
+    """Render ``scene``'s ideal capture into ``out_dir`` (no progress bar of its own).
+
+    ``noise_target``: a :class:`transient_mi.noise_target.NoiseTargetSpec` (the scene's spp is then the pilot).
+    """
     from transient_mi.pipeline import prepare_render, run_render
 
-    job = prepare_render(scene.path, out_dir, defines=scene.defines, spp=scene.spp, seed=seed)
-    return run_render(job, progress=False)
+    job = prepare_render(scene.path, out_dir, defines=scene.defines, spp=scene.spp, seed=seed,
+                         noise_target=noise_target)
+    return run_render(job, progress=False, log=log or (lambda line: None))
 
 
 def bar_enabled(progress: bool | None) -> str:

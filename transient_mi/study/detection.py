@@ -126,6 +126,27 @@ class Detection:
             arr = arr * self.budget.photon_scale
         return arr.reshape(H * W, T)
 
+    def render_noise(self) -> dict:
+        """How much of this budget's count variance is the ideal capture's rendering noise
+        (:mod:`transient_mi.detector.render_noise`; ``available: false`` without stored variance)."""
+        from recon.io.stack import has_variance, read_variance
+        from transient_mi.detector.render_noise import NoiseRatio, unavailable
+
+        m = self.ideal.manifest
+        if not has_variance(m):
+            return unavailable("the ideal capture stores no variance")
+        _, H, W, T = self.ideal.shape
+        nr = NoiseRatio()
+        s2 = self.budget.photon_scale ** 2
+        for j in range(self.ideal.n_files):
+            var, tvar = read_variance(self.ideal.path, j, m)
+            nr.add_spot(self.model(j), self.scaled_ideal(j), var.reshape(H * W, T).astype(np.float64) * s2,
+                        self.n_pulses, total_variance=tvar.reshape(-1).astype(np.float64) * s2)
+        rep = nr.report()
+        # rendering-noise ceiling on the SNR (independent of the budget): mu / sqrt(V) = 1 / relative error
+        rep["snr_ceiling_bins"] = float(np.sqrt(nr.mu2_sum / nr.var_sum)) if nr.var_sum > 0 else None
+        return rep
+
     def counts(self, j: int, seed: int) -> tuple[np.ndarray, dict]:
         """Counts of spot ``j`` for detection seed ``seed``: uint32 ``[H, W, T]`` and the engine's info."""
         from transient_mi.detector.detect import run_spot, to_uint32

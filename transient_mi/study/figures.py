@@ -73,18 +73,45 @@ def error_vs_photons(path: Path, aggregate: list[dict]) -> Path | None:
             y = np.array([r[f"{key}_mean"] for r in rs]) * scale
             e = np.array([r[f"{key}_sd"] or 0.0 for r in rs]) * scale
             ax.errorbar(x, y, yerr=e, capsize=2, ms=4, lw=1.2, label=_config_label(rs[0], vary), **style(rs[0]))
+        _render_noise_marks(ax, aggregate)
         ax.set_xscale("log")
         ax.set_xlabel("detected counts per pixel per laser spot")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3, which="both")
     axes[0, 0].legend(fontsize=7)
-    fig.suptitle("Reconstruction error vs photon budget (mean and sd over detection seeds)", fontsize=10)
+    worst = max((r.get("render_noise_ratio") or 0.0) for r in aggregate)
+    fig.suptitle("Reconstruction error vs photon budget (mean and sd over detection seeds); rendering noise of the "
+                 f"ideal capture <= {worst:.2g} x the photon noise at every budget", fontsize=10)
     fig.tight_layout()
     return save_figure(fig, path)
 
 
-def snr_vs_photons(path: Path, snr_bins: list[dict], snr_pixels: list[dict]) -> Path:
-    """Per-bin SNR, per-bin signal SNR and per-pixel SNR against detected counts, with the closed forms."""
+def _render_noise_marks(ax, aggregate: list[dict]) -> None:
+    """Vertical lines where the ideal capture's rendering variance reaches 0.1 x and 1 x the photon variance
+    (interpolated in log-log over the first configuration's budgets; R grows in proportion to the budget)."""
+    cfgs = _configs(aggregate)
+    if not cfgs:
+        return
+    rs = sorted((r for r in aggregate if (r["laser_power_w"], r["dark_count_rate_cps"], r["dead_time_ns"]) == cfgs[0]
+                 and r.get("render_noise_ratio")), key=lambda r: r["counts_per_pixel_per_spot_mean"])
+    if len(rs) < 2:
+        return
+    x = np.log([max(r["counts_per_pixel_per_spot_mean"], 1e-3) for r in rs])
+    y = np.log([r["render_noise_ratio"] for r in rs])
+    for level, ls in ((0.1, ":"), (1.0, "--")):
+        if y[0] <= math.log(level) <= y[-1]:
+            xv = float(np.exp(np.interp(math.log(level), y, x)))
+            ax.axvline(xv, color="0.3", ls=ls, lw=1,
+                       label=f"rendering noise = {level:g} x photon noise" if level == 1.0 else
+                       "rendering noise = 0.1 x photon noise")
+
+
+def snr_vs_photons(path: Path, snr_bins: list[dict], snr_pixels: list[dict], snr_ceiling: float | None = None) -> Path:
+    """Per-bin SNR, per-bin signal SNR and per-pixel SNR against detected counts, with the closed forms.
+
+    ``snr_ceiling``: the ideal capture's rendering-noise ceiling on the per-bin SNR (mu / sqrt(V), the
+    inverse relative rendering error, independent of the budget), drawn as a horizontal line.
+    """
     fig, axes = subplots(1, 3, figsize=(15, 4.4))
 
     def ok(*vals):
@@ -110,6 +137,10 @@ def snr_vs_photons(path: Path, snr_bins: list[dict], snr_pixels: list[dict]) -> 
     if snr_bins:
         xs = [r["mean_counts"] for r in snr_bins]
         line(ax, min(xs) / 2, max(xs) * 2, "Poisson: SNR = sqrt(N)")
+    if snr_ceiling:
+        ax.axhline(snr_ceiling, color="C1", ls="--", lw=1.2,
+                   label=f"rendering-noise ceiling of this render (SNR {snr_ceiling:.3g}): across renders, "
+                         "SNR = N / sqrt(N + V)")
     ax.set_title("per bin: mean / sd of counts over seeds", fontsize=10)
     ax.set_xlabel("detected counts per bin (N)")
     ax.set_ylabel("SNR")
@@ -153,7 +184,7 @@ def snr_vs_photons(path: Path, snr_bins: list[dict], snr_pixels: list[dict]) -> 
         ax.grid(alpha=0.3, which="both")
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
-    fig.suptitle("SNR over repeated detections of one render (colour: dark-count rate; filled markers: the "
+    fig.suptitle("SNR over repeated detections of one render, which freezes its rendering noise (colour: dark-count rate; filled markers: the "
                  "shortest dead time, open: longer ones)", fontsize=10)
     fig.tight_layout()
     return save_figure(fig, path)
