@@ -492,7 +492,9 @@ def _make_manifest(mode, kind, H, W, n_files, t0_ps, bin_width_ps, n_bins, inclu
 
 
 def load_capture(path: str | Path) -> Capture:
-    """Open a capture: an EXR stack directory or a y-tal HDF5 file (``.h5``/``.hdf5``).
+    """Open a capture: an EXR stack directory, a y-tal or ZNLOS HDF5 file (``.h5``/``.hdf5``) or a Stanford
+    f-k confocal measurement (``.mat``, with ``tof.mat`` beside it; :func:`recon.io.real.read_fk_mat` with its
+    defaults: 2 m wall, 32 ps bins).
 
     Only the manifest and file headers are checked here; histograms are read
     per laser spot when used.
@@ -511,11 +513,26 @@ def load_capture(path: str | Path) -> Capture:
         raise UserInputError(f"capture {str(p)!r} does not exist (expected an EXR stack directory or a .h5 file)")
     if p.is_file():
         if p.suffix.lower() in (".h5", ".hdf5", ".hdf"):
+            import h5py
+
             from .io.ytal import read_ytal
 
+            try:
+                with h5py.File(p, "r") as f:
+                    znlos = "data" in f and "H" not in f
+            except OSError as e:
+                raise UserInputError(f"{p}: not a readable HDF5 file ({e})") from None
+            if znlos:
+                from .io.real import read_znlos
+
+                return read_znlos(p)
             return read_ytal(p)
+        if p.suffix.lower() == ".mat":
+            from .io.real import read_fk_mat
+
+            return read_fk_mat(p)
         raise UserInputError(f"capture {str(p)!r} is a file with suffix {p.suffix!r}: expected an EXR stack "
-                             "directory or a y-tal HDF5 file (.h5, .hdf5)")
+                             "directory, a y-tal or ZNLOS HDF5 file (.h5, .hdf5) or a Stanford f-k .mat file")
     m = stack.read_manifest(p)
     if m["capture"] not in MODES:
         raise UserInputError(

@@ -6,6 +6,7 @@ import time
 from pathlib import Path
 
 from .capture import Capture, load_capture
+from ._lock import output_lock
 from .errors import UserInputError
 from .filters import DEFAULT_THRESHOLD, no_filter, paper_filter
 from .grid import VoxelGrid, make_grid
@@ -15,6 +16,14 @@ __all__ = ["METHODS", "FILTERS", "reconstruct", "run"]
 
 METHODS = ("bp", "fbp", "lct", "fk", "phasor", "midpoint-lct", "midpoint-fk")
 FILTERS = ("paper", "none")
+#: The filter each method gets when none is asked for: the paper's Gaussian + Laplacian + threshold sharpens
+#: plain backprojection (the paper's method); the other methods filter in their own way (FBP's time filter,
+#: LCT's Wiener deconvolution, f-k's migration, phasor fields' band-pass virtual wave), and the Laplacian of
+#: their output moves the maximum: on a 4 cm patch 45 cm from the wall, phasor fields with the paper filter
+#: peaked 1.8 cm (1.5 voxels) too close to the wall (tests/test_recon_default_filters.py).
+DEFAULT_FILTER = {"bp": "paper", "fbp": "none", "lct": "none", "fk": "none", "phasor": "none",
+                  # measured with the paper filter on the mannequin leaderboard (docs/recon.md)
+                  "midpoint-lct": "paper", "midpoint-fk": "paper"}
 CONFOCAL_ONLY = ("lct", "fk")
 #: Default threshold of the paper's filter per method (others: ``filters.DEFAULT_THRESHOLD``, rel:0.3).
 #: midpoint-fk's volume is an intensity ``|rho|^2``, whose dynamic range is the square of an amplitude's:
@@ -29,7 +38,7 @@ def default_threshold(method: str) -> str:
 
 
 def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = None, *,
-                bounds=None, voxels=None, voxel_size_m=None, filter: str = "paper", sigma_m: float | None = None,
+                bounds=None, voxels=None, voxel_size_m=None, filter: str | None = None, sigma_m: float | None = None,
                 threshold=None, **options) -> Reconstruction:
     """Reconstruct ``capture`` with ``method`` and filter the result.
 
@@ -44,14 +53,16 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
     grid : VoxelGrid, optional
         Default :func:`recon.grid.make_grid` from ``bounds``, ``voxels``,
         ``voxel_size_m``.
-    filter : {"paper", "none"}
+    filter : {"paper", "none"}, optional
         ``paper``: Gaussian, negative Laplacian, threshold
         (:func:`recon.filters.paper_filter`); ``none``: ``volume = raw``.
+        Default :data:`DEFAULT_FILTER` of the method (``paper`` for bp, ``none`` for the others), then
+        the default threshold ``rel:0.3`` either way.
     sigma_m : float, optional
         Gaussian sigma of the paper filter, metres (default one voxel).
     threshold : str, optional
-        Threshold spec (default for ``paper``: :func:`default_threshold`, ``rel:0.3`` except
-        ``rel:0.1`` for midpoint-fk; ``none`` for ``none``).
+        Threshold spec (default :func:`default_threshold`: ``rel:0.3``, except ``rel:0.1`` for midpoint-fk;
+        ``none`` when ``filter="none"`` is asked for explicitly).
     **options
         Method options: ``voxel_integration`` (bp), ``fbp_sigma_m`` (fbp),
         ``snr`` (lct, midpoint-lct), ``wavelength_m``, ``pulse_sigma_m``, ``phasor_method`` (phasor),
@@ -59,6 +70,10 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
     """
     if method not in METHODS:
         raise UserInputError(f"--method {method!r}: allowed {', '.join(METHODS)}")
+    if filter is None:
+        filter = DEFAULT_FILTER[method]
+        if threshold is None:
+            threshold = default_threshold(method)  # occupancy for metrics and pictures, whichever filter
     if filter not in FILTERS:
         raise UserInputError(f"--filter {filter!r}: allowed {', '.join(FILTERS)}")
     if method in CONFOCAL_ONLY and capture.mode != "confocal":
@@ -136,13 +151,29 @@ def _midpoint(capture: Capture, grid: VoxelGrid, method: str, opts: dict) -> Rec
 
 
 def run(capture_path, out_dir, method: str = "bp", *, bounds=None, voxels=None, voxel_size_m=None,
-        filter: str = "paper", sigma_m=None, threshold=None, ground_truth=None, pileup_correction: bool = False,
+        filter: str | None = None, sigma_m=None, threshold=None, ground_truth=None, pileup_correction: bool = False,
         pulses=None, blind_cycles=None, time_crop_ps=None, time_downsample: int | None = None, overwrite: bool = False,
         plots: bool = True, seed: int = 0, **options) -> tuple[Reconstruction, dict | None, Path]:
     """Load, preprocess, reconstruct, filter, score and write (the ``recon`` command).
 
-    Returns ``(reconstruction, metrics or None, output directory)``.
+    Returns ``(reconstruction, metrics or None, output directory)``. The output's lock
+    (:mod:`recon._lock`) is held from the first check to the last write: a second run into the same
+    directory is refused.
     """
+    from .output import check_output_dir
+
+    check_output_dir(out_dir, overwrite)  # fail before any work (and before taking the lock)
+    with output_lock(out_dir):
+        return _run_locked(capture_path, out_dir, method, bounds=bounds, voxels=voxels, voxel_size_m=voxel_size_m,
+                           filter=filter, sigma_m=sigma_m, threshold=threshold, ground_truth=ground_truth,
+                           pileup_correction=pileup_correction, pulses=pulses, blind_cycles=blind_cycles,
+                           time_crop_ps=time_crop_ps, time_downsample=time_downsample, overwrite=overwrite,
+                           plots=plots, seed=seed, **options)
+
+
+def _run_locked(capture_path, out_dir, method, *, bounds, voxels, voxel_size_m, filter, sigma_m, threshold,
+                ground_truth, pileup_correction, pulses, blind_cycles, time_crop_ps, time_downsample, overwrite,
+                plots, seed, **options):
     from . import preprocess
     from .metrics import compute_metrics, load_ground_truth
     from .output import check_output_dir, write_outputs

@@ -144,6 +144,12 @@ def test_killed_worker_item_is_redone_with_no_partial_item(killed_run):
     m = stack.read_manifest(out / "items" / f"item_{KILLED_ITEM:06d}" / "capture")
     assert m["status"] == "complete"
     assert len(read_index(out)) == N_ITEMS  # nothing duplicated
+    # the log says which item was redone, by whom, and what the dead attempt left (one line per retried item)
+    name = f"item_{KILLED_ITEM:06d}"
+    retried = [ln for ln in r.stderr.splitlines() if "redone by worker" in ln]
+    assert len(retried) == 1 and retried[0].startswith(f"{name}: redone by worker {res['worker']}"), r.stderr
+    assert Path(state["tmp_dir"]).name in retried[0]
+    assert f"1 item(s) redone after a worker died ({name})" in r.stdout
 
 
 def test_scheduler_address_runs_on_an_existing_cluster(scheduler_run, cluster):

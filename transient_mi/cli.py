@@ -12,8 +12,11 @@ import pkgutil
 import sys
 
 import typer
+import typer.main
 
 from recon.errors import UserInputError
+
+from .commands._options import BadOptionValue
 
 app = typer.Typer(
     name="transient-mi",
@@ -50,6 +53,32 @@ def fail(message: str, code: int = 2) -> "typer.Exit":
     return typer.Exit(code)
 
 
+def _adjust(cmd) -> None:
+    """Show flags (``--resume``, ``--help``) as flags in ``--help``, without a ``<bool>`` value type
+    (recursively over sub-commands)."""
+    for p in getattr(cmd, "params", []):
+        if getattr(p, "is_flag", False):
+            p.metavar = ""
+    orig = cmd.get_help_option
+
+    def get_help_option(ctx, _orig=orig):
+        opt = _orig(ctx)
+        if opt is not None:
+            opt.metavar = ""
+        return opt
+
+    cmd.get_help_option = get_help_option
+    for sub in getattr(cmd, "commands", {}).values():
+        _adjust(sub)
+
+
+def command():
+    """The click command behind :data:`app`, adjusted by :func:`_adjust`."""
+    cmd = typer.main.get_command(app)
+    _adjust(cmd)
+    return cmd
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``transient-mi`` console script.
 
@@ -58,8 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     ``error: <message>`` on stderr and exit status 2.
     """
     try:
-        app(args=argv, standalone_mode=True)
-    except UserInputError as e:
+        command()(args=argv, standalone_mode=True, prog_name="transient-mi")
+    except (UserInputError, BadOptionValue) as e:
         typer.echo(f"error: {e}", err=True)
         return 2
     return 0

@@ -225,11 +225,13 @@ def _figure_histograms(path: Path, hists: dict, s: DemoSettings) -> None:
         ax.set_xlabel("time of flight (ns)")
         ax.set_ylim(0.5, None)
     axes[0].set_ylabel("counts per bin (all pixels and spots)")
-    axes[0].legend(loc="upper right", fontsize=7)
+    handles, labels = axes[0].get_legend_handles_labels()
+    # one legend for every panel, below them: never over the data
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
     fig.suptitle("Histograms per array size (cf. the paper's Fig. 4), summed over pixels and laser spots: the "
                  "mannequin's three-bounce light arrives over ~15-23 ns; shaded: the span of the per-spot gates",
                  fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     _savefig(fig, path)
 
 

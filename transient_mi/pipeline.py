@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from recon._atomic import check_output_location
+from recon._lock import output_lock
 from recon._progress import progress_bar
 from recon.errors import UserInputError
 from recon.io import stack
@@ -141,7 +142,11 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
     film = sensor.film()
     if not hasattr(film, "is_transient"):
         raise UserInputError(f"{scene_file}: the sensor's film must be a transient_film or spad_film")
-    spp = spp or int(sensor.sampler().sample_count())
+    if not spp:
+        spp = int(sensor.sampler().sample_count())
+        if spp < 1:
+            raise UserInputError(f"{scene_file}: the sampler's sample_count is {spp} (e.g. from -D spp={spp}); "
+                                 "need >= 1 samples per pixel")
     layout = sensor.capture_layout(scene) if hasattr(sensor, "capture_layout") else _camera_layout(sensor)
     detect_kwargs = film.detect_kwargs(render_seed=seed) if hasattr(film, "detect_kwargs") else None
     if detect_kwargs is not None and layout["quantity"] != "photons_per_pulse":
@@ -308,6 +313,13 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None, log=N
     Path
         The capture directory (for a ``spad_film``, the counts capture).
     """
+    with output_lock(job.out_dir):
+        # re-checked under the lock: another run may have written OUT since prepare_render looked
+        _check_output(job.out_dir, job.resume)
+        return _run_render_locked(job, progress, on_spot, log)
+
+
+def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> Path:
     d = job.ideal_dir
     d.mkdir(parents=True, exist_ok=True)
     if log is None:

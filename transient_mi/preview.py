@@ -41,6 +41,38 @@ def slice_bins(hist: np.ndarray, fractions=(0.1, 0.3, 0.5, 0.7)) -> list[int]:
     return [int(np.searchsorted(cum, f * cum[-1])) for f in fractions]
 
 
+def wall_return_mask(manifest: dict, spot: int, shape: tuple[int, int, int]) -> np.ndarray:
+    """Bins ``[height, width, n_bins]`` that can hold the relay wall's own (first-bounce) return.
+
+    For pixel patch centre ``P`` and laser spot ``S`` the earliest light that
+    reaches a hidden point travels ``|L - S| + |S - P| + |P - D|`` (laser
+    ``L``, detector ``D``; without them when the capture excludes the first
+    and last segments); the wall return arrives no later than that plus the
+    patch and spot size. Bins starting before that time plus a margin of one
+    pixel footprint (times sqrt 2) and two bins are marked. Hidden-scene light
+    arrives at least ``2 z / c`` later, so only objects within about a pixel
+    footprint of the wall are hidden by the mask. All False when the capture
+    has no wall return (``include_wall_return`` false) or no geometry.
+    """
+    H, W, n = shape
+    g = manifest.get("geometry") or {}
+    if not g.get("include_wall_return") or "pixel_centers" not in g or "spots" not in g:
+        return np.zeros(shape, bool)
+    c_m_per_ps = 299792458.0 * 1e-12
+    P = np.asarray(g["pixel_centers"], np.float64).reshape(H, W, 3)
+    S = np.asarray(g["spots"], np.float64).reshape(-1, 3)
+    S = S[spot] if manifest["capture"] != "confocal" else S.reshape(H, W, 3)
+    path = np.linalg.norm(P - S, axis=-1)
+    if manifest.get("include_first_last"):
+        L, D = np.asarray(g["laser_origin"], np.float64), np.asarray(g["detector_origin"], np.float64)
+        path = path + np.linalg.norm(S - L, axis=-1) + np.linalg.norm(P - D, axis=-1)
+    t = manifest["time"]
+    margin_m = float(g.get("pixel_footprint_m", 0.0)) * np.sqrt(2) + 2 * t["bin_width_ps"] * c_m_per_ps
+    t_end = (path + margin_m) / c_m_per_ps  # ps
+    starts = t["t0_ps"] + np.arange(n) * t["bin_width_ps"]
+    return starts[None, None, :] < t_end[..., None]
+
+
 def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int = 0) -> Path:
     """Write ``preview.png`` for one spot's histograms ``hist[height, width, n_bins]`` (atomically)."""
     # The object-oriented API without pyplot: saving needs no backend, and the session's backend
@@ -74,22 +106,33 @@ def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int 
             ax.set_xticks([])
             ax.set_yticks([])
     else:
+        wall = wall_return_mask(manifest, spot, hist.shape)
+        hidden = np.where(wall, 0.0, hist.astype(np.float64))
+        steady_h = hidden.sum(axis=-1)
         fig = Figure(figsize=(14, 3.8))
         axes = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1, 1.6, 1.6]})
-        im = axes[0].imshow(steady, cmap="viridis", origin="lower")
-        axes[0].set_title(f"photons/pulse, spot {spot}")
+        im = axes[0].imshow(steady_h, cmap="viridis", origin="lower")
+        axes[0].set_title(f"photons/pulse, spot {spot}\n(wall return excluded)" if wall.any()
+                          else f"photons/pulse, spot {spot}")
         fig.colorbar(im, ax=axes[0], fraction=0.046)
-        axes[1].imshow(_tonemap(streak), cmap="inferno", aspect="auto", extent=extent_xt)
-        axes[1].set_title(f"x-t streak, pixel row {row}")
+        axes[1].imshow(_tonemap(hidden[row]), cmap="inferno", aspect="auto", extent=extent_xt)
+        axes[1].set_title(f"x-t streak, pixel row {row}" + (" (wall return excluded)" if wall.any() else ""))
         axes[1].set_xlabel("time (ns)")
         axes[1].set_ylabel("pixel x")
-        y, x = np.unravel_index(int(np.argmax(steady)), steady.shape)
+        y, x = np.unravel_index(int(np.argmax(steady_h if steady_h.max() > 0 else steady)), steady.shape)
         tt = (t0 + (np.arange(n) + 0.5) * bw) / 1000.0
-        axes[2].semilogy(tt, np.clip(hist[y, x].astype(np.float64), 1e-30, None))
-        axes[2].set_title(f"histogram of pixel (y={y}, x={x})")
-        axes[2].set_xlabel("time (ns)")
-        axes[2].set_ylabel(manifest.get("quantity", "value") + " per bin")
-    fig.tight_layout()
+        unit = manifest.get("quantity", "value") + " per bin"
+        ax = axes[2]
+        ax.plot(tt, hidden[y, x], color="C0", label="hidden scene")
+        ax.set_title(f"histogram of pixel (y={y}, x={x})")
+        ax.set_xlabel("time (ns)")
+        ax.set_ylabel(unit, color="C0")
+        wall_px = np.where(wall[y, x], hist[y, x].astype(np.float64), 0.0)
+        if wall_px.any():  # the first bounce, orders of magnitude brighter: on its own axis
+            ax2 = ax.twinx()
+            ax2.plot(tt, wall_px, color="C1", lw=0.8)
+            ax2.set_ylabel("wall return (own scale)", color="C1")
+        fig.tight_layout()
     path = Path(path)
     with atomic_file(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=90)

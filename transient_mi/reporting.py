@@ -25,6 +25,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 
 from recon._atomic import atomic_file, check_output_location, replace_dir, temp_dir_beside
 from recon._json import to_json
+from recon._lock import output_lock
 from recon.errors import UserInputError
 
 #: Metrics of :func:`recon.metrics.compute_metrics` reported in the demo and study tables.
@@ -59,6 +60,14 @@ def atomic_output_dir(out, overwrite: bool = False, option: str = "-o") -> Itera
     ``out`` is replaced (only once the new result is complete).
     """
     out = check_output_dir(out, overwrite, option)
+    with output_lock(out, option):
+        check_output_dir(out, overwrite, option)  # again under the lock: another run may have written it
+        with _atomic_output_dir_locked(out, option) as tmp:
+            yield tmp
+
+
+@contextmanager
+def _atomic_output_dir_locked(out: Path, option: str) -> Iterator[Path]:
     parent = out.parent if str(out.parent) else Path(".")
     created: list[Path] = []
     p = parent.absolute()

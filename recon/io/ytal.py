@@ -139,8 +139,7 @@ def write_ytal(capture, path: str | os.PathLike, compression: int = 0) -> Path:
             _enum(f, "sensor_grid_format", GRIDFORMAT, GRIDFORMAT["X_Y_3"])
             f["laser_xyz"] = _origin(capture.laser_origin)
             if capture.mode == "confocal":
-                lg = _xy(capture.spots.reshape(H, W, 3))
-                ln = _xy(capture.spot_normals.reshape(H, W, 3))
+                lg, ln = _confocal_laser_grid(capture)
             elif exhaustive:
                 lg = _xy(capture.spots.reshape(ny, nx, 3))
                 ln = _xy(capture.spot_normals.reshape(ny, nx, 3))
@@ -156,6 +155,22 @@ def write_ytal(capture, path: str | os.PathLike, compression: int = 0) -> Path:
             f["t_accounts_first_and_last_bounces"] = bool(capture.include_first_last)
             f["scene_info"] = yaml.safe_dump(scene_info, sort_keys=False)
     return p
+
+
+#: A confocal capture's laser spots closer than this to its pixel centres (m) are stored as exactly the sensor
+#: grid: ray-traced spots differ from the patch centres by float32 rounding (~1e-7 m), which made y-tal's
+#: ``is_confocal()`` (an exact comparison) false and its f-k refuse the file. 10 um is 0.03 ps of path.
+CONFOCAL_SNAP_M = 1e-5
+
+
+def _confocal_laser_grid(capture) -> tuple[np.ndarray, np.ndarray]:
+    """``(laser_grid_xyz, laser_grid_normals)`` of a confocal capture, X_Y_3: the sensor grid itself when every
+    spot lies within :data:`CONFOCAL_SNAP_M` of its pixel centre, else the spots as they are."""
+    H, W = capture.height, capture.width
+    spots = capture.spots.reshape(H, W, 3)
+    if float(np.max(np.abs(spots - capture.pixel_centers))) <= CONFOCAL_SNAP_M:
+        return _xy(capture.pixel_centers), _xy(capture.pixel_normals)
+    return _xy(spots), _xy(capture.spot_normals.reshape(H, W, 3))
 
 
 def _origin(v):

@@ -7,6 +7,8 @@ from typing import Optional
 
 import typer
 
+from ._options import whole_number
+
 
 def dataset(
     spec: Path = typer.Argument(..., help="Dataset spec, YAML or JSON (see docs/dataset.md)."),
@@ -14,10 +16,10 @@ def dataset(
     scheduler: Optional[str] = typer.Option(None, "--scheduler",
                                             help="Address of a running Dask scheduler, e.g. tcp://127.0.0.1:8786 "
                                                  "(default: a local cluster)."),
-    workers: Optional[int] = typer.Option(None, "--workers",
+    workers: Optional[int] = typer.Option(None, "--workers", parser=whole_number("--workers"), metavar="<int>",
                                           help="Worker processes of the local cluster (default: one per core up "
                                                "to 4 cores, about sqrt(cores) above)."),
-    threads_per_worker: Optional[int] = typer.Option(None, "--threads-per-worker",
+    threads_per_worker: Optional[int] = typer.Option(None, "--threads-per-worker", parser=whole_number("--threads-per-worker"), metavar="<int>",
                                                      help="drjit threads in each worker process (default: cores / "
                                                           "worker processes on each host)."),
     dry_run: bool = typer.Option(False, "--dry-run", help="Validate the spec and scene, list the plan, write nothing."),

@@ -7,12 +7,14 @@ from typing import Optional
 
 import typer
 
+from ._options import whole_number
+
 
 def demo(
     out: Path = typer.Option(Path("out/demo"), "-o", "--out", help="Output directory."),
     quick: bool = typer.Option(False, "--quick", help="Coarser settings: under 2 minutes on 2 cores."),
     arrays: Optional[str] = typer.Option(None, "--arrays", help="Array sizes, comma-separated (default 4,8,16,32)."),
-    seed: int = typer.Option(0, "--seed", help="Seed of rendering and detection."),
+    seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Seed of rendering and detection."),
     exposure_ms: Optional[float] = typer.Option(None, "--exposure-ms", help="Exposure per laser spot, ms (default 10)."),
     spots: Optional[int] = typer.Option(
         None, "--spots", help="Laser scan grid side N (N x N spots over the 1 m wall; default 2). Render time and "

@@ -7,6 +7,8 @@ from typing import Optional
 
 import typer
 
+from ._options import whole_number
+
 _D = None  # DetectorParams defaults, filled lazily for the help texts
 
 
@@ -22,7 +24,7 @@ def _default(name: str) -> str:
 def detect(
     ideal: Path = typer.Argument(..., help="Ideal capture directory (kind 'ideal', photons per pulse)."),
     out: Path = typer.Option(..., "-o", "--out", help="Counts capture directory to write (must not hold a capture)."),
-    pulses: Optional[int] = typer.Option(None, "--pulses", help="Laser pulses per spot (default 1e6)."),
+    pulses: Optional[int] = typer.Option(None, "--pulses", parser=whole_number("--pulses"), metavar="<int>", help="Laser pulses per spot (default 1e6)."),
     exposure_s: Optional[float] = typer.Option(None, "--exposure-s", help="Exposure per spot in seconds (pulses = exposure x repetition rate)."),
     pde: Optional[float] = typer.Option(None, "--pde", help=f"Photon detection efficiency in [0, 1] (default {_default('pde')})."),
     dark_count_rate_cps: Optional[float] = typer.Option(None, "--dark-count-rate-cps", help=f"Dark counts per second (default {_default('dark_count_rate_cps')})."),
@@ -46,8 +48,10 @@ def detect(
     repetition_rate_hz: Optional[float] = typer.Option(None, "--repetition-rate-hz", help="Laser repetition rate (default: the capture's, else 50e6)."),
     laser_power_w: Optional[float] = typer.Option(None, "--laser-power-w", help="Average laser power override, W (rescales the photons)."),
     wavelength_nm: Optional[float] = typer.Option(None, "--wavelength-nm", help="Laser wavelength override, nm (rescales the photons)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed; same seed, same bytes."),
+    seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed; same seed, same bytes."),
     engine: str = typer.Option("auto", "--engine", help="auto, analytic or exact."),
+    force: bool = typer.Option(False, "--force", help="With --engine exact, run even when the estimated work "
+                               "exceeds the limit (it is estimated first and refused past the limit)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a counts capture already in OUT."),
     noise_threshold: float = typer.Option(0.1, "--noise-threshold", help="Warn when the ideal capture's rendering "
                                           "variance exceeds this share of the photon variance (docs/noise.md)."),
@@ -71,7 +75,7 @@ def detect(
         kwargs["auto_gate"] = True
     params = DetectorParams(**kwargs)
     path = detect_stack(ideal, out, params, pulses=pulses, exposure_s=exposure_s, seed=seed, engine=engine,
-                        overwrite=overwrite, noise_threshold=noise_threshold)
+                        overwrite=overwrite, noise_threshold=noise_threshold, force=force)
     from recon.io.stack import read_manifest
 
     m = read_manifest(path)
@@ -81,8 +85,24 @@ def detect(
     noise = (f"; rendering/photon noise {rn['ratio']:.3g}" if rn.get("available") else
              "; rendering noise unknown (no variance stored)")
     typer.echo(f"wrote {path} ({m['n_files']} spot file(s), {d['pulses']} pulses per spot, "
-               f"engine {'/'.join(used)}{'' if d['resolved']['exact'] else ' (approximate, see docs/detector.md)'}"
-               f"{noise})")
+               f"engine {'/'.join(used)}{engine_note(engine, d['resolved']['exact'])}{noise})")
+
+
+def engine_note(engine: str, exact: bool) -> str:
+    """What the engine message adds: ``(exact)`` when every draw was exact, else why it was approximate.
+
+    The wording follows docs/detector.md ("Engines") and the README: ``auto`` runs the analytic engine
+    where it is exact, else the exact engine when affordable, else the analytic one (approximate).
+    """
+    if exact:
+        return " (exact)"
+    if engine == "auto":
+        from transient_mi.detector.detect import AUTO_EXACT_MAX_EVENTS
+
+        return (f" (approximate: the analytic engine is not exact for this capture and the exact one would "
+                f"simulate more than {AUTO_EXACT_MAX_EVENTS:.0e} events per spot; --engine exact forces it, "
+                "see docs/detector.md)")
+    return " (approximate for this capture, see docs/detector.md)"
 
 
 def register(app: typer.Typer) -> None:

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from ._options import whole_number
+
 from recon.errors import UserInputError
 
 
@@ -27,7 +29,7 @@ def mannequin(
     pose: str = typer.Option("arms_down", "--pose", help="arms_down, arms_raised, one_arm_out, arms_forward or t_pose."),
     rotation_deg: float = typer.Option(0.0, "--rotation-deg", help="Turn about the vertical axis (+y), degrees; 0 faces the wall (-z)."),
     position: str = typer.Option("0,0,0.5", "--position", help="Body centre x,y,z in metres (mid-line, mid-height, torso mid-depth)."),
-    detail: int = typer.Option(20, "--detail", help="Segments around each primitive, 8 to 128."),
+    detail: int = typer.Option(20, "--detail", parser=whole_number("--detail"), metavar="<int>", help="Segments around each primitive, 8 to 128."),
     report: bool = typer.Option(False, "--report", help="Also print each part's depth and three-bounce arrival time from the wall centre."),
 ) -> None:
     """Write the procedural mannequin (watertight PLY, world frame: wall z = 0, hidden space z > 0).

@@ -11,6 +11,8 @@ from typing import Optional
 
 import typer
 
+from ._options import whole_number
+
 from recon.errors import UserInputError
 
 
@@ -51,22 +53,24 @@ def recon_command(
     bounds: Optional[str] = typer.Option(
         None, "--bounds", help="xmin,xmax,ymin,ymax,zmin,zmax in metres (default: the wall extent, z from the "
                                "time axis)."),
-    filter: str = typer.Option("paper", "--filter", help="paper (Gaussian, Laplacian, threshold) or none."),
+    filter: Optional[str] = typer.Option(None, "--filter", help="paper (Gaussian, Laplacian, threshold) or none "
+                                         "(default: paper for bp and midpoint-*, none for fbp, lct, fk and "
+                                         "phasor, which filter in their own way)."),
     sigma_m: Optional[float] = typer.Option(None, "--sigma-m", help="Gaussian sigma of the paper filter, metres "
                                                                    "(default one voxel)."),
     threshold: Optional[str] = typer.Option(
-        None, "--threshold", help="none | otsu | rel:F | abs:V (default with --filter paper: rel:0.3; rel:0.1 for midpoint-fk)."),
+        None, "--threshold", help="none | otsu | rel:F | abs:V (default rel:0.3, rel:0.1 for midpoint-fk; none with "
+                                  "an explicit --filter none)."),
     ground_truth: Optional[Path] = typer.Option(
         None, "--ground-truth", help="Mesh (.obj/.ply/.stl/...) or points (.json/.npy/.csv) for metrics.json."),
     pileup_correction: bool = typer.Option(False, "--pileup-correction",
                                            help="Coates pile-up correction of a counts capture."),
     pulses: Optional[float] = typer.Option(None, "--pulses", help="Laser pulses for --pileup-correction "
                                                                   "(default from the manifest)."),
-    blind_cycles: Optional[int] = typer.Option(
-        None, "--blind-cycles", help="Whole cycles the detector is blind after a detection, for "
+    blind_cycles: Optional[int] = typer.Option(None, "--blind-cycles", parser=whole_number("--blind-cycles"), metavar="<int>", help="Whole cycles the detector is blind after a detection, for "
                                      "--pileup-correction (default from the manifest's dead time and period)."),
     time_crop_ps: Optional[str] = typer.Option(None, "--time-crop-ps", help="Keep bins in T_MIN,T_MAX (ps)."),
-    time_downsample: Optional[int] = typer.Option(None, "--time-downsample", help="Sum groups of K bins."),
+    time_downsample: Optional[int] = typer.Option(None, "--time-downsample", parser=whole_number("--time-downsample"), metavar="<int>", help="Sum groups of K bins."),
     wavelength_m: Optional[float] = typer.Option(None, "--wavelength-m",
                                                  help="phasor: virtual wavelength, metres (default 4 pixel pitches)."),
     pulse_sigma_m: Optional[float] = typer.Option(None, "--pulse-sigma-m",
@@ -80,7 +84,7 @@ def recon_command(
                                               help="bp: sample each ellipsoid at voxel centres only."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output directory."),
     no_plots: bool = typer.Option(False, "--no-plots", help="Skip the PNG pictures."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the mesh surface sampling for metrics."),
+    seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Seed of the mesh surface sampling for metrics."),
 ) -> None:
     """Reconstruct the hidden scene of a capture: volume.npz, PNG projections, depth map, metrics.json."""
     from recon.grid import parse_bounds

@@ -7,13 +7,16 @@ from typing import List, Optional
 
 import typer
 
+from ._options import whole_number
+
 
 def render(
     scene: Path = typer.Argument(..., help="Mitsuba XML scene (transient_path integrator, transient_film/spad_film)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output capture directory."),
     define: Optional[List[str]] = typer.Option(None, "-D", "--define", help="Scene parameter name=value ($name in the XML). Repeatable."),
-    spp: int = typer.Option(0, "--spp", help="Samples per pixel (0: the scene's sampler value)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed; same seed, same bytes."),
+    spp: Optional[int] = typer.Option(None, "--spp", parser=whole_number("--spp"), metavar="<int>", help="Samples per pixel, >= 1 (default: the scene's sampler "
+                                                         "value)."),
+    seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed; same seed, same bytes."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Mitsuba variant (default llvm_ad_mono or $TRANSIENT_MI_VARIANT)."),
     resume: bool = typer.Option(False, "--resume", help="Continue an interrupted capture in OUT (same settings)."),
     noise_target: Optional[float] = typer.Option(
@@ -31,6 +34,8 @@ def render(
     from transient_mi.pipeline import prepare_render, run_render
     from transient_mi.scene_io import parse_defines
 
+    if spp is not None and spp < 1:
+        raise UserInputError(f"--spp {spp}: must be >= 1 (omit --spp for the scene's sampler value)")
     spec = None
     if noise_target is None:
         for name, v in (("--pulses", pulses), ("--exposure-s", exposure_s), ("--max-spp", max_spp)):
@@ -44,7 +49,7 @@ def render(
         spec = NoiseTargetSpec(target=noise_target, params=None, pulses=_whole("--pulses", pulses),
                                exposure_s=exposure_s,
                                max_spp=_whole("--max-spp", max_spp) if max_spp is not None else DEFAULT_MAX_SPP)
-    job = prepare_render(scene, out, defines=parse_defines(define), spp=spp, seed=seed, variant=variant,
+    job = prepare_render(scene, out, defines=parse_defines(define), spp=spp or 0, seed=seed, variant=variant,
                          resume=resume, noise_target=spec)
     path = run_render(job)
     m = job.manifest

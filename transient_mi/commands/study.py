@@ -7,6 +7,8 @@ from typing import List, Optional
 
 import typer
 
+from ._options import whole_number
+
 study_app = typer.Typer(
     name="study",
     help="Studies on one scene: reconstruction error and SNR against photon budget, error and time against "
@@ -90,7 +92,7 @@ def photon_budget(
         None, "--dark-count-rates-cps", help="Dark-count rates, counts/s (default 25,1e5,1e7)."),
     dead_times_ns: Optional[List[str]] = typer.Option(
         None, "--dead-times-ns", help="SPAD dead times, ns (default 10,1000)."),
-    seeds: int = typer.Option(3, "--seeds", help="Number of detection seeds (0..N-1), at least 2."),
+    seeds: int = typer.Option(3, "--seeds", parser=whole_number("--seeds"), metavar="<int>", help="Number of detection seeds (0..N-1), at least 2."),
     voxels: Optional[str] = VOXELS_OPT,
     seed: int = SEED_OPT,
     ground_truth: Optional[Path] = GT_OPT,

@@ -69,6 +69,8 @@ class DatasetReport:
     existed: int = 0
     built: int = 0
     redone_damaged: int = 0
+    #: (item, worker that redid it, earlier unfinished attempts) for every item built again after a worker died
+    retried: list[tuple[str, str, list[str]]] = field(default_factory=list)
     failed: list[tuple[str, str]] = field(default_factory=list)
     cleaned_tmp: int = 0
     elapsed_s: float = 0.0
@@ -88,6 +90,8 @@ class DatasetReport:
              f"{len(self.failed)} failed) in {self.elapsed_s:.1f} s")
         if self.cluster:
             s += f" on {self.cluster}"
+        if self.retried:
+            s += f"; {len(self.retried)} item(s) redone after a worker died ({', '.join(r[0] for r in self.retried)})"
         s += f"; index {self.out_dir / INDEX_CSV}"
         if self.render_noise_max is not None:
             over = self.render_noise_max > 0.1
@@ -479,7 +483,7 @@ def run_dataset(spec_file: str | Path, out_dir: str | Path, *, scheduler: str | 
             say(f"{len(items)} items: {len(existing.valid)} already done, {len(todo)} to build on {conn.description}")
             try:
                 _submit_and_wait(conn.client, todo, items_dir, str(spec.scene_file), threads, report, out, items,
-                                 progress)
+                                 progress, say)
             finally:
                 conn.close()  # local workers stop before their temporary directories are removed
                 report.cleaned_tmp += clean_temporaries(items_dir)
@@ -543,7 +547,7 @@ def _rows(out: Path, items: list[Item]) -> dict[str, dict]:
     return rows
 
 
-def _submit_and_wait(client, todo, items_dir, scene_file, threads, report, out, items, progress) -> None:
+def _submit_and_wait(client, todo, items_dir, scene_file, threads, report, out, items, progress, say) -> None:
     from distributed import as_completed
 
     futures = {}
@@ -565,6 +569,10 @@ def _submit_and_wait(client, todo, items_dir, scene_file, threads, report, out, 
                     msg = str(e) if type(e).__name__ == "ItemError" else f"{type(e).__name__}: {e}"
                     report.failed.append((it.name, msg.replace("\n", " ")))
                 else:
+                    if res.get("earlier_attempts"):
+                        report.retried.append((it.name, res["worker"], list(res["earlier_attempts"])))
+                        say(f"{it.name}: redone by worker {res['worker']} after {len(res['earlier_attempts'])} "
+                            f"unfinished attempt(s) (a worker died in it; left {', '.join(res['earlier_attempts'])})")
                     if res["status"] == "built":
                         report.built += 1
                     else:

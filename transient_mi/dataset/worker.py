@@ -194,7 +194,9 @@ def build_item(task: dict) -> dict:
     -------
     dict
         ``item``, ``status`` (``"built"`` or ``"existed"``), ``worker``,
-        ``total_time_s``.
+        ``total_time_s`` and (unless it existed before) ``earlier_attempts``: the
+        temporary directories of unfinished earlier attempts at this item
+        (a worker died in it), which make this run a retry.
 
     Raises
     ------
@@ -211,6 +213,9 @@ def build_item(task: dict) -> dict:
         configure_threads(threads)
         if item_status(final, rec["params_sha256"]) == "valid":
             return {"item": rec["item"], "status": "existed", "worker": _worker_id(), "total_time_s": 0.0}
+        # temporary directories of this item already there are earlier attempts that did not finish (their
+        # worker died and the scheduler gave the item to this one): the runner logs the retry
+        earlier = sorted(p.name for p in items_dir.glob(f"{TMP_PREFIX}{rec['item']}-*"))
         tmp = items_dir / f"{TMP_PREFIX}{rec['item']}-{socket.gethostname()}-{os.getpid()}-{secrets.token_hex(4)}"
         tmp.mkdir()
         try:
@@ -223,12 +228,13 @@ def build_item(task: dict) -> dict:
                     raise ItemError(f"{rec['item']}: cannot move the finished item into place: {final} exists "
                                     "and is not a valid item") from None
                 shutil.rmtree(tmp, ignore_errors=True)
-                return {"item": rec["item"], "status": "existed", "worker": _worker_id(), "total_time_s": 0.0}
+                return {"item": rec["item"], "status": "existed", "worker": _worker_id(), "total_time_s": 0.0,
+                        "earlier_attempts": earlier}
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
     return {"item": rec["item"], "status": "built", "worker": result["worker"],
-            "total_time_s": result["total_time_s"]}
+            "total_time_s": result["total_time_s"], "earlier_attempts": earlier}
 
 
 def _worker_id() -> str:

@@ -21,17 +21,22 @@ import numpy as np
 
 from recon._progress import progress_bar
 from recon._atomic import check_output_location, temp_dir_beside
+from recon._lock import output_lock
 from recon.errors import UserInputError
 from recon.io.stack import (MANIFEST_NAME, StackError, has_variance, missing_spots, new_manifest, read_manifest,
                             read_spot, read_variance, spot_filename, write_manifest, write_spot)
 
 from .budget import resolve_budget
 from .detect import check_engine, check_ideal, run_spot, to_uint32
+from .engines import estimated_events
 from .gate import auto_gate
 from .model import build_model
 from .params import DetectorParams
 from .render_noise import DEFAULT_THRESHOLD, NoiseRatio, unavailable, warning_line
 
+#: ``engine="exact"`` refuses (unless forced) a capture whose estimated number of simulated triggering
+#: events (:func:`~transient_mi.detector.engines.exact.estimated_events`, summed over spots) exceeds this.
+EXACT_MAX_EVENTS = 5e8
 #: Version of the detector model recorded in counts manifests.
 MODEL_VERSION = 1
 _STANDARD_KEYS = {"format", "format_version", "status", "kind", "capture", "quantity", "width", "height",
@@ -68,7 +73,8 @@ def _check_output(out: Path, ideal: Path, overwrite: bool) -> None:
 
 def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pulses: int | None = None,
                  exposure_s: float | None = None, seed: int = 0, engine: str = "auto", progress: bool = True,
-                 overwrite: bool = False, noise_threshold: float = DEFAULT_THRESHOLD, warn=None) -> Path:
+                 overwrite: bool = False, noise_threshold: float = DEFAULT_THRESHOLD, warn=None,
+                 force: bool = False) -> Path:
     """Detect a whole ideal capture and write the counts capture.
 
     Parameters
@@ -97,6 +103,9 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         (:mod:`.render_noise`); above it a one-line warning is given.
     warn : callable, optional
         ``warn(line)`` receives that warning (default: printed on stderr).
+    force : bool
+        With ``engine="exact"``, run even when the estimated work exceeds
+        :data:`EXACT_MAX_EVENTS` (otherwise refused before any work).
 
     Returns
     -------
@@ -178,6 +187,18 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         include_first_last=m["include_first_last"], geometry=m.get("geometry"), laser=budget.laser,
         detector=dict(detector, resolved=resolved), render=m.get("render"), source_ideal=source_ideal, **extra)
 
+    with output_lock(out, option="output"):
+        _check_output(out, ideal, overwrite)  # again under the lock: another run may have written OUT meanwhile
+        if engine == "exact":
+            _check_exact_work(ideal, m, model, budget, spot_gates, run_params, force, progress)
+        return _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_params, resolved, seed,
+                              engine, progress, noise_threshold, warn)
+
+
+def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_params, resolved, seed, engine,
+                   progress, noise_threshold, warn) -> Path:
+    t = m["time"]
+    H, W, T = m["height"], m["width"], t["n_bins"]
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = temp_dir_beside(out)
@@ -229,6 +250,40 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
     if line:
         (warn or _stderr)(line)
     return out
+
+
+def estimate_exact_work(ideal: Path, m: dict, model, budget, spot_gates=None, run_params=None,
+                        progress: bool = True) -> dict:
+    """Work of the exact engine on a whole capture, estimated before running it (streams the spots).
+
+    Returns ``{"events": expected triggering events (the exact engine's cost driver, summed over spots),
+    "pixel_pulses": pixels x pulses x spots}``.
+    """
+    t = m["time"]
+    H, W, T = m["height"], m["width"], t["n_bins"]
+    N = budget.n_pulses
+    events = 0.0
+    with progress_bar(f"estimate exact work {ideal.name}", total=m["n_files"],
+                      disable=None if progress else True) as advance:
+        for j in range(m["n_files"]):
+            arr = check_ideal(read_spot(ideal, j, m), where=f"{ideal / spot_filename(j)}")
+            if budget.photon_scale != 1.0:
+                arr = arr * budget.photon_scale
+            spot_model = model if spot_gates is None else spot_model_for(m, run_params, spot_gates, j, budget)
+            events += estimated_events(spot_model, arr.reshape(H * W, T), N)
+            advance(1)
+    return {"events": events, "pixel_pulses": float(H * W) * N * m["n_files"]}
+
+
+def _check_exact_work(ideal, m, model, budget, spot_gates, run_params, force: bool, progress: bool) -> dict:
+    work = estimate_exact_work(ideal, m, model, budget, spot_gates, run_params, progress)
+    if work["events"] > EXACT_MAX_EVENTS and not force:
+        raise UserInputError(
+            f"engine=exact: {ideal} needs about {work['events']:.3g} simulated photon events "
+            f"({work['pixel_pulses']:.3g} pixel-pulses over {m['n_files']} spot(s)), more than the limit "
+            f"{EXACT_MAX_EVENTS:.3g}; gate out the wall return, use fewer pulses or engine auto, "
+            "or force it (--force)")
+    return work
 
 
 def _stderr(line: str) -> None:

@@ -108,7 +108,7 @@ def run_array_size_study(scene="paper_mannequin", out_dir="out/study-array-size"
     with atomic_output_dir(out, overwrite) as tmp, quiet_inner_bars():
         if gt is not None and gt.mesh is not None:
             gt.mesh.export(tmp / "ground_truth.ply")
-        with progress_bar("array-size study", total=len(arrays) + 1, disable=not bar) as advance:
+        with progress_bar("array-size study", total=len(arrays) + 1, mode=bar) as advance:
             # Warm-up, untimed: Mitsuba compiles its kernels (and numba its loops) on first use, which would
             # otherwise be charged to the first array size.
             log(f"warm-up: {arrays[0]}x{arrays[0]} (not timed)")

@@ -25,11 +25,12 @@ def render(scene, out_dir, seed: int, noise_target=None, log=None) -> Path:
     return run_render(job, progress=False, log=log or (lambda line: None))
 
 
-def bar_enabled(progress: bool | None) -> bool:
-    """Whether a study draws its progress bar: ``progress``, or (None) when stderr is a terminal."""
-    from recon._progress import _enabled
+def bar_enabled(progress: bool | None) -> str:
+    """How a study reports its progress (``recon._progress.progress_mode``): ``progress`` True/False forces the
+    bar on/off; None: a bar on a terminal, periodic lines otherwise. Decided before the inner bars are quieted."""
+    from recon._progress import progress_mode
 
-    return _enabled(None if progress is None else not progress)
+    return progress_mode(None if progress is None else not progress)
 
 
 @contextmanager

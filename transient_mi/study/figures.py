@@ -219,7 +219,7 @@ def reconstruction_strip(path: Path, previews: list[tuple[str, dict]], mesh=None
 def array_size_figure(path: Path, rows: list[dict], timings: list[dict]) -> Path:
     """Error metrics and the time of each step against the array size."""
     n = [r["array"] for r in rows]
-    fig, axes = subplots(1, 2, figsize=(11, 4))
+    fig, axes = subplots(1, 2, figsize=(11, 4.8))
     ax = axes[0]
     have = False
     for key, label in (("chamfer_m", "Chamfer"), ("accuracy_m", "accuracy"), ("completeness_m", "completeness"),
@@ -238,8 +238,9 @@ def array_size_figure(path: Path, rows: list[dict], timings: list[dict]) -> Path
         tw.set_ylabel("occupancy IoU")
         h2, l2 = tw.get_legend_handles_labels()
         handles, labels = handles + h2, labels + l2
-    if have:
-        ax.legend(handles, labels, loc="center right", fontsize=8, framealpha=0.9)
+    if have:  # below the axes: never over the data
+        ax.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, fontsize=8,
+                  frameon=False)
     else:
         ax.text(0.5, 0.5, "no ground truth: no error metrics", transform=ax.transAxes, ha="center")
     ax.set_xscale("log", base=2)
@@ -255,6 +256,6 @@ def array_size_figure(path: Path, rows: list[dict], timings: list[dict]) -> Path
     ax.set_ylabel("wall-clock time (s)")
     ax.set_title("time per step", fontsize=10)
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, fontsize=8, frameon=False)
     fig.tight_layout()
     return save_figure(fig, path)

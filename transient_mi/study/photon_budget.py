@@ -210,7 +210,7 @@ class _Run:
         self.log(f"{len(self.configs)} detector settings x {len(self.seeds)} seeds = {n} detections and "
                  "reconstructions")
         first = self.configs[0][0]
-        with progress_bar("photon-budget study", total=n, disable=not self.progress) as advance:
+        with progress_bar("photon-budget study", total=n, mode=self.progress) as advance:
             for key, det in self.configs:
                 stats = SnrStats(det, self.seeds)
                 for s in self.seeds:
