@@ -20,7 +20,9 @@ def captures():
             "confocal": point_capture(PATCH, mode="confocal", **kw)}
 
 
-CASES = [(mode, m) for mode in ("array", "confocal") for m in METHODS if mode == "confocal" or m not in ("lct", "fk")]
+# lct and fk need confocal captures; midpoint-lct and midpoint-fk convert array captures
+CASES = [(mode, m) for mode in ("array", "confocal") for m in METHODS
+         if (mode == "confocal" or m not in ("lct", "fk")) and (mode == "array" or not m.startswith("midpoint-"))]
 
 
 @pytest.mark.parametrize("mode, method", CASES, ids=[f"{a}-{b}" for a, b in CASES])

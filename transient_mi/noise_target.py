@@ -92,6 +92,8 @@ class GroupState:
     steady: list
     dropped: list
     frac: list
+    invalid: int = 0  # contributions with a NaN/-inf path length (a bug), see TransientResult
+    negative: float = 0.0
 
     @classmethod
     def from_results(cls, results) -> "GroupState":
@@ -99,7 +101,9 @@ class GroupState:
 
         return cls(int(results[0].replicates), [ReplicateStats.from_result(r) for r in results],
                    [np.asarray(r.steady, dtype=np.float64).reshape(-1) for r in results],
-                   [int(r.dropped_contributions) for r in results], [float(r.dropped_fraction) for r in results])
+                   [int(r.dropped_contributions) for r in results], [float(r.dropped_fraction) for r in results],
+                   sum(int(r.invalid_contributions) for r in results),
+                   min(float(r.negative_fraction) for r in results))
 
     def merge(self, other: "GroupState") -> None:
         n = self.reps + other.reps
@@ -108,6 +112,8 @@ class GroupState:
             self.steady[g] = (self.steady[g] * self.reps + other.steady[g] * other.reps) / n
             self.dropped[g] += other.dropped[g]
             self.frac[g] = (self.frac[g] * self.reps + other.frac[g] * other.reps) / n
+        self.invalid += other.invalid
+        self.negative = min(self.negative, other.negative)
         self.reps = n
 
     def results(self, shape, samples_per_rep_pixel: int):
@@ -122,13 +128,15 @@ class GroupState:
                 dropped_contributions=self.dropped[g], dropped_fraction=self.frac[g],
                 samples=H * W * samples_per_rep_pixel * self.reps,
                 variance=None if var is None else var.reshape(H, W, T),
-                total_variance=None if tvar is None else tvar.reshape(H, W), replicates=self.reps))
+                total_variance=None if tvar is None else tvar.reshape(H, W), replicates=self.reps,
+                invalid_contributions=self.invalid if g == 0 else 0, negative_fraction=self.negative))
         return out
 
     # ------------------------------------------------------------ checkpoint
 
     def save(self, path: Path, digest: str) -> None:
-        arrays = {"reps": np.int64(self.reps), "digest": np.array(digest)}
+        arrays = {"reps": np.int64(self.reps), "digest": np.array(digest), "invalid": np.int64(self.invalid),
+                  "negative": np.float64(self.negative)}
         for g, s in enumerate(self.stats):
             arrays.update({f"mean{g}": s.mean, f"m2{g}": s.m2, f"tmean{g}": s.total_mean, f"tm2{g}": s.total_m2,
                            f"steady{g}": self.steady[g], f"dropped{g}": np.int64(self.dropped[g]),
@@ -152,7 +160,7 @@ class GroupState:
                      for g in range(n_spots)]
             return cls(int(z["reps"]), stats, [z[f"steady{g}"] for g in range(n_spots)],
                        [int(z[f"dropped{g}"]) for g in range(n_spots)],
-                       [float(z[f"frac{g}"]) for g in range(n_spots)])
+                       [float(z[f"frac{g}"]) for g in range(n_spots)], int(z["invalid"]), float(z["negative"]))
         except Exception:  # a damaged checkpoint is rendered again
             return None
 

@@ -198,7 +198,7 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         laser=layout.get("laser"),
         detector=None,
         render=render_info,
-        dropped={"contributions": 0, "fraction": 0.0},
+        dropped={"contributions": 0, "fraction": 0.0, "invalid_path_lengths": 0, "negative_fraction": 0.0},
     )
     manifest["variance"] = variance_block(integrator, spp, layout["quantity"])
     if noise_target is not None:
@@ -342,6 +342,8 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
     t_start = time.perf_counter()
     dropped_n = int(m["dropped"]["contributions"])
     frac_sum = float(m["dropped"]["fraction"]) * (n_files - len(todo))
+    invalid_n = int(m["dropped"].get("invalid_path_lengths", 0))
+    negative = float(m["dropped"].get("negative_fraction", 0.0))
     preview_data = None
     # Spots are rendered in fixed groups (NLOS array captures share sub-paths within a group); a group
     # with any spot missing is rendered again as a whole, so resumed captures keep the same bytes.
@@ -395,6 +397,8 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
                 stack.write_spot(d, j, res.histogram, m)
                 dropped_n += res.dropped_contributions
                 frac_sum += res.dropped_fraction
+                invalid_n += res.invalid_contributions
+                negative = min(negative, res.negative_fraction)
                 if preview_data is None:
                     preview_data = (j, np.array(res.histogram))  # a copy: frees the group buffer
                 if on_spot is not None:
@@ -405,7 +409,12 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
                 ckpt.unlink(missing_ok=True)
     elapsed = time.perf_counter() - t_start
     m["render"]["render_time_s"] = float(m["render"].get("render_time_s", 0.0) or 0.0) + elapsed
-    m["dropped"] = {"contributions": dropped_n, "fraction": frac_sum / n_files}
+    m["dropped"] = {"contributions": dropped_n, "fraction": frac_sum / n_files,
+                    "invalid_path_lengths": invalid_n, "negative_fraction": negative}
+    if invalid_n or negative < 0:
+        log(f"warning: {invalid_n} contribution(s) had a NaN or -inf path length and were left out"
+            + (f"; a spot binned more light than it recorded (dropped fraction {negative:.3g})" if negative < 0
+               else "") + ": this is a bug, please report it with the scene (manifest 'dropped')")
     if preview_data is None:
         preview_data = (0, stack.read_spot(d, 0, m))
     from .preview import write_preview

@@ -43,6 +43,12 @@ class TransientResult:
         Estimated variance of each pixel's in-range total (sum over time).
     replicates : int
         Independent replicates the estimate averages (>= 1).
+    invalid_contributions : int
+        Contributions whose path length was NaN or ``-inf`` (or whose value
+        was NaN): a bug, kept out of every other number and reported.
+    negative_fraction : float
+        The most negative raw dropped fraction seen (0 when none was below
+        ``-1e-5``): more light in the histogram than recorded, a bug.
     """
 
     histogram: np.ndarray
@@ -53,6 +59,8 @@ class TransientResult:
     variance: np.ndarray | None = None
     total_variance: np.ndarray | None = None
     replicates: int = 1
+    invalid_contributions: int = 0
+    negative_fraction: float = 0.0
 
 
 class TransientFilm(mi.Film):

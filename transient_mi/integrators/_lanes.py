@@ -96,6 +96,21 @@ class LaneLayout:
         return [(j, min(per_lane, j + step)) for j in range(0, per_lane, step)]
 
 
+#: A dropped fraction below minus this is more than float32 rounding of the binned sum: recorded as an anomaly.
+NEGATIVE_FRACTION_TOL = 1e-5
+
+
+def dropped_fraction(hist, total: float, in_hist: float) -> float:
+    """``(total - in_hist) / total`` clipped at 0; a value below ``-NEGATIVE_FRACTION_TOL`` (more light in the
+    histogram than was recorded) is kept, most negative first, in ``hist.negative_fraction`` for the manifest."""
+    if total <= 0:
+        return 0.0
+    raw = (total - in_hist) / total
+    if raw < -NEGATIVE_FRACTION_TOL:
+        hist.negative_fraction = min(hist.negative_fraction, raw)
+    return max(0.0, raw)
+
+
 class LaneHistogram:
     """Per-lane time histograms, lost energy and dropped-contribution counters.
 
@@ -113,6 +128,10 @@ class LaneHistogram:
         # Energy outside the padded range (not in ``data``): steady = sum(data) + lost.
         self.lost = dr.zeros(mi.Float, n)
         self.dropped = dr.zeros(mi.UInt32, n)
+        # contributions whose path length is NaN or -inf: a bug somewhere, never silently binned or dropped
+        self.invalid = dr.zeros(mi.UInt32, n)
+        #: (total - in_hist) / total below -NEGATIVE_FRACTION_TOL at collect(): more light binned than recorded
+        self.negative_fraction = 0.0
         F64 = dr.float64_array_t(mi.Float)
         # Opaque: true IEEE divisions below, and one compiled kernel for any time axis.
         self._c = dr.opaque(F64, C_M_PER_PS)
@@ -123,22 +142,37 @@ class LaneHistogram:
         self._pad = dr.opaque(mi.Int32, pad)
 
     def bin_index(self, opl_m):
-        """(valid, in_range, bin_ext) for arrivals with optical path ``opl_m``."""
+        """(valid, in_range, bin_ext, invalid) for arrivals with optical path ``opl_m``.
+
+        ``+inf`` (light from an infinitely distant emitter: no time of flight)
+        is out of range; NaN and ``-inf`` are *invalid* (a bug upstream).
+        """
         F64 = dr.float64_array_t(mi.Float)
         pos = (F64(opl_m) / self._c - self._t0) / self._bw
         finite = dr.isfinite(pos)
+        invalid = dr.isnan(pos) | (pos == -dr.inf)
         pos = dr.select(finite, pos, -1e9)
         pos = dr.clip(pos, -1e9, 1e9)
         b = mi.Int32(dr.floor(pos))
         in_range = finite & (b >= 0) & (b < self._n)
         b_ext = b + self._pad
         valid = finite & (b_ext >= 0) & (b_ext < self._n_ext)
-        return valid, in_range, b_ext
+        return valid, in_range, b_ext, invalid
 
     def record(self, lane, opl_m, value, active):
-        """Add ``value`` (mi.Float) arriving after ``opl_m`` metres to ``lane``'s slot."""
-        active = mi.Bool(active) & (value != 0)
-        valid, in_range, b_ext = self.bin_index(opl_m)
+        """Add ``value`` (mi.Float) arriving after ``opl_m`` metres to ``lane``'s slot.
+
+        Contributions with a NaN or ``-inf`` path length (or a NaN value) are
+        counted in :attr:`invalid` and kept out of the histogram, the steady
+        total and the dropped counts.
+        """
+        nan_value = dr.isnan(value)
+        active = mi.Bool(active) & ((value != 0) | nan_value)  # (NaN != 0 is an ordered compare: false)
+        valid, in_range, b_ext, invalid = self.bin_index(opl_m)
+        invalid |= nan_value
+        dr.scatter_reduce(dr.ReduceOp.Add, self.invalid, mi.UInt32(1), lane, active & invalid,
+                          mode=dr.ReduceMode.NoConflicts)
+        active &= ~invalid
         idx = mi.UInt32(lane) * mi.UInt32(self._n_ext) + mi.UInt32(dr.maximum(b_ext, 0))
         dr.scatter_reduce(dr.ReduceOp.Add, self.data, value, idx, active & valid,
                           mode=dr.ReduceMode.NoConflicts)
@@ -150,7 +184,11 @@ class LaneHistogram:
     def evaluate(self, *loop_outputs):
         """Run the pending pass. Pass the loop's other outputs (the RNG state)
         here too: evaluating them separately would execute the loop twice."""
-        dr.eval(self.data, self.lost, self.dropped, *loop_outputs)
+        dr.eval(self.data, self.lost, self.dropped, self.invalid, *loop_outputs)
+
+    def invalid_count(self) -> int:
+        """Contributions recorded with a NaN/-inf path length or a NaN value (bugs; see :meth:`record`)."""
+        return int(np.asarray(self.invalid).sum(dtype=np.uint64))
 
     def _per_pixel(self):
         """Sum the K stream slots of each pixel in a fixed order (one drjit kernel).
@@ -192,5 +230,5 @@ class LaneHistogram:
         dropped = int(np.asarray(self.dropped).sum(dtype=np.uint64))
         total = float(steady.sum())
         in_hist = float(hist.sum(dtype=np.float64))
-        frac = 0.0 if total <= 0 else max(0.0, (total - in_hist) / total)
+        frac = dropped_fraction(self, total, in_hist)
         return hist, steady.astype(np.float32), dropped, frac

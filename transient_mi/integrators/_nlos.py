@@ -113,7 +113,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from transient_mi.integrators._lanes import LaneHistogram, LaneLayout, seed_rng, to_mono
+from transient_mi.integrators._lanes import LaneHistogram, LaneLayout, dropped_fraction, seed_rng, to_mono
 from transient_mi.integrators._replicates import (DEFAULT_REPLICATES, ReplicateStats, effective_replicates,
                                                   replicate_seed)
 from transient_mi.time_axis import apply_kernel
@@ -522,6 +522,7 @@ class _GroupHistogram(LaneHistogram):
         self.data = dr.zeros(mi.Float, n * self.n_bins_ext)
         self.lost = dr.zeros(mi.Float, n)
         self.dropped = dr.zeros(mi.UInt32, n)
+        self.invalid = dr.zeros(mi.UInt32, n)
         self._nsub = dr.opaque(mi.UInt32, n_sub)
 
     def record(self, lane, opl_m, value, active, sub=0):
@@ -567,7 +568,7 @@ class _GroupHistogram(LaneHistogram):
             else:
                 in_hist = float(rows[:, g].sum())
             total = float(steady.sum())
-            frac = 0.0 if total <= 0 else max(0.0, (total - in_hist) / total)
+            frac = dropped_fraction(self, total, in_hist)
             yield h, steady, int(dropped[g]), frac
 
 
@@ -640,6 +641,7 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
     steady = [np.zeros(P) for _ in spots]
     dropped = [0] * len(spots)
     frac = [0.0] * len(spots)
+    invalid, negative = 0, 0.0
     for r in range(R):
         done = P * n * r
 
@@ -647,8 +649,11 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
             if progress is not None:
                 progress(_done + d, total)
 
-        outs = _render_replicate(setup, scene, film, options, seed=replicate_seed(seed, replicate_offset + r, R),
-                                 spp=n, spots=spots, progress=rep_progress)
+        outs, anomalies = _render_replicate(setup, scene, film, options,
+                                            seed=replicate_seed(seed, replicate_offset + r, R), spp=n, spots=spots,
+                                            progress=rep_progress)
+        invalid += anomalies["invalid"]
+        negative = min(negative, anomalies["negative_fraction"])
         for g, (h, st, dr_n, fr) in enumerate(outs):
             if stats[g] is None:
                 stats[g] = ReplicateStats.first(h)
@@ -673,6 +678,8 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
             variance=None if var is None else var.reshape(H, W, T),
             total_variance=None if tvar is None else tvar.reshape(H, W),
             replicates=R,
+            invalid_contributions=invalid if g == 0 else 0,  # (per group: counted once)
+            negative_fraction=negative,
         ))
     return results
 
@@ -680,7 +687,8 @@ def render_spots(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp
 def _render_replicate(setup: NLOSSetup, scene, film, options: dict, *, seed: int, spp: int, spots, progress=None):
     """One replicate of :func:`render_spots`: ``spp`` samples with the streams of ``seed``.
 
-    Returns one ``(hist[n_pixels, n_bins] float32, steady[n_pixels], dropped, fraction)`` per spot.
+    Returns one ``(hist[n_pixels, n_bins] float32, steady[n_pixels], dropped, fraction)`` per spot, and
+    ``{"invalid": n, "negative_fraction": f}`` (see :class:`~._lanes.LaneHistogram`).
     """
     W, H = setup.width, setup.height
     confocal = setup.capture == "confocal"
@@ -764,7 +772,9 @@ def _render_replicate(setup: NLOSSetup, scene, film, options: dict, *, seed: int
                     sub=mi.UInt32(sub[sel]))
         hist.evaluate()
 
-    return list(hist.collect_all(taps, scale=setup.photons_per_pulse))
+    out = list(hist.collect_all(taps, scale=setup.photons_per_pulse))
+    anomalies = {"invalid": hist.invalid_count(), "negative_fraction": hist.negative_fraction}
+    return out, anomalies
 
 
 @dr.syntax

@@ -202,6 +202,7 @@ class TransientPath(mi.CppADIntegrator):
         n = spp // R
         total = W * H * spp
         stats, steady, dropped, frac = None, 0.0, 0, 0.0
+        invalid, negative = 0, 0.0
         for r in range(R):
             done0 = W * H * n * r
 
@@ -209,8 +210,10 @@ class TransientPath(mi.CppADIntegrator):
                 if progress is not None:
                     progress(_done + d, total)
 
-            h, st, dr_n, fr = self._render_camera_replicate(
+            (h, st, dr_n, fr), anomalies = self._render_camera_replicate(
                 scene, sensor, replicate_seed(seed, replicate_offset + r, R), n, rep_progress)
+            invalid += anomalies["invalid"]
+            negative = min(negative, anomalies["negative_fraction"])
             if stats is None:
                 stats = ReplicateStats.first(h)
             else:
@@ -229,10 +232,13 @@ class TransientPath(mi.CppADIntegrator):
             variance=None if var is None else var.reshape(H, W, axis.n_bins),
             total_variance=None if tvar is None else tvar.reshape(H, W),
             replicates=R,
+            invalid_contributions=invalid,
+            negative_fraction=negative,
         )
 
     def _render_camera_replicate(self, scene, sensor, seed, spp, progress):
-        """One replicate: ``(hist[n_pixels, n_bins], steady[n_pixels], dropped, fraction)``."""
+        """One replicate: ``(hist[n_pixels, n_bins], steady[n_pixels], dropped, fraction)`` and the anomalies
+        ``{"invalid": n, "negative_fraction": f}`` (see :class:`~transient_mi.integrators._lanes.LaneHistogram`)."""
         film = sensor.film()
         W, H = film.width, film.height
         taps = film.kernel_taps()
@@ -250,7 +256,8 @@ class TransientPath(mi.CppADIntegrator):
             done = min(total, layout.n_pixels * min(spp, j1 * K))
             if progress is not None:
                 progress(done, total)
-        return hist.collect(taps)
+        out = hist.collect(taps)
+        return out, {"invalid": hist.invalid_count(), "negative_fraction": hist.negative_fraction}
 
     @dr.syntax
     def _camera_pass(self, scene, sensor, hist, rng, layout, j0, j1, W, H, center):
