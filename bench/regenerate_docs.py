@@ -232,6 +232,16 @@ def nlos_agreement(R) -> str:
             f"differ by {dt} bins on average ({provenance(rec, short=True)}).")
 
 
+def nlos_betas(R) -> str:
+    rec = R("nlos")
+    parts = []
+    for c in rec["result"]["configs"]:
+        m = c.get("mitransient")
+        mb = f"{m['error_model']['beta']:.2f}" if m else "-"
+        parts.append(f"{c['name']} {c['ours']['error_model']['beta']:.2f} / {mb}")
+    return "; ".join(parts)
+
+
 def _gb(mb: float) -> str:
     return f"{mb / 1024:.1f} GB"
 
@@ -373,6 +383,7 @@ GENERATORS = {
     "nlos_docs_table": (nlos_docs_table, ["nlos"], False),
     "nlos_pipeline": (nlos_pipeline_para, ["nlos"], False),
     "nlos_agreement": (nlos_agreement, ["nlos"], False),
+    "nlos_betas": (nlos_betas, ["nlos"], True),
     "detector": (detector_para, ["detector"], False),
     "detector_docs_table": (detector_docs_table, ["detector"], False),
     "recon_table": (recon_readme_table, ["recon"], False),
