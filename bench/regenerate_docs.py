@@ -66,6 +66,23 @@ def machine_line(rec: dict) -> str:
     return f"{m['cpu_model']}, {m['cores']} cores, {m['memory_gib']:g} GiB{load}"
 
 
+def shown_command(rec: dict) -> str:
+    """The record's command without its ``--note`` text (the note is quoted separately)."""
+    import shlex
+
+    words, out, skip = shlex.split(rec["command"]), [], False
+    for w in words:
+        if skip:
+            skip = False
+            continue
+        if w == "--note":
+            skip = True
+            continue
+        if not w.startswith("--note="):
+            out.append(w)
+    return shlex.join(out)
+
+
 def provenance(rec: dict, *, short: bool = False) -> str:
     """Where a number comes from: file, command, date, machine (and the record's note)."""
     date = rec["date_utc"][:10]
@@ -73,7 +90,7 @@ def provenance(rec: dict, *, short: bool = False) -> str:
     if short:
         return f"{f}, {date}, {rec['machine']['cores']} cores"
     note = f" {rec['note'].rstrip('.')}." if rec.get("note") else ""
-    return f"Source: {f} (`{rec['command']}`, {date}; {machine_line(rec)}).{note}"
+    return f"Source: {f} (`{shown_command(rec)}`, {date}; {machine_line(rec)}).{note}"
 
 
 def not_measured(names: list[str], inline: bool) -> str:
@@ -81,6 +98,21 @@ def not_measured(names: list[str], inline: bool) -> str:
     if inline:
         return f"(not yet re-measured: {files} missing)"
     return f"\n*Not yet re-measured: {files} missing (run the benchmark with `--save`).*\n"
+
+
+def sci(n: float) -> str:
+    """1000000 -> '1e6'."""
+    m, e = f"{n:.0e}".split("e")
+    return f"{m}e{int(e)}"
+
+
+def g2(x: float) -> str:
+    """Two significant digits, exponent without '+' and leading zeros: 3.2e6."""
+    t = f"{x:.2g}"
+    if "e" in t:
+        m, e = t.split("e")
+        t = f"{m}e{int(e)}"
+    return t
 
 
 def s(x: float) -> str:
@@ -250,7 +282,7 @@ def detector_readme_inline(R) -> str:
     r = R("detector")["result"]
     g = r["analytic_gated"]
     return f"{s(g['warm_s'])} warm, {s(g['cold_s'])} cold, for {int(r['pixels'] ** 0.5)} x {int(r['pixels'] ** 0.5)} " \
-           f"pixels x {r['n_bins']} bins x {g['pulses']:.0e} pulses; {provenance(R('detector'), short=True)}"
+           f"pixels x {r['n_bins']} bins x {sci(g['pulses'])} pulses; {provenance(R('detector'), short=True)}"
 
 
 def detector_para(R) -> str:
@@ -259,9 +291,9 @@ def detector_para(R) -> str:
     g, u, e = r["analytic_gated"], r["analytic_ungated"], r["exact"]
     side = int(r["pixels"] ** 0.5)
     return (f"\n**Detector** (`python bench/bench_detector.py`): the analytic engine on {side} x {side} pixels x "
-            f"{r['n_bins']} bins x {g['pulses']:.0e} pulses takes {s(g['warm_s'])} gated (warm; {s(g['cold_s'])} for "
+            f"{r['n_bins']} bins x {sci(g['pulses'])} pulses takes {s(g['warm_s'])} gated (warm; {s(g['cold_s'])} for "
             f"the first call in a process; goal < {g['goal_s']:g} s), {s(u['warm_s'])} ungated; the exact engine "
-            f"simulates {e['pixel_pulses_per_s']:.2g} pixel-pulses/s. {provenance(rec)}\n")
+            f"simulates {g2(e['pixel_pulses_per_s'])} pixel-pulses/s. {provenance(rec)}\n")
 
 
 def detector_docs_table(R) -> str:
@@ -275,8 +307,8 @@ def detector_docs_table(R) -> str:
     lines = ["| case | warm (fastest) | cold (first call in the process) | every call (s) |", "|---|---|---|---|",
              f"| analytic, gated (the paper's setup; exact regime) | {s(g['warm_s'])} | {s(g['cold_s'])} | {ts(g)} |",
              f"| analytic, ungated (Markov chain for every pixel) | {s(u['warm_s'])} | {s(u['cold_s'])} | {ts(u)} |",
-             f"| exact engine, {e['pulses']:,} pulses | {e['pixel_pulses_per_s']:.2g} pixel-pulses/s "
-             f"({e['events_per_s']:.2g} events/s) | first call {s(e['first_call_s'])} (compile) | {e['seconds']:.3g} |",
+             f"| exact engine, {e['pulses']:,} pulses | {g2(e['pixel_pulses_per_s'])} pixel-pulses/s "
+             f"({g2(e['events_per_s'])} events/s) | first call {s(e['first_call_s'])} (compile) | {e['seconds']:.3g} |",
              "", provenance(rec)]
     return "\n" + "\n".join(lines) + "\n"
 
