@@ -236,6 +236,8 @@ def _fmt(r: dict | None) -> tuple[str, str]:
         why = r.get("reason") or r["status"]
         if r.get("status") == "out of memory":
             why = f"out of memory (> {r.get('memory_limit_gb'):g} GB limit)"
+        if r.get("status") == "timeout":
+            why = f"did not finish in {r.get('timeout_s')} s (timeout)"
         return why, "-"
     return f"{r['time_s']:.3g} s", f"{r['peak_rss_mb'] / 1024:.2f} GB"
 
@@ -253,6 +255,9 @@ def markdown_table(result: dict) -> str:
         if g:
             goal += " (met)" if c.get("meets_goal") else " (missed)"
         sp = f"{c['speedup']:.0f}x" if "speedup" in c else "-"
+        y, o = c.get("ytal") or {}, c["ours"]
+        if y.get("status") == "timeout" and o.get("status") == "ok":
+            sp = f"> {y['timeout_s'] / o['time_s']:.0f}x (lower bound)"
         cap = ", ".join(p.strip() for p in result["captures"][c["capture"]].split(",")[:2])
         lines.append(f"| {c['case']} | {cap} | {'x'.join(map(str, c['voxels']))} | {t} | {m} | {goal} | {yt} | {ym} |"
                      f" {sp} |")

@@ -140,6 +140,8 @@ def recon_readme_table(R) -> str:
             yt = f"{s(y['time_s'])}, {y['peak_rss_mb'] / 1024:.2f} GB"
         elif y.get("status") == "out of memory":
             yt = f"out of memory (> {y['memory_limit_gb']:g} GB)"
+        elif y.get("status") == "timeout":
+            yt = f"did not finish in {y['timeout_s']} s (timeout)"
         elif y:
             yt = y.get("reason") or y.get("status")
         else:
@@ -148,6 +150,8 @@ def recon_readme_table(R) -> str:
         if c["method"] == "fk" and len(set(c["voxels"])) > 1:
             name += f" (both {'x'.join(map(str, c['voxels']))} voxels)"
         sp = f"{c['speedup']:.0f}x" if "speedup" in c else "-"
+        if y.get("status") == "timeout" and o.get("status") == "ok":
+            sp = f"> {y['timeout_s'] / o['time_s']:.0f}x (lower bound)"
         lines.append(f"| {name} | {ours} | {goals.get(c['case'], '-')} | {yt} | {sp} |")
     pol = r.get("policy", {})
     lines += ["", f"Both sides warm (one call on a tiny capture of the same kind first), fastest of up to "
