@@ -328,11 +328,11 @@ def studies_para(R) -> str:
     def one(k, what):
         x = c.get(k)
         if not x or x.get("status") != "ok":
-            return f"{what}: not measured"
+            return f"{what}: not yet re-measured (`--full`)"
         return f"{what} {x['wall_s']:.0f} s, {_gb(x['peak_rss_mb'])}"
 
     pq = c.get("photon_quick", {})
-    return (f"\n**Studies** (`python bench/bench_studies.py --full`): "
+    return (f"\n**Studies** (`{shown_command(rec)}`): "
             + one("photon_quick", f"`study photon-budget --quick` ({pq.get('runs', '?')} detections and "
                                   f"reconstructions)") + "; "
             + one("photon_default", "with 1 ps bins") + "; "
@@ -356,7 +356,7 @@ def dataset_para(R) -> str:
     r = rec["result"]
     runs = ", ".join(f"{x['items_per_hour']:.0f} (`--workers {x['workers']}`, {x['items']} items in {x['wall_s']:.0f} s)"
                      for x in r["runs"])
-    text = (f"\n**Datasets** (`python bench/bench_dataset.py`, the camera example "
+    text = (f"\n**Datasets** (`{shown_command(rec)}`, the camera example "
             f"`docs/examples/dataset_example.yaml`, wall time of the whole command): items per hour {runs}. "
             f"{provenance(rec)}")
     try:
