@@ -3,7 +3,13 @@
 Renders the benchmark scene with mitransient's ``transient_nlos_path``
 integrator and ``nlos_capture_meter`` sensor at several sample counts and
 writes, for each, the transient data (``.npy``, axes ``[spot, pixel_y,
-pixel_x, time]``) and a JSON line with the timings and peak RSS.
+pixel_x, time]``) and a JSON line with the timings and peak memory.
+
+Memory is this process's ``VmHWM`` (``/proc/self/status``), reset before each
+run (``clear_refs``), so every run reports its own peak: ``render_rss_mb`` is
+the peak up to the end of ``mi.render`` + ``dr.eval`` (mitransient's renderer
+alone), ``max_rss_mb`` the peak including the one float32 numpy copy of the
+result that the benchmark needs to save it. No float64 copy is made.
 
 Only numpy, mitsuba and mitransient are imported: this file must run with
 that environment's interpreter. Usage: ``python _mitransient_worker.py CONFIG.json``.
@@ -26,6 +32,16 @@ def peak_rss_mb():
     except OSError:
         pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def reset_peak_rss():
+    """Reset VmHWM to the current resident set (Linux ``clear_refs`` 5); False if refused."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
 
 
 def main(path):
@@ -79,12 +95,16 @@ def main(path):
 
     out = []
     for i, (spp, seed, save) in enumerate(cfg["runs"]):
-        timings = []
+        timings, render_rss = [], []
         ref = cfg.get("ref_last") and i == len(cfg["runs"]) - 1
+        data = transient = None
+        reset_peak_rss()
         for rep in range(1 if ref else 1 + cfg.get("repeats", 2)):  # first call compiles; min of the others
+            data = transient = None
             t0 = time.perf_counter()
             _, transient = mi.render(scene, spp=int(spp), seed=int(seed))
             dr.eval(transient)
+            render_rss.append(peak_rss_mb())
             data = np.array(transient, dtype=np.float32)
             timings.append(time.perf_counter() - t0)
         data = data[..., 0]
@@ -98,8 +118,8 @@ def main(path):
             np.save(save, data)
         del transient
         out.append({"spp": spp, "seed": seed, "time_s": min(timings[1:] or timings), "first_call_s": timings[0],
-                    "max_rss_mb": peak_rss_mb(),
-                    "shape": list(data.shape), "sum": float(data.astype(np.float64).sum()),
+                    "times_s": timings, "max_rss_mb": peak_rss_mb(), "render_rss_mb": max(render_rss),
+                    "shape": list(data.shape), "sum": float(data.sum(dtype=np.float64)),
                     "projector_intensity": intensity})
         print(json.dumps(out[-1]), flush=True)
     json.dump(out, open(cfg["result"], "w"))

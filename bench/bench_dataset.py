@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import sys
 import tempfile
@@ -29,6 +28,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+import _record  # noqa: E402
 DEFAULT_SPEC = ROOT / "docs" / "examples" / "dataset_example.yaml"
 #: --tiny: the CI-sized render settings (only those the scene has are applied).
 TINY = {"width": 8, "height": 8, "n_bins": 50, "spp": 2}
@@ -88,7 +89,9 @@ def main(argv=None) -> int:
     ap.add_argument("--scheduler", default=None, help="time on this Dask scheduler instead of local clusters")
     ap.add_argument("--repeats", type=int, default=None, help="override the spec's repeats (fewer items)")
     ap.add_argument("--tiny", action="store_true", help="8x8 pixels, 50 bins, 2 spp (CI)")
+    _record.add_arguments(ap)
     args = ap.parse_args(argv)
+    load_start = list(os.getloadavg())
     os.environ.setdefault("TRANSIENT_MI_PROGRESS", "0")
     import transient_mi  # noqa: F401
     from dask.system import CPU_COUNT
@@ -98,11 +101,18 @@ def main(argv=None) -> int:
         data = make_spec(args.spec, spec, args.repeats, args.tiny)
         runs = ([one_run(spec, None, args.scheduler)] if args.scheduler else
                 [one_run(spec, w, None) for w in args.workers])
-    print(json.dumps({
-        "benchmark": "dataset", "spec": str(args.spec), "tiny": args.tiny, "repeats": data.get("repeats", 1),
+    try:
+        spec_name = str(args.spec.resolve().relative_to(ROOT))
+    except ValueError:
+        spec_name = str(args.spec)
+    result = {
+        "benchmark": "dataset", "spec": spec_name, "tiny": args.tiny, "repeats": data.get("repeats", 1),
         "defines": data.get("defines"), "spp": data.get("spp"), "cores": int(CPU_COUNT),
-        "cpu": platform.processor() or platform.machine(), "runs": runs,
-    }, indent=2))
+        "cpu": _record.cpu_model(), "runs": runs,
+    }
+    print(json.dumps(result, indent=2))
+    name = "dataset_" + Path(spec_name).stem + ("_tiny" if args.tiny else "")
+    _record.maybe_save(args, name, result, load_start=load_start)
     return 0
 
 

@@ -28,7 +28,9 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import _record  # noqa: E402
 import numpy as np  # noqa: E402
 
 from transient_mi.detector import DetectorParams, detect  # noqa: E402
@@ -46,28 +48,35 @@ def synthetic_ideal(h: int, w: int, n_bins: int, bin_width_ps: float, seed: int 
     return (three + first).astype(np.float64)
 
 
-def timed(fn, repeats: int) -> tuple[float, float, object]:
+def timed(fn, repeats: int) -> tuple[float, float, object, list[float]]:
+    """(cold, best warm, last result, every time): the first call is cold, the others warm."""
     t0 = time.perf_counter()
     out = fn()
     cold = time.perf_counter() - t0
-    best = cold
+    times = [cold]
     for _ in range(repeats - 1):
         t0 = time.perf_counter()
         out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return cold, best, out
+        times.append(time.perf_counter() - t0)
+    best = min(times[1:]) if len(times) > 1 else cold
+    return cold, best, out, times
 
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--small", action="store_true", help="tiny sizes for CI")
+    ap.add_argument("--repeats", type=int, default=None, help="calls per analytic case (first cold; default 3)")
+    _record.add_arguments(ap)
     args = ap.parse_args(argv)
+    load_start = list(os.getloadavg())
     if args.small:
         h = w = 4
         n_bins, pulses, exact_pulses, repeats = 256, 10_000, 2_000, 1
     else:
         h = w = 32
         n_bins, pulses, exact_pulses, repeats = 4096, 1_000_000, 20_000, 3
+    if args.repeats is not None:
+        repeats = max(2, args.repeats)
     bw = 1.0 if not args.small else 16.0
     ideal = synthetic_ideal(h, w, n_bins, bw)
     window = n_bins * bw
@@ -80,10 +89,11 @@ def main(argv=None) -> dict:
         "pixels": h * w, "n_bins": n_bins, "bin_width_ps": bw,
     }
     for name, params in (("analytic_gated", gated), ("analytic_ungated", ungated)):
-        cold, best, (counts, info) = timed(
+        cold, best, (counts, info), times = timed(
             lambda p=params: detect(ideal, p, pulses, bin_width_ps=bw, seed=1, engine="analytic", return_info=True),
             repeats)
         result[name] = {"pulses": pulses, "cold_s": round(cold, 4), "warm_s": round(best, 4),
+                        "times_s": [round(x, 4) for x in times],
                         "counts": int(counts.sum()), "exact": bool(info[0]["exact"]),
                         "regimes": info[0]["pixels_by_regime"], "goal_s": 1.0}
     # exact engine: first call compiles (numba, cached on disk afterwards)
@@ -97,7 +107,9 @@ def main(argv=None) -> dict:
                        "pixel_pulses_per_s": h * w * exact_pulses / dt,
                        "events": info[0]["events"], "events_per_s": info[0]["events"] / dt,
                        "counts": int(counts.sum())}
+    result["peak_rss_mb"] = _record.peak_rss_mb()
     print(json.dumps(result, indent=1))
+    _record.maybe_save(args, "detector_small" if args.small else "detector", result, load_start=load_start)
     return result
 
 

@@ -57,6 +57,9 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _record  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 C_M_PER_PS = 299792458.0 * 1e-12
 MT_VERSION = "1.3.1"
@@ -91,7 +94,7 @@ def configs(small: bool) -> list[dict]:
         ]
     return [
         dict(name="confocal_32x32_400bins", capture="confocal", size=32, n_bins=400, spp=[64, 256, 1024, 4096],
-             spp_ref=32768, mt_spp=[64, 256, 1024], mt_spp_ref=16384),
+             spp_ref=65536, mt_spp=[64, 256, 1024, 4096, 16384], mt_spp_ref=131072),
         dict(name="confocal_64x64_2048bins", capture="confocal", size=64, n_bins=2048, spp=[16, 64, 256, 1024],
              spp_ref=8192, mt_spp=[16, 64, 256], mt_spp_ref=4096),
         dict(name="array_32x32px_32x32spots_400bins", capture="array", size=32, n_bins=400, spp=[16, 64, 256],
@@ -189,6 +192,16 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def reset_peak_rss() -> bool:
+    """Reset VmHWM to the current resident set (Linux ``clear_refs`` 5); False if refused."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
 def ours_worker(cfg_path: str) -> None:
     """Render the runs of one configuration with transient-mi (this process)."""
     job = json.load(open(cfg_path))
@@ -219,7 +232,10 @@ def ours_worker(cfg_path: str) -> None:
     for i, (spp, seed, save) in enumerate(job["runs"]):
         timings = []
         ref = job.get("ref_last") and i == len(job["runs"]) - 1
+        data = None
+        reset_peak_rss()  # every run reports its own peak
         for rep in range(1 if ref else 1 + job.get("repeats", 2)):  # first call compiles; min of the others
+            data = None
             t0 = time.perf_counter()
             if cfg["capture"] == "array":
                 data = np.stack([r.histogram for r in integ.render_transient(scene, sensor, seed=seed, spp=spp,
@@ -230,9 +246,9 @@ def ours_worker(cfg_path: str) -> None:
         if save:
             np.save(save, data)
         out.append({"spp": spp, "seed": seed, "time_s": min(timings[1:] or timings), "first_call_s": timings[0],
-                    "spots": spots,
+                    "times_s": timings, "spots": spots,
                     "max_rss_mb": peak_rss_mb(),
-                    "shape": list(data.shape), "sum": float(data.astype(np.float64).sum())})
+                    "shape": list(data.shape), "sum": float(data.sum(dtype=np.float64))})
         print(json.dumps(out[-1]), file=sys.stderr, flush=True)
     json.dump(out, open(job["result"], "w"))
 
@@ -344,8 +360,11 @@ def _analyse(side, cfg, runs, info, spots) -> dict:
             x = x[spots]
         x = np.asarray(x, dtype=np.float64)
         mse_rel = float(((x - ref) ** 2).mean()) / ref_norm2
-        rows.append({"spp": spp, "time_s": inf["time_s"], "first_call_s": inf["first_call_s"],
-                     "rel_rmse": math.sqrt(mse_rel), "max_rss_mb": inf["max_rss_mb"]})
+        row = {"spp": spp, "time_s": inf["time_s"], "first_call_s": inf["first_call_s"],
+               "times_s": inf.get("times_s"), "rel_rmse": math.sqrt(mse_rel), "max_rss_mb": inf["max_rss_mb"]}
+        if "render_rss_mb" in inf:
+            row["render_rss_mb"] = inf["render_rss_mb"]
+        rows.append(row)
     del ref
     s = np.array([r["spp"] for r in rows], dtype=float)
     t = np.array([r["time_s"] for r in rows])
@@ -365,7 +384,16 @@ def _analyse(side, cfg, runs, info, spots) -> dict:
            "time_model_s": {"t0": t0, "per_spp": t1},
            "error_model": {"A": A, "beta": beta, "rel_rmse": "sqrt(A) * spp^(-beta/2)"},
            "time_to_rel_rmse_s": {str(eps): t0 + t1 * (eps ** 2 / A) ** (-1.0 / beta) for eps in EPS},
-           "peak_rss_mb": max(i["max_rss_mb"] for i in info)}
+           # measured: the runs bracket eps (the fit interpolates); extrapolated: no run reached eps
+           "time_to_rel_rmse_basis": {str(eps): ("measured" if min(r["rel_rmse"] for r in rows) <= eps <=
+                                                 max(r["rel_rmse"] for r in rows) else "extrapolated")
+                                      for eps in EPS},
+           # each run's own peak (VmHWM reset before it), reference run excluded
+           "peak_rss_per_run_mb": [r["max_rss_mb"] for r in rows],
+           "peak_rss_mb": max(r["max_rss_mb"] for r in rows),
+           "peak_rss_reference_run_mb": info[-1]["max_rss_mb"]}
+    if all("render_rss_mb" in r for r in rows):
+        out["render_rss_per_run_mb"] = [r["render_rss_mb"] for r in rows]
     if scale != 1.0:
         out["note"] = (f"rendered one group of {len(spots)} of the {cfg['size'] ** 2} spots per run (the group the "
                        f"pipeline renders together); times scaled by {scale:g} to the whole capture")
@@ -392,6 +420,9 @@ def _compare(cfg, tmp, py) -> dict:
         o, m = entry["ours"], entry["mitransient"]
         entry["speedup_time_to_equal_error"] = {
             eps: m["time_to_rel_rmse_s"][eps] / o["time_to_rel_rmse_s"][eps] for eps in o["time_to_rel_rmse_s"]}
+        entry["speedup_basis"] = {
+            eps: ("measured" if o["time_to_rel_rmse_basis"][eps] == m["time_to_rel_rmse_basis"][eps] == "measured"
+                  else "extrapolated") for eps in o["time_to_rel_rmse_s"]}
         entry["mean_agreement"] = _mean_agreement(cfg, r_ours[-1][2], r_mt[-1][2], spots)
         # mitransient's spot irradiance is I cos / d^2 for a projector of axial intensity I, ours puts all N
         # photons at the spot: the normalised totals then differ by the factor 1 / I
@@ -471,11 +502,30 @@ def _pipeline(cfg, tmp: Path) -> dict:
     return out
 
 
+def _t(x: dict, eps: str) -> str:
+    """Time to a relative RMSE, labelled when the fit extrapolates beyond the measured runs."""
+    lab = "" if x.get("time_to_rel_rmse_basis", {}).get(eps, "measured") == "measured" else " (extrapolated)"
+    return f"{x['time_to_rel_rmse_s'][eps]:.3g} s{lab}"
+
+
+def _rss_range(values) -> str:
+    lo, hi = min(values), max(values)
+    return f"{lo:.0f} MB" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} MB"
+
+
 def markdown_table(report: dict) -> str:
-    """The benchmark table (markdown) of a report produced by :func:`main`."""
+    """The benchmark table (markdown) of a report produced by :func:`main`.
+
+    Times to an error level that no run reached are marked "(extrapolated)"
+    (the fitted power law beyond the measured range); speed-ups likewise
+    ("*" = extrapolated on at least one side). Peak memory is each run's own
+    peak (VmHWM, reset before every run; the range over the runs); for
+    mitransient the peak up to the end of its render (before the benchmark's
+    numpy copy).
+    """
     rows = ["| Configuration | transient-mi: rel. RMSE @ spp (time) | mitransient: rel. RMSE @ spp (time) | "
             "fitted exponent beta (ours / mitransient) | time to rel. RMSE 0.1 (ours / mitransient) | "
-            "speed-up at equal RMSE 0.2 / 0.1 / 0.05 | peak RSS (ours / mitransient) |",
+            "speed-up at equal RMSE 0.2 / 0.1 / 0.05 | peak RSS per run (ours / mitransient) |",
             "| --- | --- | --- | --- | --- | --- | --- |"]
     for c in report["configs"]:
         o, m = c["ours"], c.get("mitransient")
@@ -487,16 +537,19 @@ def markdown_table(report: dict) -> str:
         if c["capture"] == "array" and c.get("ours_pipeline"):
             rss_o = f"{max(v['peak_rss_mb'] for v in c['ours_pipeline'].values()):.0f} MB (streamed render)"
         else:
-            rss_o = f"{o['peak_rss_mb']:.0f} MB"
+            rss_o = _rss_range(o.get("peak_rss_per_run_mb") or [o["peak_rss_mb"]])
         if m is None:
             rows.append(f"| {c['name']} | {runs(o)} | - | {o['error_model']['beta']:.2f} / - | "
-                        f"{o['time_to_rel_rmse_s']['0.1']:.3g} s / - | - | {rss_o} / - |")
+                        f"{_t(o, '0.1')} / - | - | {rss_o} / - |")
             continue
         sp = c["speedup_time_to_equal_error"]
+        basis = c.get("speedup_basis", {})
+        spd = " / ".join(f"{sp[e]:.1f}x" + ("*" if basis.get(e, "measured") != "measured" else "")
+                         for e in ("0.2", "0.1", "0.05"))
+        rss_m = _rss_range(m.get("render_rss_per_run_mb") or m.get("peak_rss_per_run_mb") or [m["peak_rss_mb"]])
         rows.append(f"| {c['name']} | {runs(o)} | {runs(m)} | {o['error_model']['beta']:.2f} / "
-                    f"{m['error_model']['beta']:.2f} | {o['time_to_rel_rmse_s']['0.1']:.3g} s / "
-                    f"{m['time_to_rel_rmse_s']['0.1']:.3g} s | {sp['0.2']:.1f}x / {sp['0.1']:.1f}x / {sp['0.05']:.1f}x | "
-                    f"{rss_o} / {m['peak_rss_mb']:.0f} MB |")
+                    f"{m['error_model']['beta']:.2f} | {_t(o, '0.1')} / {_t(m, '0.1')} | {spd} | "
+                    f"{rss_o} / {rss_m} |")
     return "\n".join(rows)
 
 
@@ -513,6 +566,7 @@ def main(argv=None) -> dict:
                     help="transient-mi's hidden_geometry_prob (1 is unbiased on a planar relay wall)")
     ap.add_argument("--table", default=None, metavar="JSON", help="print the markdown table of a saved report")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+    _record.add_arguments(ap)
     args = ap.parse_args(argv)
     if args.table:
         print(markdown_table(json.loads(Path(args.table).read_text())))
@@ -520,6 +574,7 @@ def main(argv=None) -> dict:
     if args.worker:
         ours_worker(args.worker)
         return {}
+    load_start = list(os.getloadavg())
     py = mitransient_python(args.mitransient)
     report = {"benchmark": "nlos", "small": args.small,
               "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform()},
@@ -551,6 +606,8 @@ def main(argv=None) -> dict:
     print(text)
     if args.out:
         Path(args.out).write_text(text + "\n")
+    _record.maybe_save(args, "nlos_small" if args.small else "nlos", report, load_start=load_start,
+                       peers={"mitransient": MT_VERSION if py is not None else None})
     return report
 
 

@@ -15,12 +15,18 @@ bp64_confocal         same confocal capture -> 64^3                           (y
 
 Every case runs in a fresh child process that reads the capture from the
 same y-tal HDF5 file (written once with :func:`recon.io.ytal.write_ytal`), so
-peak RSS (``ru_maxrss``) is per case. ``time_s`` times the reconstruction
-call only (the fastest of ``--repeat`` calls, default 3), after one warm-up
-call on a tiny capture (numba kernels loaded);
-``first_call_s`` is that warm-up (JIT compile or cache load). Memory is the
-child's peak resident set (Python, numpy, scipy, numba included);
-``rss_before_mb`` is the resident set just before the timed call.
+peak memory is per case. Both sides follow one warm/cold policy: in its own
+process each first reconstructs a tiny capture of the same kind (4x4 pixels,
+64 bins, written to its own HDF5 file) with the same method (imports, numba
+kernels, FFT plans, worker pools: ``warmup_s``), then times up to
+``--repeat`` calls on the real capture (every one is recorded in
+``times_s``; ``time_s`` is the fastest), stopping early once the timed calls
+exceed ``--repeat-budget-s`` (the same rule for both). Memory is
+``VmHWM`` from ``/proc/self/status`` (the process's own peak resident set,
+Python and libraries included; not inherited over fork + exec), reset to the
+current resident set after the warm-up and read back after each call
+(``peak_rss_mb`` is the largest of those; ``rss_before_mb`` is the resident
+set before the first timed call).
 
 ``--with-ytal`` also runs y-tal 0.20.0 (GPL; installed on demand in its own
 virtual environment, default ``~/.cache/transient-mi-bench/ytal``) on the same
@@ -28,7 +34,11 @@ HDF5 file and the same voxel centres, with
 ``tal.set_resources(cpu_processes=2, downscale=16)`` (y-tal's knob to process
 the data in chunks and bound its memory; ``--ytal-downscale``) and an
 address-space limit (``--ytal-memory-gb``, default 14) so that it fails
-instead of swapping. y-tal's f-k reconstructs on its own grid; y-tal 0.20.0 has no LCT.
+instead of swapping. y-tal's f-k reconstructs on its own grid (one voxel per
+pixel and per time bin); recon's f-k is then run on a grid of the same shape
+over the same extent, so both produce outputs of the same size. y-tal 0.20.0
+has no LCT. (y-tal's ``cpu_processes`` are threads of its one process, so its
+``VmHWM`` covers them.)
 
 Prints one JSON document on stdout.
 """
@@ -45,6 +55,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _record  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 YTAL_VENV = Path.home() / ".cache" / "transient-mi-bench" / "ytal"
@@ -74,44 +87,61 @@ CASES = {
 BOUNDS = (-0.5, 0.5, -0.5, 0.5, 0.1, 1.1)
 
 
-def rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+def timed_calls(fn, repeat: int, budget_s: float) -> tuple[list[float], list[float], object]:
+    """Call ``fn`` up to ``repeat`` times (stop once the calls took ``budget_s`` in total).
+
+    Returns the times (s), the peak resident set after each call (MiB, VmHWM
+    reset before the first call) and the last result. The rule is the same
+    for recon and y-tal (``_ytal_runner.py`` has its own copy: it runs in
+    y-tal's environment and imports nothing of this project).
+    """
+    from _record import peak_rss_mb, reset_peak_rss
+
+    reset_peak_rss()
+    times, peaks, out = [], [], None
+    for _ in range(max(1, repeat)):
+        out = None
+        t = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t)
+        peaks.append(peak_rss_mb())
+        if sum(times) >= budget_s:
+            break
+    return times, peaks, out
 
 
 # ----------------------------------------------------------------------------- child (ours)
 
 
-def child(case: str, h5: str, n: int, repeat: int = 1) -> dict:
+def child(case: str, h5: str, n: int | list[int], repeat: int = 1, warm_h5: str | None = None,
+          budget_s: float = 60.0) -> dict:
     sys.path.insert(0, str(ROOT))
+    sys.path.insert(0, str(ROOT / "bench"))
 
+    from _record import rss_mb
     from recon import load_capture
     from recon.grid import VoxelGrid
     from recon.pipeline import reconstruct
-    from recon.synthetic import point_capture
 
     method = CASES[case][1]
-    # warm-up: same method on a tiny capture (numba kernels compiled or loaded from cache)
-    mode = "confocal" if CASES[case][0] == "confocal" else "array"
-    tiny = point_capture([[0, 0, 0.5]], mode=mode, pixels=4, sigma_ps=40, bin_width_ps=16)
+    # warm-up: same method on the tiny capture of the same kind (numba kernels compiled or loaded, FFT plans)
     t = time.perf_counter()
-    reconstruct(tiny, method, voxels=4, filter="none")
-    first = time.perf_counter() - t
+    if warm_h5:
+        reconstruct(load_capture(warm_h5), method, VoxelGrid.from_bounds(BOUNDS, voxels=4), filter="none")
+    warm = time.perf_counter() - t
     cap = load_capture(h5)
     grid = VoxelGrid.from_bounds(BOUNDS, voxels=n)
     before = rss_mb()
-    times = []
-    for _ in range(max(1, repeat)):
-        t = time.perf_counter()
-        rec = reconstruct(cap, method, grid, filter="none")
-        times.append(time.perf_counter() - t)
-    elapsed = min(times)
+    times, peaks, rec = timed_calls(lambda: reconstruct(cap, method, grid, filter="none"), repeat, budget_s)
     t = time.perf_counter()
     from recon.filters import paper_filter
 
     paper_filter(rec, threshold="rel:0.3")
     t_filter = time.perf_counter() - t
-    return {"status": "ok", "time_s": elapsed, "times_s": times, "paper_filter_s": t_filter, "first_call_s": first,
-            "peak_rss_mb": rss_mb(), "rss_before_mb": before, "shape_zyx": list(rec.raw.shape),
+    return {"status": "ok", "time_s": min(times), "median_s": float(sorted(times)[len(times) // 2]),
+            "times_s": times, "paper_filter_s": t_filter, "warmup_s": warm, "first_call_s": warm,
+            "peak_rss_mb": max(peaks), "peak_rss_per_call_mb": peaks, "rss_before_mb": before,
+            "shape_zyx": list(rec.raw.shape), "output_voxels": int(rec.raw.size),
             "argmax_m": [round(float(v), 4) for v in rec.argmax_m("raw")], "params": rec.params}
 
 
@@ -131,13 +161,21 @@ def make_inputs(tmp: Path, small: bool) -> dict:
     paths = {"single": tmp / "single.h5", "confocal": tmp / "confocal.h5"}
     write_ytal(single, paths["single"])
     write_ytal(conf, paths["confocal"])
-    return {"paths": paths, "describe": {"single": single.describe(), "confocal": conf.describe()},
+    # the warm-up captures (same kind, tiny): both sides warm up on these files
+    warm = {"single": tmp / "warm_single.h5", "confocal": tmp / "warm_confocal.h5"}
+    write_ytal(point_capture(POINTS[:1], pixels=4, t0_ps=0.0, n_bins=64, bin_width_ps=32.0, sigma_ps=40.0),
+               warm["single"])
+    write_ytal(point_capture(POINTS[:1], mode="confocal", pixels=4, t0_ps=0.0, n_bins=64, bin_width_ps=32.0,
+                             sigma_ps=40.0), warm["confocal"])
+    return {"paths": paths, "warm": warm, "describe": {"single": single.describe(), "confocal": conf.describe()},
             "pitch": {"single": single.pixel_pitch_m()[0], "confocal": conf.pixel_pitch_m()[0]}}
 
 
-def run_ours(case: str, h5: Path, n: int, timeout: int, repeat: int) -> dict:
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", case, "--h5", str(h5), "--n", str(n),
-           "--repeat", str(repeat)]
+def run_ours(case: str, h5: Path, n: int | list[int], timeout: int, repeat: int, warm_h5: Path,
+             budget_s: float) -> dict:
+    nn = ",".join(map(str, n)) if isinstance(n, (list, tuple)) else str(n)
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", case, "--h5", str(h5), "--n", nn,
+           "--repeat", str(repeat), "--warm-h5", str(warm_h5), "--repeat-budget-s", str(budget_s)]
     env = dict(os.environ, TRANSIENT_MI_PROGRESS="0", PYTHONPATH=str(ROOT))
     try:
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
@@ -160,14 +198,15 @@ def ensure_ytal(venv: Path) -> Path:
 
 
 def run_ytal(py: Path, case: str, h5: Path, n: int, pitch: float, bin_m: float, tmp: Path, timeout: int,
-             memory_gb: float, downscale: int) -> dict:
+             memory_gb: float, downscale: int, warm_h5: Path, repeat: int, budget_s: float) -> dict:
     sys.path.insert(0, str(ROOT))
     from recon.grid import VoxelGrid
 
     grid = VoxelGrid.from_bounds(BOUNDS, voxels=n)
     lam = max(4 * pitch, 4 * bin_m)   # recon.phasor.default_wavelength_m: the same virtual wave for both
     spec = {"method": CASES[case][1], "x_m": grid.x_m.tolist(), "y_m": grid.y_m.tolist(), "z_m": grid.z_m.tolist(),
-            "wavelength_m": lam, "pulse_sigma_m": lam, "cpu_processes": 2, "downscale": downscale}
+            "wavelength_m": lam, "pulse_sigma_m": lam, "cpu_processes": 2, "downscale": downscale,
+            "warm_h5": str(warm_h5), "repeat": repeat, "repeat_budget_s": budget_s}
     sp = tmp / f"{case}.json"
     sp.write_text(json.dumps(spec))
     limit = int(memory_gb * 2 ** 30)
@@ -197,6 +236,8 @@ def _fmt(r: dict | None) -> tuple[str, str]:
         why = r.get("reason") or r["status"]
         if r.get("status") == "out of memory":
             why = f"out of memory (> {r.get('memory_limit_gb'):g} GB limit)"
+        if r.get("status") == "timeout":
+            why = f"did not finish in {r.get('timeout_s')} s (timeout)"
         return why, "-"
     return f"{r['time_s']:.3g} s", f"{r['peak_rss_mb'] / 1024:.2f} GB"
 
@@ -214,6 +255,9 @@ def markdown_table(result: dict) -> str:
         if g:
             goal += " (met)" if c.get("meets_goal") else " (missed)"
         sp = f"{c['speedup']:.0f}x" if "speedup" in c else "-"
+        y, o = c.get("ytal") or {}, c["ours"]
+        if y.get("status") == "timeout" and o.get("status") == "ok":
+            sp = f"> {y['timeout_s'] / o['time_s']:.0f}x (lower bound)"
         cap = ", ".join(p.strip() for p in result["captures"][c["capture"]].split(",")[:2])
         lines.append(f"| {c['case']} | {cap} | {'x'.join(map(str, c['voxels']))} | {t} | {m} | {goal} | {yt} | {ym} |"
                      f" {sp} |")
@@ -237,15 +281,21 @@ def main(argv=None) -> int:
     ap.add_argument("--cases", default=",".join(CASES), help="comma-separated subset of " + ",".join(CASES))
     ap.add_argument("--timeout", type=int, default=1800, help="seconds per case and implementation")
     ap.add_argument("--repeat", type=int, default=3,
-                    help="timed calls per case (in one process); time_s is the fastest (robust on a shared machine)")
+                    help="timed calls per case and side after the warm-up (time_s is the fastest; all are recorded)")
+    ap.add_argument("--repeat-budget-s", type=float, default=60.0,
+                    help="stop repeating once the timed calls of a case took this long (same rule for both sides)")
     ap.add_argument("--table", type=Path, metavar="JSON",
                     help="print a Markdown table of a saved result (this script's output) and exit")
+    _record.add_arguments(ap)
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--h5", help=argparse.SUPPRESS)
-    ap.add_argument("--n", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--warm-h5", help=argparse.SUPPRESS)
+    ap.add_argument("--n", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.child:
-        print(json.dumps(child(a.child, a.h5, a.n, a.repeat)))
+        n = [int(v) for v in a.n.split(",")]
+        print(json.dumps(child(a.child, a.h5, n[0] if len(n) == 1 else n, a.repeat, a.warm_h5,
+                               a.repeat_budget_s)))
         return 0
     if a.table:
         print(markdown_table(json.loads(a.table.read_text())))
@@ -256,14 +306,21 @@ def main(argv=None) -> int:
         ap.error(f"unknown case(s) {bad}; choose from {', '.join(CASES)}")
     s = sizes(a.small)
     ytal_py = ensure_ytal(a.ytal_venv) if a.with_ytal else None
+    repeat = 1 if a.small else a.repeat
     import numba
     import numpy
     import scipy
 
-    out = {"benchmark": "recon", "small": a.small, "load_average_start": list(os.getloadavg()),
+    load_start = list(os.getloadavg())
+    out = {"benchmark": "recon", "small": a.small, "load_average_start": load_start,
            "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": numpy.__version__,
                        "scipy": scipy.__version__, "numba": numba.__version__, "platform": platform.platform()},
+           "policy": {"warm_up": "one call of the same method on a tiny capture of the same kind (4x4 pixels, "
+                                 "64 bins), in the same process, before the timed calls; same for recon and y-tal",
+                      "repeat": repeat, "repeat_budget_s": a.repeat_budget_s,
+                      "time_s": "fastest timed call", "memory": "VmHWM of the process, reset after the warm-up"},
            "cases": []}
+    ytal_version = None
     with tempfile.TemporaryDirectory(prefix="bench-recon-") as td:
         tmp = Path(td)
         inputs = make_inputs(tmp, a.small)
@@ -271,30 +328,39 @@ def main(argv=None) -> int:
         for case in cases:
             cap_name, method, nkey = CASES[case]
             n = s[nkey]
-            h5 = inputs["paths"][cap_name]
-            print(f"[bench] {case}: ours", file=sys.stderr)
-            row = {"case": case, "method": method, "capture": cap_name, "voxels": [n, n, n],
-                   "ours": run_ours(case, h5, n, a.timeout, 1 if a.small else a.repeat)}
-            goal = GOALS.get(case)
-            if goal and not a.small:
-                row["goal"] = goal
-                o = row["ours"]
-                row["meets_goal"] = o.get("status") == "ok" and o["time_s"] <= goal["time_s"] and \
-                    ("peak_rss_gb" not in goal or o["peak_rss_mb"] / 1024 <= goal["peak_rss_gb"])
+            h5, warm = inputs["paths"][cap_name], inputs["warm"][cap_name]
+            row = {"case": case, "method": method, "capture": cap_name, "voxels": [n, n, n]}
             if ytal_py is not None:
                 print(f"[bench] {case}: y-tal", file=sys.stderr)
                 from recon.units import C_M_PER_PS
 
                 bin_ps = s["bin_ps"] if cap_name == "single" else s["conf_bin_ps"]
                 row["ytal"] = run_ytal(ytal_py, case, h5, n, inputs["pitch"][cap_name], bin_ps * C_M_PER_PS, tmp,
-                                       a.timeout, a.ytal_memory_gb, a.ytal_downscale)
-                y, o = row["ytal"], row["ours"]
-                if y.get("status") == "ok" and o.get("status") == "ok":
-                    row["speedup"] = y["time_s"] / o["time_s"]
-                    row["memory_ratio"] = y["peak_rss_mb"] / o["peak_rss_mb"]
+                                       a.timeout, a.ytal_memory_gb, a.ytal_downscale, warm, repeat,
+                                       a.repeat_budget_s)
+                ytal_version = row["ytal"].get("version", ytal_version)
+                if method == "fk" and row["ytal"].get("status") == "ok":
+                    # y-tal's f-k has its own grid: reconstruct ours on a grid of the same shape (x, y, z)
+                    row["voxels"] = [int(v) for v in row["ytal"]["shape_xyz"]]
+                    row["voxels_note"] = "recon's grid set to the shape of y-tal's f-k output (same output size)"
+            print(f"[bench] {case}: ours", file=sys.stderr)
+            vox = row["voxels"] if len(set(row["voxels"])) > 1 else n
+            row["ours"] = run_ours(case, h5, vox, a.timeout, repeat, warm, a.repeat_budget_s)
+            goal = GOALS.get(case)
+            if goal and not a.small:
+                row["goal"] = goal
+                o = row["ours"]
+                row["meets_goal"] = o.get("status") == "ok" and o["time_s"] <= goal["time_s"] and \
+                    ("peak_rss_gb" not in goal or o["peak_rss_mb"] / 1024 <= goal["peak_rss_gb"])
+            y, o = row.get("ytal"), row["ours"]
+            if y and y.get("status") == "ok" and o.get("status") == "ok":
+                row["speedup"] = y["time_s"] / o["time_s"]
+                row["memory_ratio"] = y["peak_rss_mb"] / o["peak_rss_mb"]
             out["cases"].append(row)
     out["load_average_end"] = list(os.getloadavg())
     print(json.dumps(out, indent=1))
+    _record.maybe_save(a, "recon_small" if a.small else "recon", out, load_start=load_start,
+                       peers={"y-tal": ytal_version} if ytal_py is not None else None)
     return 0
 
 

@@ -25,11 +25,12 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _record  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -46,20 +47,14 @@ FULL = {"photon_default": ["photon-budget"], "array_default": ["array-size"]}
 def run_case(name: str, args: list[str], work: Path) -> dict:
     out = work / name
     env = dict(os.environ, TRANSIENT_MI_PROGRESS="0")
-    cmd = [sys.executable, "-m", "transient_mi", "study", *args, "-o", str(out)]
     log = work / f"{name}.log"
-    t0 = time.perf_counter()
-    with open(log, "w") as f:
-        proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=f, stderr=subprocess.STDOUT)
-        _, status, usage = os.wait4(proc.pid, 0)  # this child's own resource usage (peak RSS)
-    wall = time.perf_counter() - t0
-    code = os.waitstatus_to_exitcode(status)
-    proc.returncode = code
+    # the study's own process: wall time and its VmHWM (not ru_maxrss, which carries our peak over fork + exec)
+    r = _record.run_measured(["transient_mi", "study", *args, "-o", str(out)], cwd=ROOT, env=env, log=log)
     case = {"case": name, "command": "transient-mi study " + " ".join(args) + " -o OUT", "status": "ok",
-            "wall_s": round(wall, 2)}
-    if code != 0:
+            "wall_s": round(r["wall_s"], 2)}
+    if r["returncode"] != 0:
         return dict(case, status="failed", output=log.read_text()[-2000:])
-    case["peak_rss_mb"] = round(usage.ru_maxrss / 1024, 1)  # KiB on Linux
+    case["peak_rss_mb"] = round(r["peak_rss_mb"], 1)
     t = json.loads((out / "timings.json").read_text())
     rows = t["rows"]
     sums = {k: round(sum(x[k] for x in rows), 2) for k in rows[0] if k.endswith("_s") and k != "exposure_s"}
@@ -76,15 +71,19 @@ def main(argv=None) -> int:
     ap.add_argument("--small", action="store_true", help="tiny settings (CI)")
     ap.add_argument("--full", action="store_true", help="also the default (non-quick) studies (minutes)")
     ap.add_argument("--keep", type=Path, default=None, help="write the study outputs here (default: a temp dir)")
+    _record.add_arguments(ap)
     a = ap.parse_args(argv)
+    load_start = list(os.getloadavg())
     cases = dict(SMALL) if a.small else dict(QUICK, **(FULL if a.full else {}))
     with tempfile.TemporaryDirectory(prefix="bench-studies-") as td:
         work = a.keep or Path(td)
         work.mkdir(parents=True, exist_ok=True)
         results = [run_case(n, args, work) for n, args in cases.items()]
-    print(json.dumps({"benchmark": "studies", "small": a.small, "cpu_count": os.cpu_count(),
-                      "load_avg_1min": round(os.getloadavg()[0], 2), "python": platform.python_version(),
-                      "cases": results}, indent=1))
+    result = {"benchmark": "studies", "small": a.small, "cpu_count": os.cpu_count(),
+              "load_avg_1min": round(os.getloadavg()[0], 2), "python": platform.python_version(),
+              "cases": results}
+    print(json.dumps(result, indent=1))
+    _record.maybe_save(a, "studies_small" if a.small else "studies", result, load_start=load_start)
     return 0 if all(c["status"] == "ok" for c in results) else 1
 
 

@@ -1,0 +1,507 @@
+#!/usr/bin/env python3
+"""Rewrite every benchmark table and quoted number in README.md and docs/*.md from ``bench/results/*.json``.
+
+A generated region is delimited by marker comments::
+
+    <!-- bench:recon_table -->
+    ...generated text...
+    <!-- /bench -->
+
+(on their own lines for blocks, or inline inside a sentence for a single
+number). Everything between the markers is replaced by the output of the
+generator of that name (:data:`GENERATORS`), which reads only the committed
+JSON records (written by the benchmark scripts with ``--save``; see
+``bench/_record.py``). Every block ends with its provenance: the JSON file,
+the command, the date and the machine the timings came from. A region whose
+JSON file is missing says "not yet re-measured" instead of a number.
+
+    python bench/regenerate_docs.py            # rewrite the files in place
+    python bench/regenerate_docs.py --check    # exit 1 and name every region that differs (tests)
+    python bench/regenerate_docs.py --list     # the generators and the records they read
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+ROOT = Path(__file__).resolve().parents[1]
+MARKER = re.compile(r"<!-- bench:(?P<name>[a-z0-9_]+) -->(?P<body>.*?)<!-- /bench -->", re.S)
+
+
+class Missing(Exception):
+    """A record that the generator needs is not in bench/results/."""
+
+
+# ----------------------------------------------------------------------------- records
+
+
+class Records:
+    """The JSON records of one results folder, loaded on demand."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+        self._cache: dict[str, dict] = {}
+
+    def __call__(self, name: str) -> dict:
+        if name not in self._cache:
+            p = self.folder / f"{name}.json"
+            if not p.is_file():
+                raise Missing(name)
+            self._cache[name] = json.loads(p.read_text())
+        return self._cache[name]
+
+
+def machine_line(rec: dict) -> str:
+    """'Intel(R) Xeon(R) Processor, 2 cores, 23.6 GiB, load 4.3 -> 3.8'."""
+    m = rec["machine"]
+    load = ""
+    if m.get("load_average_1min_start") is not None:
+        load = f", 1-min load {m['load_average_1min_start']:.1f} -> {m['load_average_1min_end']:.1f}"
+    return f"{m['cpu_model']}, {m['cores']} cores, {m['memory_gib']:g} GiB{load}"
+
+
+def shown_command(rec: dict) -> str:
+    """The record's command without its ``--note`` text (the note is quoted separately)."""
+    import shlex
+
+    words, out, skip = shlex.split(rec["command"]), [], False
+    for w in words:
+        if skip:
+            skip = False
+            continue
+        if w == "--note":
+            skip = True
+            continue
+        if not w.startswith("--note="):
+            out.append(w)
+    return shlex.join(out)
+
+
+def provenance(rec: dict, *, short: bool = False) -> str:
+    """Where a number comes from: file, command, date, machine (and the record's note)."""
+    date = rec["date_utc"][:10]
+    f = f"`bench/results/{rec['name']}.json`"
+    if short:
+        return f"{f}, {date}, {rec['machine']['cores']} cores"
+    note = f" {rec['note'].rstrip('.')}." if rec.get("note") else ""
+    return f"Source: {f} (`{shown_command(rec)}`, {date}; {machine_line(rec)}).{note}"
+
+
+def not_measured(names: list[str], inline: bool) -> str:
+    files = ", ".join(f"`bench/results/{n}.json`" for n in names)
+    if inline:
+        return f"(not yet re-measured: {files} missing)"
+    return f"\n*Not yet re-measured: {files} missing (run the benchmark with `--save`).*\n"
+
+
+def sci(n: float) -> str:
+    """1000000 -> '1e6'."""
+    m, e = f"{n:.0e}".split("e")
+    return f"{m}e{int(e)}"
+
+
+def g2(x: float) -> str:
+    """Two significant digits, exponent without '+' and leading zeros: 3.2e6."""
+    t = f"{x:.2g}"
+    if "e" in t:
+        m, e = t.split("e")
+        t = f"{m}e{int(e)}"
+    return t
+
+
+def s(x: float) -> str:
+    """Seconds with 3 significant digits."""
+    return f"{x:.3g} s"
+
+
+# ----------------------------------------------------------------------------- generators
+
+
+def recon_readme_table(R) -> str:
+    rec = R("recon")
+    r = rec["result"]
+    goals = {"bp64": "<= 0.5 s, 0.5 GB", "bp128": "<= 5 s, 1 GB", "phasor64": "<= 10 s, 2 GB", "lct64": "<= 0.5 s",
+             "fk64": "<= 1 s"}
+    label = {"bp64": "BP 64^3, single spot", "bp128": "BP 128^3", "phasor64": "phasor fields 64^3",
+             "lct64": "LCT, confocal 64x64", "fk64": "f-k, confocal 64x64", "bp64_confocal": "confocal BP 64^3"}
+    ver = rec["versions"].get("y-tal") or "0.20.0"
+    lines = [f"| case | recon: time, peak RSS | goal | y-tal {ver}: time, peak RSS | speed-up |",
+             "|---|---|---|---|---|"]
+    for c in r["cases"]:
+        o, y = c["ours"], c.get("ytal") or {}
+        ours = f"{s(o['time_s'])}, {o['peak_rss_mb'] / 1024:.2f} GB" if o.get("status") == "ok" else o.get("status")
+        if y.get("status") == "ok":
+            yt = f"{s(y['time_s'])}, {y['peak_rss_mb'] / 1024:.2f} GB"
+        elif y.get("status") == "out of memory":
+            yt = f"out of memory (> {y['memory_limit_gb']:g} GB)"
+        elif y.get("status") == "timeout":
+            yt = f"did not finish in {y['timeout_s']} s (timeout)"
+        elif y:
+            yt = y.get("reason") or y.get("status")
+        else:
+            yt = "not run"
+        name = label.get(c["case"], c["case"])
+        if c["method"] == "fk" and len(set(c["voxels"])) > 1:
+            name += f" (both {'x'.join(map(str, c['voxels']))} voxels)"
+        sp = f"{c['speedup']:.0f}x" if "speedup" in c else "-"
+        if y.get("status") == "timeout" and o.get("status") == "ok":
+            sp = f"> {y['timeout_s'] / o['time_s']:.0f}x (lower bound)"
+        lines.append(f"| {name} | {ours} | {goals.get(c['case'], '-')} | {yt} | {sp} |")
+    pol = r.get("policy", {})
+    lines += ["", f"Both sides warm (one call on a tiny capture of the same kind first), fastest of up to "
+                  f"{pol.get('repeat', '?')} calls; peak RSS = the process's VmHWM. {provenance(rec)}"]
+    return "\n" + "\n".join(lines) + "\n"
+
+
+def recon_docs_table(R) -> str:
+    from bench_recon import markdown_table
+
+    rec = R("recon")
+    return "\n" + markdown_table(rec["result"]) + "\n\n" + provenance(rec) + "\n"
+
+
+def recon_speedups_inline(R) -> str:
+    r = R("recon")["result"]
+    sp = [c["speedup"] for c in r["cases"] if "speedup" in c]
+    return f"{min(sp):.0f}-{max(sp):.0f}x" if sp else "(no y-tal case finished)"
+
+
+def integrator_para(R) -> str:
+    rec = R("integrator")
+    r = rec["result"]
+    st = r.get("settings", {})
+    t, p = r["transient_path"], r["path"]
+    rounds = ", ".join(f"{100 * x:.0f} %" for x in r.get("throughput_ratio_per_round", []))
+    return (f"\n**Transient vs steady path tracing** (`python bench/bench_integrator.py`: Cornell box, "
+            f"{st.get('size', 256)} x {st.get('size', 256)}, {t['spp']} spp, max depth {st.get('max_depth', 8)}): "
+            f"`transient_path` with a {st.get('bins', 1024)}-bin film keeps {100 * r['throughput_ratio']:.0f} % of "
+            f"Mitsuba's `path` throughput ({t['paths_per_s'] / 1e6:.2f} vs {p['paths_per_s'] / 1e6:.2f} M paths/s, "
+            f"best of each; per round {rounds}; goal >= {100 * r['goal_ratio']:.0f} %); peak RSS "
+            f"{t['peak_rss_mb']:.0f} MB ({p['peak_rss_mb']:.0f} MB for `path`), of which the film is "
+            f"{r['film_bytes'] / 1e6:.0f} MB. {provenance(rec)}\n")
+
+
+def cornell_inline(R) -> str:
+    rec = R("integrator")
+    x = rec["result"].get("readme_example")
+    if not x or x.get("status") != "ok":
+        raise Missing("integrator")
+    return (f"{x['render_time_s']:.1f} s of rendering ({x['wall_s']:.0f} s for the whole command) on "
+            f"{rec['machine']['cores']} CPU cores ({provenance(rec, short=True)})")
+
+
+def _nlos_sp(c, e):
+    star = "" if c.get("speedup_basis", {}).get(e, "measured") == "measured" else "*"
+    return f"{c['speedup_time_to_equal_error'][e]:.1f}x{star}"
+
+
+def nlos_readme_table(R) -> str:
+    from bench_nlos import _rss_range, _t
+
+    rec = R("nlos")
+    r = rec["result"]
+    ver = rec["versions"].get("mitransient")
+    lines = ["| configuration | speed-up at equal RMSE 0.2 / 0.1 / 0.05 | time to RMSE 0.1: ours / mitransient | "
+             "peak RSS per run: ours / mitransient |", "|---|---|---|---|"]
+    for c in r["configs"]:
+        o, m = c["ours"], c.get("mitransient")
+        if m is None:
+            lines.append(f"| {c['name']} | mitransient not run | {_t(o, '0.1')} / - | - |")
+            continue
+        if c["capture"] == "array" and c.get("ours_pipeline"):
+            rss_o = f"{max(v['peak_rss_mb'] for v in c['ours_pipeline'].values()):.0f} MB (streamed render)"
+        else:
+            rss_o = _rss_range(o["peak_rss_per_run_mb"])
+        rss_m = _rss_range(m.get("render_rss_per_run_mb") or m["peak_rss_per_run_mb"])
+        sp = " / ".join(_nlos_sp(c, e) for e in ("0.2", "0.1", "0.05"))
+        lines.append(f"| {c['name']} | {sp} | {_t(o, '0.1')} / {_t(m, '0.1')} | {rss_o} / {rss_m} |")
+    lines += ["", f"(`*`: at least one side did not reach that error in the measured runs; the time comes from "
+                  f"the fitted power law beyond the measured range and is labelled extrapolated. mitransient "
+                  f"{ver}; its peak RSS is its renderer alone, per run, in its own process.) {provenance(rec)}"]
+    return "\n" + "\n".join(lines) + "\n"
+
+
+def nlos_docs_table(R) -> str:
+    from bench_nlos import markdown_table
+
+    rec = R("nlos")
+    return "\n" + markdown_table(rec["result"]) + "\n\n" + provenance(rec) + "\n"
+
+
+def nlos_pipeline_para(R) -> str:
+    rec = R("nlos")
+    arr = [c for c in rec["result"]["configs"] if c.get("ours_pipeline")]
+    if not arr:
+        return not_measured(["nlos"], False)
+    c = arr[0]
+    parts = [f"{v['peak_rss_mb']:.0f} MB with {k.replace('_spots', '').replace('x', ' x ')} spots ({v['files']} files, "
+             f"{s(v['time_s'])})" for k, v in c["ours_pipeline"].items()]
+    m = c.get("mitransient")
+    mt = ""
+    if m:
+        mt = (f" mitransient holds the whole exhaustive capture in memory: its render peaks at "
+              f"{_gb(max(m.get('render_rss_per_run_mb') or m['peak_rss_per_run_mb']))} per run.")
+    return (f"\nIts streaming render of the same capture (`transient-mi render`, one EXR file per spot, spp 4) peaks "
+            f"at " + ", ".join(parts) + f": memory does not grow with the number of spots.{mt} "
+            f"{provenance(rec, short=True)}.\n")
+
+
+def nlos_agreement(R) -> str:
+    rec = R("nlos")
+    cs = [c for c in rec["result"]["configs"] if c.get("mean_agreement")]
+    if not cs:
+        return "(mitransient was not run: no agreement to report)"
+    ag = [c["mean_agreement"] for c in cs]
+    ratio = " / ".join(f"{a['scale_ours_over_mitransient']:.5f}" for a in ag)
+    expected = " / ".join(f"{a['expected_scale']:.5f}" for a in ag)
+    resid = " / ".join(f"{100 * a['rel_rms_residual_of_totals']:.2f} %" for a in ag)
+    dt = " / ".join(f"{a['mean_arrival_bin_difference']['mean']:.2f}" for a in ag)
+    names = ", ".join(c["name"] for c in cs)
+    return (f"for {names}, the fitted ratio of the per-(spot, pixel) totals is {ratio} against the expected "
+            f"{expected}, the residual scatter {resid} (the references' own noise), and the mean arrival times "
+            f"differ by {dt} bins on average ({provenance(rec, short=True)}).")
+
+
+def nlos_betas(R) -> str:
+    rec = R("nlos")
+    parts = []
+    for c in rec["result"]["configs"]:
+        m = c.get("mitransient")
+        mb = f"{m['error_model']['beta']:.2f}" if m else "-"
+        parts.append(f"{c['name']} {c['ours']['error_model']['beta']:.2f} / {mb}")
+    return "; ".join(parts)
+
+
+def _gb(mb: float) -> str:
+    return f"{mb / 1024:.1f} GB"
+
+
+def detector_readme_inline(R) -> str:
+    r = R("detector")["result"]
+    g = r["analytic_gated"]
+    return f"{s(g['warm_s'])} warm, {s(g['cold_s'])} cold, for {int(r['pixels'] ** 0.5)} x {int(r['pixels'] ** 0.5)} " \
+           f"pixels x {r['n_bins']} bins x {sci(g['pulses'])} pulses; {provenance(R('detector'), short=True)}"
+
+
+def detector_para(R) -> str:
+    rec = R("detector")
+    r = rec["result"]
+    g, u, e = r["analytic_gated"], r["analytic_ungated"], r["exact"]
+    side = int(r["pixels"] ** 0.5)
+    return (f"\n**Detector** (`python bench/bench_detector.py`): the analytic engine on {side} x {side} pixels x "
+            f"{r['n_bins']} bins x {sci(g['pulses'])} pulses takes {s(g['warm_s'])} gated (warm; {s(g['cold_s'])} for "
+            f"the first call in a process; goal < {g['goal_s']:g} s), {s(u['warm_s'])} ungated; the exact engine "
+            f"simulates {g2(e['pixel_pulses_per_s'])} pixel-pulses/s. {provenance(rec)}\n")
+
+
+def detector_docs_table(R) -> str:
+    rec = R("detector")
+    r = rec["result"]
+    g, u, e = r["analytic_gated"], r["analytic_ungated"], r["exact"]
+
+    def ts(x):
+        return ", ".join(f"{v:.3g}" for v in x["times_s"])
+
+    lines = ["| case | warm (fastest) | cold (first call in the process) | every call (s) |", "|---|---|---|---|",
+             f"| analytic, gated (the paper's setup; exact regime) | {s(g['warm_s'])} | {s(g['cold_s'])} | {ts(g)} |",
+             f"| analytic, ungated (Markov chain for every pixel) | {s(u['warm_s'])} | {s(u['cold_s'])} | {ts(u)} |",
+             f"| exact engine, {e['pulses']:,} pulses | {g2(e['pixel_pulses_per_s'])} pixel-pulses/s "
+             f"({g2(e['events_per_s'])} events/s) | first call {s(e['first_call_s'])} (compile) | {e['seconds']:.3g} |",
+             "", provenance(rec)]
+    return "\n" + "\n".join(lines) + "\n"
+
+
+def _study_cases(R):
+    rec = R("studies")
+    return rec, {c["case"]: c for c in rec["result"]["cases"]}
+
+
+def studies_para(R) -> str:
+    rec, c = _study_cases(R)
+
+    def one(k, what):
+        x = c.get(k)
+        if not x or x.get("status") != "ok":
+            return f"{what}: not yet re-measured (`--full`)"
+        return f"{what} {x['wall_s']:.0f} s, {_gb(x['peak_rss_mb'])}"
+
+    pq = c.get("photon_quick", {})
+    return (f"\n**Studies** (`{shown_command(rec)}`): "
+            + one("photon_quick", f"`study photon-budget --quick` ({pq.get('runs', '?')} detections and "
+                                  f"reconstructions)") + "; "
+            + one("photon_default", "with 1 ps bins") + "; "
+            + one("array_quick", "`study array-size --quick` (4x4 to 64x64)") + "; "
+            + one("array_default", "with 1 ps bins") + f" (wall time of the whole command, peak RSS). "
+            f"{provenance(rec)}\n")
+
+
+def _study_inline(key):
+    def gen(R):
+        rec, c = _study_cases(R)
+        x = c.get(key)
+        if not x or x.get("status") != "ok":
+            raise Missing("studies")
+        return f"{x['wall_s']:.0f} s, {_gb(x['peak_rss_mb'])} peak on {rec['machine']['cores']} cores"
+    return gen
+
+
+def dataset_para(R) -> str:
+    rec = R("dataset_dataset_example")
+    r = rec["result"]
+    runs = ", ".join(f"{x['items_per_hour']:.0f} (`--workers {x['workers']}`, {x['items']} items in {x['wall_s']:.0f} s)"
+                     for x in r["runs"])
+    text = (f"\n**Datasets** (`{shown_command(rec)}`, the camera example "
+            f"`docs/examples/dataset_example.yaml`, wall time of the whole command): items per hour {runs}. "
+            f"{provenance(rec)}")
+    try:
+        n = R("dataset_dataset_nlos_mannequin")
+        nr = ", ".join(f"{x['items_per_hour']:.0f} (`--workers {x['workers']}`)" for x in n["result"]["runs"])
+        text += (f" The NLOS example spec (`docs/examples/dataset_nlos_mannequin.yaml`: paper scene, 16x16/32x32 "
+                 f"arrays, counts, ground truth): items per hour {nr}. {provenance(n)}")
+    except Missing:
+        text += (" The NLOS example spec (`docs/examples/dataset_nlos_mannequin.yaml`): not yet re-measured "
+                 "(`bench/results/dataset_dataset_nlos_mannequin.json` missing).")
+    return text + "\n"
+
+
+def dataset_docs_table(R) -> str:
+    rec = R("dataset_dataset_example")
+    r = rec["result"]
+    lines = ["| configuration | items | wall (s) | items per hour | mean item time in a worker (s) |",
+             "|---|---|---|---|---|"]
+    for x in r["runs"]:
+        where = f"`--scheduler {x['scheduler']}`" if x.get("scheduler") else f"local, `--workers {x['workers']}`"
+        lines.append(f"| {where} | {x['items']} | {x['wall_s']:.1f} | {x['items_per_hour']:.0f} | "
+                     f"{x['mean_item_s_in_worker']:.2f} |")
+    lines += ["", provenance(rec)]
+    return "\n" + "\n".join(lines) + "\n"
+
+
+def demo_table(R) -> str:
+    from bench_demo import markdown_metrics
+
+    rec = R("demo")
+    r = rec["result"]
+    f = r["fastest"]
+    st = f["step_sums_s"]
+    return ("\n" + markdown_metrics(r) + "\n\n"
+            f"(`transient-mi demo`, seed 0, 64 x 64 x 32 voxels of 1.6 cm; {f['wall_s']:.0f} s on "
+            f"{rec['machine']['cores']} cores ({rec['machine']['cpu_model']}): render {st['render']:.0f} s, detect "
+            f"{st['detect']:.0f} s, reconstruct {st['reconstruct']:.0f} s, figures, metrics and start-up the rest; "
+            f"peak RSS {_gb(f['peak_rss_mb'])}. {provenance(rec)})\n")
+
+
+def demo_wall_inline(R) -> str:
+    rec = R("demo")
+    return f"{rec['result']['fastest']['wall_s']:.0f} s ({provenance(rec, short=True)})"
+
+
+def demo_quick_inline(R) -> str:
+    rec = R("demo_quick")
+    return f"{rec['result']['fastest']['wall_s']:.0f} s ({provenance(rec, short=True)})"
+
+
+#: name -> (generator, records it reads, inline?)
+GENERATORS = {
+    "demo_wall": (demo_wall_inline, ["demo"], True),
+    "demo_quick": (demo_quick_inline, ["demo_quick"], True),
+    "demo_table": (demo_table, ["demo"], False),
+    "detector_inline": (detector_readme_inline, ["detector"], True),
+    "cornell_render": (cornell_inline, ["integrator"], True),
+    "integrator": (integrator_para, ["integrator"], False),
+    "nlos_table": (nlos_readme_table, ["nlos"], False),
+    "nlos_docs_table": (nlos_docs_table, ["nlos"], False),
+    "nlos_pipeline": (nlos_pipeline_para, ["nlos"], False),
+    "nlos_agreement": (nlos_agreement, ["nlos"], False),
+    "nlos_betas": (nlos_betas, ["nlos"], True),
+    "detector": (detector_para, ["detector"], False),
+    "detector_docs_table": (detector_docs_table, ["detector"], False),
+    "recon_table": (recon_readme_table, ["recon"], False),
+    "recon_docs_table": (recon_docs_table, ["recon"], False),
+    "recon_speedups": (recon_speedups_inline, ["recon"], True),
+    "studies": (studies_para, ["studies"], False),
+    "study_photon_quick": (_study_inline("photon_quick"), ["studies"], True),
+    "study_array_quick": (_study_inline("array_quick"), ["studies"], True),
+    "study_photon_default": (_study_inline("photon_default"), ["studies"], True),
+    "study_array_default": (_study_inline("array_default"), ["studies"], True),
+    "dataset": (dataset_para, ["dataset_dataset_example"], False),
+    "dataset_docs_table": (dataset_docs_table, ["dataset_dataset_example"], False),
+}
+
+
+# ----------------------------------------------------------------------------- driver
+
+
+def render(name: str, R) -> str:
+    if name not in GENERATORS:
+        raise SystemExit(f"error: unknown bench marker '{name}'; known: {', '.join(sorted(GENERATORS))}")
+    fn, needs, inline = GENERATORS[name]
+    try:
+        text = fn(R)
+    except Missing as e:
+        text = not_measured([str(e)], inline)
+    # a block stands on its own lines with a blank line before its closing marker (ends tables and paragraphs)
+    return text if inline else "\n" + text.strip("\n") + "\n\n"
+
+
+def documents(root: Path) -> list[Path]:
+    return [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+
+
+def regenerate(root: Path, results: Path, check: bool) -> list[str]:
+    """Rewrite (or, with ``check``, compare) every marked region; returns the regions that differed."""
+    sys.path.insert(0, str(ROOT))
+    from recon._atomic import atomic_file
+
+    R = Records(results)
+    differ = []
+    for doc in documents(root):
+        if not doc.is_file():
+            continue
+        text = doc.read_text()
+
+        def sub(m):
+            new = render(m.group("name"), R)
+            if new != m.group("body"):
+                differ.append(f"{doc.relative_to(root)}: bench:{m.group('name')}")
+            return f"<!-- bench:{m.group('name')} -->{new}<!-- /bench -->"
+
+        out = MARKER.sub(sub, text)
+        if out != text and not check:
+            with atomic_file(doc) as tmp:
+                tmp.write_text(out)
+    return differ
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--check", action="store_true", help="change nothing; exit 1 if any region differs")
+    ap.add_argument("--list", action="store_true", help="list the generators and the records they read")
+    ap.add_argument("--root", type=Path, default=ROOT, help="repository root holding README.md and docs/")
+    ap.add_argument("--results", type=Path, default=None, help="results folder (default ROOT/bench/results)")
+    a = ap.parse_args(argv)
+    if a.list:
+        for k, (_, needs, inline) in GENERATORS.items():
+            print(f"{k:24s} {'inline' if inline else 'block '}  {', '.join(f'bench/results/{n}.json' for n in needs)}")
+        return 0
+    results = a.results or a.root / "bench" / "results"
+    differ = regenerate(a.root, results, a.check)
+    if a.check:
+        for d in differ:
+            print(f"differs from its JSON: {d}")
+        if differ:
+            print("run: python bench/regenerate_docs.py", file=sys.stderr)
+        return 1 if differ else 0
+    for d in differ:
+        print(f"rewrote {d}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
