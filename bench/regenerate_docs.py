@@ -407,6 +407,55 @@ def demo_quick_inline(R) -> str:
     return f"{rec['result']['fastest']['wall_s']:.0f} s ({provenance(rec, short=True)})"
 
 
+def _own_provenance(rec: dict, name: str) -> str:
+    """Provenance of the rendering-noise records (written by bench_noise.py, bench_render_variance.py and
+    docs/make_noise_figure.py in their own layout: ``command``, ``date``, ``machine``)."""
+    m = rec.get("machine", {})
+    load = m.get("load_average_1_5_15") or m.get("load_average_at_end")
+    load_txt = f", 1-min load {load[0]:.1f}" if load else ""
+    return (f"Source: `bench/results/{name}.json` (`{rec['command'].strip()}`, {rec['date'][:10]}; "
+            f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores{load_txt}).")
+
+
+def noise_demo_para(R) -> str:
+    rec = R("noise_target")
+    d = rec["demo"]
+    head = ("| array | pilot ratio (1024 spp, worst spot) | spp chosen | ratio reached (worst spot) | "
+            "ratio in detect (bins; pixel totals) | render (s) | detect (s) |\n|---|---|---|---|---|---|---|\n")
+    rows = "\n".join(
+        f"| {a['array']}x{a['array']} | {a['pilot_ratio_worst_spot']:.3g} | {a['spp']} | "
+        f"{a['ratio_worst_spot_render']:.3g} | {a['ratio_detect_bins']:.3g}; {a['ratio_detect_pixel_totals']:.3g} | "
+        f"{a['render_s']:.0f} | {a['detect_s']:.0f} |" for a in d["arrays"])
+    t = {x["technique"]: x for x in rec["techniques"]}
+    q = t["rqmc off (plain Monte Carlo)"]
+    h = t["hidden-geometry sampling off (BSDF sampling only)"]
+    return (head + rows
+            + f"\n\nThe whole demo at the noise target: {d['wall_s']:.0f} s wall, {d['cpu_s']:.0f} s CPU (goal: 10 min "
+            f"on 2 cores). Variance reduction at equal spp (1024, 8x8 array), variance without / with the "
+            f"technique: randomised QMC {q['variance_reduction_factor_bins']:.2g}x on bins and "
+            f"{q['variance_reduction_factor_pixel_totals']:.2g}x on pixel totals (with 8 replicates of 128 samples "
+            f"little is left of its advantage), hidden-geometry sampling {h['variance_reduction_factor_bins']:.2g}x "
+            f"on bins and {h['variance_reduction_factor_pixel_totals']:.2g}x on pixel totals. "
+            + _own_provenance(rec, "noise_target") + "\n")
+
+
+def noise_cost_inline(R) -> str:
+    rec = R("render_variance_cost")
+    w, c = rec["median_wall_s"], rec["median_cpu_s"]
+    over_w = w["replicates_8"] / w["replicates_1"] - 1
+    return (f"{100 * over_w:.0f} % wall time ({100 * rec['time_overhead_cpu']:.0f} % CPU) and "
+            f"{rec['disk_ratio']:.2f}x the disk of a capture without it ({rec['scene']}; "
+            + _own_provenance(rec, "render_variance_cost").replace("Source: ", "").rstrip(".") + ")")
+
+
+def noise_vs_spp_inline(R) -> str:
+    rec = R("render_noise_vs_spp")
+    r = {x["spp"]: x for x in rec["rows"]}
+    lo, mid, hi = min(r), 1024, max(r)
+    return (f"{r[lo]['ratio_bins']:.3g} at {lo} spp, {r[mid]['ratio_bins']:.3g} at {mid}, {r[hi]['ratio_bins']:.3g} at "
+            f"{hi} (" + _own_provenance(rec, "render_noise_vs_spp").replace("Source: ", "").rstrip(".") + ")")
+
+
 #: name -> (generator, records it reads, inline?)
 GENERATORS = {
     "demo_wall": (demo_wall_inline, ["demo"], True),
@@ -431,6 +480,9 @@ GENERATORS = {
     "study_photon_default": (_study_inline("photon_default"), ["studies"], True),
     "study_array_default": (_study_inline("array_default"), ["studies"], True),
     "dataset": (dataset_para, ["dataset_dataset_example"], False),
+    "noise_demo": (noise_demo_para, ["noise_target"], False),
+    "noise_cost": (noise_cost_inline, ["render_variance_cost"], True),
+    "noise_vs_spp": (noise_vs_spp_inline, ["render_noise_vs_spp"], True),
     "dataset_docs_table": (dataset_docs_table, ["dataset_dataset_example"], False),
 }
 
