@@ -86,7 +86,8 @@ def test_camera_variance_estimate_matches_spread_across_seeds():
     import mitsuba as mi
 
     sc = mi.load_dict({
-        "type": "scene", "integrator": {"type": "transient_path", "max_depth": 3},
+        # cameras record no variance unless asked (variance_replicates defaults to 1 under a camera)
+        "type": "scene", "integrator": {"type": "transient_path", "max_depth": 3, "variance_replicates": 8},
         "light": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, 1.5]).rotate(
             [1, 0, 0], 180).scale(0.3), "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 5.0}}},
         "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"}},
@@ -107,6 +108,15 @@ def test_camera_variance_estimate_matches_spread_across_seeds():
     z, B, ratio = _uniform_mean_z(np.array(h), np.array(v), 8)
     assert B >= 60
     assert abs(z) < Z_1E3, f"camera variance vs spread across seeds: z = {z:.2f} (ratio {ratio:.3f})"
+
+
+def test_camera_default_records_no_variance():
+    import mitsuba as mi
+
+    sc = mi.load_file(str(__import__("pathlib").Path(__file__).resolve().parents[1] / "scenes" / "cornell_box.xml"),
+                      spp="8", n_bins="20")
+    res = sc.integrator().render_transient(sc, sc.sensors()[0], seed=0, spp=8)
+    assert res.replicates == 1 and res.variance is None
 
 
 def test_replicates_follow_gcd_and_one_replicate_records_no_variance():

@@ -227,7 +227,8 @@ def render_group(job, run: TargetRun, group: list[int], seed: int, digest: str, 
     spec = run.spec
     m = job.manifest
     H, W, T = m["height"], m["width"], m["time"]["n_bins"]
-    R0 = effective_replicates(job.spp, getattr(job.integrator, "variance_replicates", DEFAULT_REPLICATES))
+    f = getattr(job.integrator, "replicates_for", None)
+    R0 = effective_replicates(job.spp, f(True) if f is not None else DEFAULT_REPLICATES)
     ckpt = job.ideal_dir / PARTIAL_DIR / f"group_{group[0]:05d}.npz"
     camera = m["capture"] == "camera"
     name = f"spots {group[0]}-{group[-1]}" if len(group) > 1 else f"spot {group[0]}"

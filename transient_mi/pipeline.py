@@ -214,7 +214,7 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
 def _resolve_noise_target(spec, integrator, spp: int, layout: dict, detect_kwargs, scene_file):
     """Validate a noise-target request; fill in the detector and budget from the scene's spad_film if unset."""
     from transient_mi.detector import DetectorParams
-    from transient_mi.integrators._replicates import DEFAULT_REPLICATES, effective_replicates
+    from transient_mi.integrators._replicates import effective_replicates
 
     if layout["quantity"] != "photons_per_pulse":
         raise UserInputError(f"--noise-target: {scene_file} renders {layout['quantity']} (a camera view), which "
@@ -227,15 +227,22 @@ def _resolve_noise_target(spec, integrator, spp: int, layout: dict, detect_kwarg
         else:
             spec.params = DetectorParams(auto_gate=True)
     spec.params = spec.params.validate()
-    R = effective_replicates(spp, getattr(integrator, "variance_replicates", DEFAULT_REPLICATES))
+    R = effective_replicates(spp, _replicates(integrator, nlos=True))
     return spec.validate(spp, R)
+
+
+def _replicates(integrator, nlos: bool) -> int:
+    from transient_mi.integrators._replicates import DEFAULT_REPLICATES
+
+    f = getattr(integrator, "replicates_for", None)
+    return f(nlos) if f is not None else DEFAULT_REPLICATES
 
 
 def variance_block(integrator, spp: int, quantity: str) -> dict:
     """The manifest's ``variance`` entry for a render of ``spp`` samples (summary filled in at the end)."""
-    from transient_mi.integrators._replicates import DEFAULT_REPLICATES, effective_replicates
+    from transient_mi.integrators._replicates import effective_replicates
 
-    R = effective_replicates(spp, getattr(integrator, "variance_replicates", DEFAULT_REPLICATES))
+    R = effective_replicates(spp, _replicates(integrator, nlos=quantity == "photons_per_pulse"))
     block = {
         "directory": stack.VARIANCE_DIR if R >= 2 else None,
         "replicates": R,
@@ -246,7 +253,8 @@ def variance_block(integrator, spp: int, quantity: str) -> dict:
         "summary": None,
     }
     if R < 2:
-        block["reason"] = (f"spp={spp} and variance_replicates={getattr(integrator, 'variance_replicates', '?')} "
+        block["reason"] = (f"spp={spp} and {_replicates(integrator, nlos=quantity == 'photons_per_pulse')} replicates "
+                           "(integrator parameter variance_replicates; default 8 for NLOS captures, 1 for cameras) "
                            "give a single replicate: no variance is recorded")
     return block
 

@@ -61,8 +61,9 @@ class TransientPath(mi.CppADIntegrator):
        * - ``variance_replicates``
          - integer
          - Independent replicates each render is split into, in [1, 1024]
-           (default 8): the capture stores their mean and the variance of
-           every bin (see :mod:`transient_mi.integrators._replicates`);
+           (default 8 under an NLOS sensor, 1 under a camera): the capture
+           stores their mean and the variance of every bin (see
+           :mod:`transient_mi.integrators._replicates`);
            ``gcd(spp, variance_replicates)`` are used; 1 records no variance.
        * - ``rqmc``
          - boolean
@@ -96,9 +97,19 @@ class TransientPath(mi.CppADIntegrator):
         self.max_depth_param = max_depth
         self.max_depth = max_depth if max_depth != -1 else 0xFFFFFFFF
         self.rr_depth = get_int(props, self.NAME, "rr_depth", 5, min_value=1)
-        self.variance_replicates = get_int(props, self.NAME, "variance_replicates", DEFAULT_REPLICATES,
-                                           min_value=1, max_value=1024)
+        #: None: the default for the sensor (see :meth:`replicates_for`)
+        self.variance_replicates = (get_int(props, self.NAME, "variance_replicates", None, min_value=1,
+                                            max_value=1024) if props.has_property("variance_replicates") else None)
         self.nlos_options = self._read_nlos_options(props)
+
+    def replicates_for(self, nlos: bool) -> int:
+        """Replicates a render is split into: ``variance_replicates`` if given, else
+        :data:`~transient_mi.integrators._replicates.DEFAULT_REPLICATES` for NLOS sensors and 1 (no variance)
+        for cameras, whose films are large and feed no detector (the per-replicate collection of a
+        256 x 256 x 1024 film costs several times the render; see docs/noise.md)."""
+        if self.variance_replicates is not None:
+            return int(self.variance_replicates)
+        return DEFAULT_REPLICATES if nlos else 1
 
     def _read_nlos_options(self, props) -> dict:
         """Extra parameters used with NLOS sensors (``spad_array``).
@@ -109,7 +120,6 @@ class TransientPath(mi.CppADIntegrator):
         see :mod:`transient_mi.integrators._nlos`); in [0, 1], default 0.8.
         """
         return {
-            "variance_replicates": self.variance_replicates,
             "rqmc": get_bool(props, self.NAME, "rqmc", True),
             "hidden_geometry_prob": get_float(props, self.NAME, "hidden_geometry_prob", 0.8,
                                               min_value=0.0, max_value=1.0),
@@ -198,7 +208,7 @@ class TransientPath(mi.CppADIntegrator):
         film = sensor.film()
         W, H = film.width, film.height
         axis = film.time_axis()
-        R = replicates or effective_replicates(spp, self.variance_replicates)
+        R = replicates or effective_replicates(spp, self.replicates_for(False))
         n = spp // R
         total = W * H * spp
         stats, steady, dropped, frac = None, 0.0, 0, 0.0
@@ -349,5 +359,5 @@ class TransientPath(mi.CppADIntegrator):
     def to_string(self):
         o = self.nlos_options
         return (f"TransientPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}, "
-                f"variance_replicates={self.variance_replicates}, hidden_geometry_prob={o['hidden_geometry_prob']:g}, "
+                f"variance_replicates={self.variance_replicates or 'default'}, hidden_geometry_prob={o['hidden_geometry_prob']:g}, "
                 f"rqmc={str(o['rqmc']).lower()}]")

@@ -186,6 +186,8 @@ class SpadArray(mi.Sensor):
         from transient_mi.integrators._nlos import render_spots
 
         options = dict(getattr(integrator, "nlos_options", {}) or {})
+        if hasattr(integrator, "replicates_for"):
+            options["variance_replicates"] = integrator.replicates_for(True)
         options.setdefault("max_depth", getattr(integrator, "max_depth_param", -1))
         options.setdefault("rr_depth", getattr(integrator, "rr_depth", 5))
         group = [0 if spot is None else int(spot)] if spots is None else [int(j) for j in spots]
