@@ -138,7 +138,8 @@ class GroupState:
         arrays = {"reps": np.int64(self.reps), "digest": np.array(digest), "invalid": np.int64(self.invalid),
                   "negative": np.float64(self.negative)}
         for g, s in enumerate(self.stats):
-            arrays.update({f"mean{g}": s.mean, f"m2{g}": s.m2, f"tmean{g}": s.total_mean, f"tm2{g}": s.total_m2,
+            m2 = s.m2 if s.m2 is not None else np.zeros_like(s.mean)
+            arrays.update({f"mean{g}": s.mean, f"m2{g}": m2, f"tmean{g}": s.total_mean, f"tm2{g}": s.total_m2,
                            f"steady{g}": self.steady[g], f"dropped{g}": np.int64(self.dropped[g]),
                            f"frac{g}": np.float64(self.frac[g]), f"n{g}": np.int64(s.n)})
         path.parent.mkdir(exist_ok=True)

@@ -70,17 +70,19 @@ class ReplicateStats:
     n : int
         Replicates accumulated.
     mean : ndarray of float32, shape ``(n_pixels, n_bins)``
-        Mean of the replicates (the capture's values).
+        Mean of the replicates (the capture's values). The first replicate's
+        array is used in place, not copied (a large camera film is not held
+        twice).
     m2 : ndarray of float32, same shape, or None
-        Sum of squared deviations from the mean (None while ``n < 2``... kept
-        as zeros from the first replicate on).
+        Sum of squared deviations from the mean (None while ``n < 2``:
+        allocated by the second replicate).
     total_mean, total_m2 : ndarray of float64, shape ``(n_pixels,)``
         The same for each pixel's time-integrated (in-range) total.
     """
 
     n: int
     mean: np.ndarray
-    m2: np.ndarray
+    m2: np.ndarray | None
     total_mean: np.ndarray
     total_m2: np.ndarray
 
@@ -88,11 +90,13 @@ class ReplicateStats:
     def first(cls, hist: np.ndarray) -> "ReplicateStats":
         h = np.asarray(hist, dtype=np.float32)
         tot = h.sum(axis=-1, dtype=np.float64)
-        return cls(1, h, np.zeros_like(h), tot, np.zeros_like(tot))
+        return cls(1, h, None, tot, np.zeros_like(tot))
 
     def add(self, hist: np.ndarray) -> None:
         """Welford's update with one more replicate (in place)."""
         h = np.asarray(hist, dtype=np.float32)
+        if self.m2 is None:
+            self.m2 = np.zeros_like(self.mean)
         self.n += 1
         delta = h - self.mean
         self.mean += delta / np.float32(self.n)
@@ -108,7 +112,10 @@ class ReplicateStats:
         n = self.n + other.n
         delta = other.mean - self.mean
         mean = self.mean + delta * np.float32(other.n / n)
-        m2 = self.m2 + other.m2 + np.square(delta) * np.float32(self.n * other.n / n)
+        m2 = np.square(delta) * np.float32(self.n * other.n / n)
+        for part in (self.m2, other.m2):
+            if part is not None:
+                m2 += part
         dt = other.total_mean - self.total_mean
         tmean = self.total_mean + dt * (other.n / n)
         tm2 = self.total_m2 + other.total_m2 + dt ** 2 * (self.n * other.n / n)
@@ -135,6 +142,6 @@ class ReplicateStats:
             m2 = np.asarray(result.variance, dtype=np.float32).reshape(mean.shape) * np.float32(n * (n - 1))
             tm2 = np.asarray(result.total_variance, dtype=np.float64).reshape(-1) * (n * (n - 1))
         else:
-            m2 = np.zeros_like(mean)
+            m2 = None
             tm2 = np.zeros(mean.shape[0])
         return cls(n, mean, m2, mean.sum(axis=-1, dtype=np.float64), tm2)
