@@ -440,12 +440,21 @@ def noise_demo_para(R) -> str:
 
 
 def noise_cost_inline(R) -> str:
-    rec = R("render_variance_cost")
-    w, c = rec["median_wall_s"], rec["median_cpu_s"]
-    over_w = w["replicates_8"] / w["replicates_1"] - 1
-    return (f"{100 * over_w:.0f} % wall time ({100 * rec['time_overhead_cpu']:.0f} % CPU) and "
-            f"{rec['disk_ratio']:.2f}x the disk of a capture without it ({rec['scene']}; "
-            + _own_provenance(rec, "render_variance_cost").replace("Source: ", "").rstrip(".") + ")")
+    parts = []
+    for name in ("render_variance_cost", "render_variance_cost_16k"):
+        rec = R(name)
+        w = rec["median_wall_s"]
+        spp = rec["scene"].split("spp=")[1].split()[0]
+        parts.append(f"at {spp} spp {w['replicates_8'] / w['replicates_1']:.2f}x the render time of a single "
+                     f"replicate ({w['replicates_8']:.2f} s vs {w['replicates_1']:.2f} s wall, CPU "
+                     f"{1 + rec['time_overhead_cpu']:.2f}x) and {rec['disk_ratio']:.2f}x its disk")
+    rec = R("render_variance_cost_16k")
+    scene = rec["scene"].split(" spp=")[0]
+    return ("; ".join(parts) + f" ({scene}, 11500 x 1 ps bins, 2 x 2 spots; the cost is a fixed ~1-2 s per group "
+            "of spots for collecting the film once per replicate, so it shrinks relatively as spp grows; "
+            "`variance_replicates=1` turns it off; "
+            + _own_provenance(rec, "render_variance_cost_16k").replace("Source: ", "").rstrip(".") + " and "
+            "`bench/results/render_variance_cost.json`)")
 
 
 def noise_vs_spp_inline(R) -> str:
@@ -481,7 +490,7 @@ GENERATORS = {
     "study_array_default": (_study_inline("array_default"), ["studies"], True),
     "dataset": (dataset_para, ["dataset_dataset_example"], False),
     "noise_demo": (noise_demo_para, ["noise_target"], False),
-    "noise_cost": (noise_cost_inline, ["render_variance_cost"], True),
+    "noise_cost": (noise_cost_inline, ["render_variance_cost", "render_variance_cost_16k"], True),
     "noise_vs_spp": (noise_vs_spp_inline, ["render_noise_vs_spp"], True),
     "dataset_docs_table": (dataset_docs_table, ["dataset_dataset_example"], False),
 }
