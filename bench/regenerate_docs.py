@@ -457,6 +457,29 @@ def noise_cost_inline(R) -> str:
             "`bench/results/render_variance_cost.json`)")
 
 
+def view_para(R) -> str:
+    rec = R("view")
+    c = rec["cases"]
+    fp, de, rc = c["first_page"], c["detector_update"], c["recon_update"]
+    load = rec.get("load_average_1_5_15_min", {})
+    lo = load.get("before", [None])[0]
+
+    def met(case):
+        return "met" if case["goal_met"] else "not met"
+
+    cpu_d = sorted(de["server_cpu_ms"])
+    cpu_r = sorted(rc["server_cpu_ms"])
+    return (f"**Viewer** (`{rec['command'].strip()}`, timed in headless Chromium, median of {rec['repeats']}): a "
+            f"detector-slider change on a {de['capture']} capture reaches the page in {de['median_s']:.2f} s (goal "
+            f"<= {de['goal_s']:g} s, {met(de)}; server CPU {cpu_d[0]:.0f}-{cpu_d[-1]:.0f} ms); a reconstruction change "
+            f"at {rc['voxels']} ({rc['methods']}) in {rc['median_s']:.2f} s (goal <= {rc['goal_s']:g} s, {met(rc)}; "
+            f"server CPU {cpu_r[0]:.0f}-{cpu_r[-1]:.0f} ms); the first page {fp['median_s']:.1f} s after starting the "
+            f"command ({fp['from_server_ready_median_s']:.1f} s after the server printed its address; goal <= "
+            f"{fp['goal_s']:g} s, {met(fp)}). Source: `bench/results/view.json` ({rec['date_utc'][:10]}; "
+            f"{rec['machine']['cpu']}, {rec['machine']['cores_available']} cores"
+            + (f", 1-min load {lo:.1f} at the start" if lo is not None else "") + ").\n")
+
+
 def noise_vs_spp_inline(R) -> str:
     rec = R("render_noise_vs_spp")
     r = {x["spp"]: x for x in rec["rows"]}
@@ -490,6 +513,7 @@ GENERATORS = {
     "study_array_default": (_study_inline("array_default"), ["studies"], True),
     "dataset": (dataset_para, ["dataset_dataset_example"], False),
     "noise_demo": (noise_demo_para, ["noise_target"], False),
+    "view": (view_para, ["view"], False),
     "noise_cost": (noise_cost_inline, ["render_variance_cost", "render_variance_cost_16k"], True),
     "noise_vs_spp": (noise_vs_spp_inline, ["render_noise_vs_spp"], True),
     "dataset_docs_table": (dataset_docs_table, ["dataset_dataset_example"], False),
