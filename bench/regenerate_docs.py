@@ -480,6 +480,31 @@ def view_para(R) -> str:
             + (f", 1-min load {lo:.1f} at the start" if lo is not None else "") + ").\n")
 
 
+def view_docs_table(R) -> str:
+    rec = R("view")
+    c = rec["cases"]
+    fp, de, rc = c["first_page"], c["detector_update"], c["recon_update"]
+    load = rec.get("load_average_1_5_15_min", {})
+
+    def goal(case):
+        return f"<= {case['goal_s']:g} s: {'met' if case['goal_met'] else 'not met'}"
+
+    def span(ms):
+        v = sorted(ms)
+        return f"{v[0] / 1000:.2f}-{v[-1] / 1000:.2f}"
+
+    return ("| case | median (worst) of %d, in the browser | server per update | goal |\n|---|---|---|---|\n" % rec["repeats"]
+            + f"| detector update, {de['capture']} | {de['median_s']:.2f} s ({de['worst_s']:.2f} s) | "
+              f"{span(de['server_ms'])} s wall, {span(de['server_cpu_ms'])} s CPU | {goal(de)} |\n"
+            + f"| reconstruction update, {rc['voxels']} | {rc['median_s']:.2f} s ({rc['worst_s']:.2f} s) | "
+              f"{span(rc['server_ms'])} s wall, {span(rc['server_cpu_ms'])} s CPU | {goal(rc)} |\n"
+            + f"| first page, from the command's start | {fp['median_s']:.1f} s ({fp['worst_s']:.1f} s) | "
+              f"({fp['from_server_ready_median_s']:.1f} s median from the printed address) | {goal(fp)} |\n\n"
+            + f"Source: `bench/results/view.json` ({rec['date_utc'][:10]}; {rec['machine']['cpu']}, "
+              f"{rec['machine']['cores_available']} cores; 1-min load average {load.get('before', ['?'])[0]} before "
+              f"and {load.get('after', ['?'])[0]} after the run).\n")
+
+
 def noise_vs_spp_inline(R) -> str:
     rec = R("render_noise_vs_spp")
     r = {x["spp"]: x for x in rec["rows"]}
@@ -514,6 +539,7 @@ GENERATORS = {
     "dataset": (dataset_para, ["dataset_dataset_example"], False),
     "noise_demo": (noise_demo_para, ["noise_target"], False),
     "view": (view_para, ["view"], False),
+    "view_docs_table": (view_docs_table, ["view"], False),
     "noise_cost": (noise_cost_inline, ["render_variance_cost", "render_variance_cost_16k"], True),
     "noise_vs_spp": (noise_vs_spp_inline, ["render_noise_vs_spp"], True),
     "dataset_docs_table": (dataset_docs_table, ["dataset_dataset_example"], False),
