@@ -29,8 +29,9 @@ def test_item_layout_and_skip(mannequin_item):
     assert w.build_item(task)["status"] == "built"
     d = items_dir / item.name
     res = json.loads((d / "result.json").read_text())
+    # a camera scene: no variance files by default (docs/noise.md)
     assert sorted(res["files"]) == ["capture/manifest.json", "capture/preview.png", "capture/spot_00000.exr",
-                                    "capture/variance/spot_00000.exr", "mesh.ply", "params.json"]
+                                    "mesh.ply", "params.json"]
     assert json.loads((d / "params.json").read_text()) == item.record
     assert item_status(d, item.params_sha256) == "valid"
     assert item_status(d, "f" * 64) == "other"
