@@ -209,3 +209,33 @@ def _child_main(argv: list[str]) -> None:
 
 if __name__ == "__main__":
     _child_main(sys.argv[1:])
+
+
+#: Keys of a script's own JSON that describe provenance rather than results (moved out of ``result``).
+_PROVENANCE_KEYS = ("name", "benchmark", "command", "date", "date_utc", "machine", "versions", "note")
+
+
+def as_record(name: str, doc: dict, *, note: str = "") -> dict:
+    """``doc`` (a benchmark script's own JSON) in the record layout of :func:`record`.
+
+    Its ``command``, ``date``/``date_utc``, ``machine`` and ``note`` are kept (the machine fields completed
+    with :func:`machine`'s ``cpu_model``, ``cores`` and ``memory_gib`` where missing); every other key goes
+    under ``result``.
+    """
+    m = dict(machine())
+    m.update({k: v for k, v in (doc.get("machine") or {}).items() if v is not None})
+    m.setdefault("cpu_model", cpu_model())
+    if not m.get("cores"):
+        m["cores"] = os.cpu_count()
+    date = doc.get("date_utc") or doc.get("date") or \
+        _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
+    vers = versions()
+    vers.update({k: v for k, v in (doc.get("versions") or {}).items() if v})
+    return {"name": name, "date_utc": date, "command": doc.get("command") or command_line(),
+            "machine": m, "versions": vers, "note": note or doc.get("note") or "",
+            "result": {k: v for k, v in doc.items() if k not in _PROVENANCE_KEYS}}
+
+
+def payload(doc: dict) -> dict:
+    """The results of a record (or of an older script's JSON, which has them at the top level)."""
+    return doc["result"] if isinstance(doc.get("result"), dict) and "date_utc" in doc else doc

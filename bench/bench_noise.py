@@ -118,7 +118,10 @@ def main(argv=None) -> int:
               "versions": {"transient_mi": transient_mi.__version__, "mitsuba": mi.__version__},
               "note": "timings on the machine named; load average recorded at the start and end"}
     if a.out.exists():
-        old = json.loads(a.out.read_text())
+        sys.path.insert(0, str(ROOT / "bench"))
+        import _record
+
+        old = _record.payload(json.loads(a.out.read_text()))
         if a.skip_demo and "demo" in old:
             result["demo"] = old["demo"]
     if not a.skip_demo:
@@ -127,7 +130,10 @@ def main(argv=None) -> int:
     result["techniques"] = run_techniques(a.spp)
     result["machine"]["load_average_at_end"] = list(os.getloadavg())
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(result, indent=1) + "\n")
+    sys.path.insert(0, str(ROOT / "bench"))
+    import _record
+
+    a.out.write_text(json.dumps(_record.as_record(a.out.stem, result), indent=1) + "\n")
     print(json.dumps({"demo": {k: v for k, v in result.get("demo", {}).items() if k != "stderr_tail"},
                       "techniques": result["techniques"]}, indent=1))
     return 0

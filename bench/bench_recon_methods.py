@@ -102,6 +102,10 @@ def main(argv=None) -> int:
         "small": a.small, "repeat": a.repeat, "voxels": 16 if a.small else 64, "bounds_m": list(BOUNDS),
         "goal": GOAL, "results": results,
     }
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import _record
+
+    doc = _record.as_record(Path(a.out).stem if a.out else "recon_methods", doc)
     text = json.dumps(doc, indent=1) + "\n"
     if a.out is not None:
         sys.path.insert(0, str(ROOT))

@@ -93,7 +93,10 @@ def main(argv=None) -> int:
         "disk_ratio": sizes[8] / sizes[1],
     }
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(result, indent=1) + "\n")
+    sys.path.insert(0, str(ROOT / "bench"))
+    import _record
+
+    a.out.write_text(json.dumps(_record.as_record(a.out.stem, result), indent=1) + "\n")
     print(json.dumps({k: result[k] for k in ("median_wall_s", "median_cpu_s", "time_overhead_cpu", "disk_ratio")},
                      indent=1))
     return 0

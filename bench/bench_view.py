@@ -241,6 +241,10 @@ def main(argv=None) -> int:
         "what": "times measured in the browser; see the docstring of bench/bench_view.py",
         "cases": results,
     }
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import _record
+
+    doc = _record.as_record(Path(args.out).stem, doc)
     text = json.dumps(doc, indent=2) + "\n"
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_file(args.out) as t:

@@ -23,6 +23,9 @@ import platform
 import sys
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _record  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = ("chamfer_m", "accuracy_m", "completeness_m", "iou", "depth_mae_m", "visible_chamfer_m",
         "visible_completeness_m", "silhouette_iou", "normal_error_deg")
@@ -62,6 +65,7 @@ def main(argv=None) -> int:
                        "python": platform.python_version()},
            "grid": {"bounds_m": list(PAPER_BOUNDS_M), "voxels_xyz": [64, 64, 32]}, "results": res}
     a.out.parent.mkdir(parents=True, exist_ok=True)
+    doc = _record.as_record('front_surface_limit', doc)
     with atomic_file(a.out) as tmp:
         Path(tmp).write_text(json.dumps(doc, indent=1) + "\n")
     print(json.dumps(res, indent=1))

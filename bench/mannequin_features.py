@@ -21,6 +21,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _record  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -73,6 +76,7 @@ def main(argv=None) -> int:
            "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
            "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(),
                        "python": platform.python_version()}, "results": out}
+    doc = _record.as_record('mannequin_features', doc)
     with atomic_file(a.out) as t:
         Path(t).write_text(json.dumps(doc, indent=1) + "\n")
     return 0

@@ -25,6 +25,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _record  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
 START, END = "<!-- methods-leaderboard:start -->", "<!-- methods-leaderboard:end -->"
@@ -60,6 +63,7 @@ def run(scenes, argv) -> None:
                 "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(),
                             "python": platform.python_version()},
             })
+            doc = _record.as_record(f"study_methods_{scene}", doc)
             with atomic_file(RESULTS / f"study_methods_{scene}.json") as t:
                 Path(t).write_text(json.dumps(doc, indent=1) + "\n")
             for name in ("leaderboard.png", "reconstructions.png"):
@@ -77,7 +81,7 @@ def table() -> str:
     lines = []
     order = {f"study_methods_{k}.json": i for i, k in enumerate(RUNS)}   # the paper scene first
     for path in sorted(RESULTS.glob("study_methods_*.json"), key=lambda p: (order.get(p.name, len(order)), p.name)):
-        doc = json.loads(path.read_text())
+        doc = _record.payload(json.loads(path.read_text()))
         rows = doc["rows"]
         n = max(r["array"] for r in rows)
         e = max(r["exposure_s"] for r in rows)
@@ -96,7 +100,7 @@ def table() -> str:
         lines.append("")
     bench = RESULTS / "recon_methods.json"
     if bench.is_file():
-        doc = json.loads(bench.read_text())
+        doc = _record.payload(json.loads(bench.read_text()))
         lines.append(f"Each method at 64^3 on a closed-form 32x32-pixel, 2x2-spot capture (`{doc['command']}`, "
                      f"{doc['machine']['cpu_count']} cores, {doc['date_utc']}; best of {doc['repeat']}, peak RSS "
                      "of a fresh process):\n")

@@ -408,25 +408,26 @@ def demo_quick_inline(R) -> str:
 
 
 def _own_provenance(rec: dict, name: str) -> str:
-    """Provenance of the rendering-noise records (written by bench_noise.py, bench_render_variance.py and
-    docs/make_noise_figure.py in their own layout: ``command``, ``date``, ``machine``)."""
+    """Provenance of a record written by bench_noise.py, bench_render_variance.py, noise_figure.py or
+    bench_view.py (``bench/_record.as_record``: the script's machine fields kept)."""
     m = rec.get("machine", {})
     load = m.get("load_average_1_5_15") or m.get("load_average_at_end")
     load_txt = f", 1-min load {load[0]:.1f}" if load else ""
-    return (f"Source: `bench/results/{name}.json` (`{rec['command'].strip()}`, {rec['date'][:10]}; "
-            f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores{load_txt}).")
+    return (f"Source: `bench/results/{name}.json` (`{rec['command'].strip()}`, {rec['date_utc'][:10]}; "
+            f"{m.get('cpu_model') or m.get('cpu', '?')}, {m.get('cores', '?')} cores{load_txt}).")
 
 
 def noise_demo_para(R) -> str:
     rec = R("noise_target")
-    d = rec["demo"]
+    res = rec["result"]
+    d = res["demo"]
     head = ("| array | pilot ratio (1024 spp, worst spot) | spp chosen | ratio reached (worst spot) | "
             "ratio in detect (bins; pixel totals) | render (s) | detect (s) |\n|---|---|---|---|---|---|---|\n")
     rows = "\n".join(
         f"| {a['array']}x{a['array']} | {a['pilot_ratio_worst_spot']:.3g} | {a['spp']} | "
         f"{a['ratio_worst_spot_render']:.3g} | {a['ratio_detect_bins']:.3g}; {a['ratio_detect_pixel_totals']:.3g} | "
         f"{a['render_s']:.0f} | {a['detect_s']:.0f} |" for a in d["arrays"])
-    t = {x["technique"]: x for x in rec["techniques"]}
+    t = {x["technique"]: x for x in res["techniques"]}
     q = t["rqmc off (plain Monte Carlo)"]
     h = t["hidden-geometry sampling off (BSDF sampling only)"]
     return (head + rows
@@ -442,14 +443,14 @@ def noise_demo_para(R) -> str:
 def noise_cost_inline(R) -> str:
     parts = []
     for name in ("render_variance_cost", "render_variance_cost_16k"):
-        rec = R(name)
-        w = rec["median_wall_s"]
-        spp = rec["scene"].split("spp=")[1].split()[0]
+        res = R(name)["result"]
+        w = res["median_wall_s"]
+        spp = res["scene"].split("spp=")[1].split()[0]
         parts.append(f"at {spp} spp {w['replicates_8'] / w['replicates_1']:.2f}x the render time of a single "
                      f"replicate ({w['replicates_8']:.2f} s vs {w['replicates_1']:.2f} s wall, CPU "
-                     f"{1 + rec['time_overhead_cpu']:.2f}x) and {rec['disk_ratio']:.2f}x its disk")
+                     f"{1 + res['time_overhead_cpu']:.2f}x) and {res['disk_ratio']:.2f}x its disk")
     rec = R("render_variance_cost_16k")
-    scene = rec["scene"].split(" spp=")[0]
+    scene = rec["result"]["scene"].split(" spp=")[0]
     return ("; ".join(parts) + f" ({scene}, 11500 x 1 ps bins, 2 x 2 spots; the cost is a fixed ~1-2 s per group "
             "of spots for collecting the film once per replicate, so it shrinks relatively as spp grows; "
             "`variance_replicates=1` turns it off; "
@@ -459,9 +460,10 @@ def noise_cost_inline(R) -> str:
 
 def view_para(R) -> str:
     rec = R("view")
-    c = rec["cases"]
+    res = rec["result"]
+    c = res["cases"]
     fp, de, rc = c["first_page"], c["detector_update"], c["recon_update"]
-    load = rec.get("load_average_1_5_15_min", {})
+    load = res.get("load_average_1_5_15_min", {})
     lo = load.get("before", [None])[0]
 
     def met(case):
@@ -469,22 +471,23 @@ def view_para(R) -> str:
 
     cpu_d = sorted(de["server_cpu_ms"])
     cpu_r = sorted(rc["server_cpu_ms"])
-    return (f"**Viewer** (`{rec['command'].strip()}`, timed in headless Chromium, median of {rec['repeats']}): a "
+    return (f"**Viewer** (`{rec['command'].strip()}`, timed in headless Chromium, median of {res['repeats']}): a "
             f"detector-slider change on a {de['capture']} capture reaches the page in {de['median_s']:.2f} s (goal "
             f"<= {de['goal_s']:g} s, {met(de)}; server CPU {cpu_d[0]:.0f}-{cpu_d[-1]:.0f} ms); a reconstruction change "
             f"at {rc['voxels']} ({rc['methods']}) in {rc['median_s']:.2f} s (goal <= {rc['goal_s']:g} s, {met(rc)}; "
             f"server CPU {cpu_r[0]:.0f}-{cpu_r[-1]:.0f} ms); the first page {fp['median_s']:.1f} s after starting the "
             f"command ({fp['from_server_ready_median_s']:.1f} s after the server printed its address; goal <= "
             f"{fp['goal_s']:g} s, {met(fp)}). Source: `bench/results/view.json` ({rec['date_utc'][:10]}; "
-            f"{rec['machine']['cpu']}, {rec['machine']['cores_available']} cores"
+            f"{rec['machine'].get('cpu_model') or rec['machine'].get('cpu')}, {rec['machine'].get('cores_available') or rec['machine']['cores']} cores"
             + (f", 1-min load {lo:.1f} at the start" if lo is not None else "") + ").\n")
 
 
 def view_docs_table(R) -> str:
     rec = R("view")
-    c = rec["cases"]
+    res = rec["result"]
+    c = res["cases"]
     fp, de, rc = c["first_page"], c["detector_update"], c["recon_update"]
-    load = rec.get("load_average_1_5_15_min", {})
+    load = res.get("load_average_1_5_15_min", {})
 
     def goal(case):
         return f"<= {case['goal_s']:g} s: {'met' if case['goal_met'] else 'not met'}"
@@ -493,21 +496,21 @@ def view_docs_table(R) -> str:
         v = sorted(ms)
         return f"{v[0] / 1000:.2f}-{v[-1] / 1000:.2f}"
 
-    return ("| case | median (worst) of %d, in the browser | server per update | goal |\n|---|---|---|---|\n" % rec["repeats"]
+    return ("| case | median (worst) of %d, in the browser | server per update | goal |\n|---|---|---|---|\n" % res["repeats"]
             + f"| detector update, {de['capture']} | {de['median_s']:.2f} s ({de['worst_s']:.2f} s) | "
               f"{span(de['server_ms'])} s wall, {span(de['server_cpu_ms'])} s CPU | {goal(de)} |\n"
             + f"| reconstruction update, {rc['voxels']} | {rc['median_s']:.2f} s ({rc['worst_s']:.2f} s) | "
               f"{span(rc['server_ms'])} s wall, {span(rc['server_cpu_ms'])} s CPU | {goal(rc)} |\n"
             + f"| first page, from the command's start | {fp['median_s']:.1f} s ({fp['worst_s']:.1f} s) | "
               f"({fp['from_server_ready_median_s']:.1f} s median from the printed address) | {goal(fp)} |\n\n"
-            + f"Source: `bench/results/view.json` ({rec['date_utc'][:10]}; {rec['machine']['cpu']}, "
-              f"{rec['machine']['cores_available']} cores; 1-min load average {load.get('before', ['?'])[0]} before "
+            + f"Source: `bench/results/view.json` ({rec['date_utc'][:10]}; {rec['machine'].get('cpu_model') or rec['machine'].get('cpu')}, "
+              f"{rec['machine'].get('cores_available') or rec['machine']['cores']} cores; 1-min load average {load.get('before', ['?'])[0]} before "
               f"and {load.get('after', ['?'])[0]} after the run).\n")
 
 
 def noise_vs_spp_inline(R) -> str:
     rec = R("render_noise_vs_spp")
-    r = {x["spp"]: x for x in rec["rows"]}
+    r = {x["spp"]: x for x in rec["result"]["rows"]}
     lo, mid, hi = min(r), 1024, max(r)
     return (f"{r[lo]['ratio_bins']:.3g} at {lo} spp, {r[mid]['ratio_bins']:.3g} at {mid}, {r[hi]['ratio_bins']:.3g} at "
             f"{hi} (" + _own_provenance(rec, "render_noise_vs_spp").replace("Source: ", "").rstrip(".") + ")")

@@ -25,6 +25,9 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _record  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = ("chamfer_m", "completeness_m", "iou", "depth_mae_m", "visible_chamfer_m", "silhouette_iou",
         "normal_error_deg")
@@ -78,6 +81,7 @@ def main(argv=None) -> int:
                        "python": platform.python_version()},
            "note": "render and reconstruction times are wall clock on a machine shared with other jobs",
            "rows": rows}
+    doc = _record.as_record('sampling_designs', doc)
     with atomic_file(a.out) as t:
         Path(t).write_text(json.dumps(doc, indent=1) + "\n")
     return 0

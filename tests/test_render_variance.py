@@ -50,6 +50,7 @@ def test_nlos_variance_estimate_matches_spread_across_seeds():
     sc = nlos_scene(width=4, height=4, footprint=0.05, hidden=hidden, include_wall_return=False,
                     n_bins=8, bin_width_ps=100.0, t0_ps=12400.0)
     integ, sensor = sc.integrator(), sc.sensors()[0]
+    integ.variance_replicates = 8  # direct renders default to one replicate
     S, spp = 16, 512
     h, v = [], []
     for s in range(S):
@@ -70,6 +71,7 @@ def test_pixel_total_variance_matches_spread_across_seeds():
     sc = nlos_scene(width=6, height=6, footprint=0.04, hidden=hidden, include_wall_return=False,
                     n_bins=64, bin_width_ps=40.0, t0_ps=12000.0)
     integ, sensor = sc.integrator(), sc.sensors()[0]
+    integ.variance_replicates = 8  # direct renders default to one replicate
     S = 16
     t, v = [], []
     for s in range(S):
@@ -110,7 +112,7 @@ def test_camera_variance_estimate_matches_spread_across_seeds():
     assert abs(z) < Z_1E3, f"camera variance vs spread across seeds: z = {z:.2f} (ratio {ratio:.3f})"
 
 
-def test_camera_default_records_no_variance():
+def test_direct_camera_render_records_no_variance_by_default():
     import mitsuba as mi
 
     sc = mi.load_file(str(__import__("pathlib").Path(__file__).resolve().parents[1] / "scenes" / "cornell_box.xml"),
@@ -123,6 +125,8 @@ def test_replicates_follow_gcd_and_one_replicate_records_no_variance():
     hidden = [square((0.0, 0.0, 0.4), 0.1, 0.7)]
     sc = nlos_scene(width=2, height=2, hidden=hidden, n_bins=32, bin_width_ps=100.0, t0_ps=8000.0)
     integ, sensor = sc.integrator(), sc.sensors()[0]
+    assert integ.render_transient(sc, sensor, seed=1, spp=16, spot=0).replicates == 1  # direct renders: one
+    integ.variance_replicates = 8
     assert integ.render_transient(sc, sensor, seed=1, spp=12, spot=0).replicates == 4  # gcd(12, 8)
     res = integ.render_transient(sc, sensor, seed=1, spp=13, spot=0)
     assert res.replicates == 1 and res.variance is None and res.total_variance is None

@@ -148,6 +148,11 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
             raise UserInputError(f"{scene_file}: the sampler's sample_count is {spp} (e.g. from -D spp={spp}); "
                                  "need >= 1 samples per pixel")
     layout = sensor.capture_layout(scene) if hasattr(sensor, "capture_layout") else _camera_layout(sensor)
+    if getattr(integrator, "variance_replicates", 0) is None and layout["quantity"] == "photons_per_pulse":
+        # captures written to disk carry their variance (docs/noise.md); direct renders default to one replicate
+        from transient_mi.integrators._replicates import DEFAULT_REPLICATES
+
+        integrator.variance_replicates = DEFAULT_REPLICATES
     detect_kwargs = film.detect_kwargs(render_seed=seed) if hasattr(film, "detect_kwargs") else None
     if detect_kwargs is not None and layout["quantity"] != "photons_per_pulse":
         raise UserInputError(f"{scene_file}: a spad_film needs an NLOS sensor (spad_array) that records "

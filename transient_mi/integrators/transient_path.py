@@ -61,8 +61,8 @@ class TransientPath(mi.CppADIntegrator):
        * - ``variance_replicates``
          - integer
          - Independent replicates each render is split into, in [1, 1024]
-           (default 8 under an NLOS sensor, 1 under a camera): the capture
-           stores their mean and the variance of every bin (see
+           (default 1: no variance; ``transient-mi render`` uses 8 for NLOS
+           captures): the capture stores their mean and the variance of every bin (see
            :mod:`transient_mi.integrators._replicates`);
            ``gcd(spp, variance_replicates)`` are used; 1 records no variance.
        * - ``rqmc``
@@ -103,13 +103,12 @@ class TransientPath(mi.CppADIntegrator):
         self.nlos_options = self._read_nlos_options(props)
 
     def replicates_for(self, nlos: bool) -> int:
-        """Replicates a render is split into: ``variance_replicates`` if given, else
-        :data:`~transient_mi.integrators._replicates.DEFAULT_REPLICATES` for NLOS sensors and 1 (no variance)
-        for cameras, whose films are large and feed no detector (the per-replicate collection of a
-        256 x 256 x 1024 film costs several times the render; see docs/noise.md)."""
-        if self.variance_replicates is not None:
-            return int(self.variance_replicates)
-        return DEFAULT_REPLICATES if nlos else 1
+        """Replicates a render is split into: ``variance_replicates`` if given, else 1 (a single estimate, no
+        variance: the fastest render, as ``mi.render`` and direct calls get). ``transient-mi render`` and
+        everything built on it (demo, studies, datasets) set
+        :data:`~transient_mi.integrators._replicates.DEFAULT_REPLICATES` for NLOS captures, so the captures
+        they write carry their variance (:func:`transient_mi.pipeline.prepare_render`)."""
+        return int(self.variance_replicates) if self.variance_replicates is not None else 1
 
     def _read_nlos_options(self, props) -> dict:
         """Extra parameters used with NLOS sensors (``spad_array``).

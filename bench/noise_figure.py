@@ -10,7 +10,7 @@ with the paper's detector at the demo's budget (10 ms per spot), and draws
 With 8 ps bins the jitter averages rendering noise over fewer bins than with the paper's 1 ps bins, so the
 ratio per bin is higher here than in the demo at the same spp (docs/noise.md).
 
-Run: ``python docs/make_noise_figure.py`` (writes docs/img/render_noise.png and bench/results/render_noise_vs_spp.json;
+Run: ``python bench/noise_figure.py`` (writes docs/img/render_noise.png and bench/results/render_noise_vs_spp.json;
 a few minutes on 2 cores).
 """
 
@@ -103,12 +103,15 @@ def main() -> None:
     save_figure(fig, ROOT / "docs" / "img" / "render_noise.png")
     out = ROOT / "bench" / "results" / "render_noise_vs_spp.json"
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({
-        "benchmark": "render_noise_vs_spp", "command": "python docs/make_noise_figure.py",
+    sys.path.insert(0, str(ROOT / "bench"))
+    import _record
+
+    out.write_text(json.dumps(_record.as_record(out.stem, {
+        "benchmark": "render_noise_vs_spp", "command": "python bench/noise_figure.py",
         "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "machine": {"cpu": platform.processor() or platform.machine(), "python": platform.python_version()},
         "scene": "paper_mannequin, array 4, spots 2, 8 ps bins, render seed 1", "exposure_s": EXPOSURE_S,
-        "rows": rows}, indent=1) + "\n")
+        "rows": rows}), indent=1) + "\n")
     print(json.dumps(rows, indent=1))
 
 
