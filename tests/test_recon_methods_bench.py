@@ -15,9 +15,10 @@ def test_bench_recon_methods_small_writes_json(tmp_path):
                         "--methods", "bp,midpoint-fk", "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
                        timeout=600, env=dict(os.environ, TRANSIENT_MI_PROGRESS="0"))
     assert r.returncode == 0, r.stderr
-    doc = json.loads(out.read_text())
-    assert doc["small"] is True and doc["command"].startswith("python bench/bench_recon_methods.py")
-    assert doc["machine"]["cpu_count"] >= 1 and doc["date_utc"].endswith("Z")
+    rec = json.loads(out.read_text())  # the record layout of bench/_record.py
+    doc = rec["result"]
+    assert doc["small"] is True and rec["command"].startswith("python bench/bench_recon_methods.py")
+    assert rec["machine"]["cpu_count"] >= 1 and rec["date_utc"].endswith("Z") and rec["name"] == "m"
     assert [c["method"] for c in doc["results"]] == ["bp", "midpoint-fk"]
     for c in doc["results"]:
         assert c["status"] == "ok" and len(c["times_s"]) == 2 and c["best_s"] == min(c["times_s"])

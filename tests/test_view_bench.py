@@ -21,9 +21,10 @@ def test_bench_view_small_writes_json(tmp_path):
                         "--bins", "64", "--voxels", "16", "--out", str(out)], cwd=ROOT, capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr
-    doc = json.loads(out.read_text())
-    assert json.loads(r.stdout) == doc
-    assert doc["command"].startswith("python bench/bench_view.py --repeats 1") and doc["repeats"] == 1
+    rec = json.loads(out.read_text())  # the record layout of bench/_record.py
+    assert json.loads(r.stdout) == rec
+    doc = rec["result"]
+    assert rec["command"].startswith("python bench/bench_view.py --repeats 1") and doc["repeats"] == 1
     assert set(doc["cases"]) == {"first_page", "detector_update", "recon_update"}
     for case in doc["cases"].values():
         assert len(case["times_s"]) == 1 and case["times_s"][0] > 0 and isinstance(case["goal_met"], bool)
