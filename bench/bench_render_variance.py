@@ -1,7 +1,7 @@
 """What the per-bin variance estimate costs: render time and disk, with 8 replicates against 1.
 
 Renders the embedded paper scene (default 16 x 16 array, 2 x 2 spots, 1 ps bins, 11500 bins) with the
-integrator's ``variance_replicates`` = 8 (the default) and = 1 (no variance), alternating, ``--rounds``
+integrator's ``variance_replicates`` = 8 (what ``transient-mi render`` uses for NLOS captures) and = 1 (no variance), alternating, ``--rounds``
 times each, in one process (both warm: one untimed render of each first compiles the kernels), and
 writes both captures to disk to compare their sizes.
 

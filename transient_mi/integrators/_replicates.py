@@ -28,10 +28,11 @@ Replicates are accumulated with Welford's update in float32; batches
 rendered later (``render --noise-target``) are merged with Chan's formula,
 so a capture can grow replicate by replicate.
 
-``R`` is the integrator parameter ``variance_replicates`` (default
-:data:`DEFAULT_REPLICATES` under an NLOS sensor, 1 under a camera: a camera
-film is large and feeds no detector, and collecting it once per replicate
-costs several times the render); a render whose ``spp`` is not a multiple of it
+``R`` is the integrator parameter ``variance_replicates`` (default 1 for
+direct renders, which stay byte-identical to a single estimator and as fast;
+``transient-mi render`` and what is built on it use :data:`DEFAULT_REPLICATES`
+for NLOS captures; collecting a large camera film once per replicate costs
+several times the render); a render whose ``spp`` is not a multiple of it
 uses ``gcd(spp, R)`` replicates (the manifest says how many); ``R = 1``
 records no variance and reproduces the single-estimator render of earlier
 versions byte for byte.
