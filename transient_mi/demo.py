@@ -196,9 +196,10 @@ def _figure_best_array_method(root: Path, results: list[ArrayResult], mesh, s: D
         axes[0, col].set_title(f"{label}: filtered, front view", fontsize=9)
         im = axes[1, col].imshow(depth_map(vol, g), origin="lower", extent=ext, cmap="viridis",
                                  vmin=g.z_m[0], vmax=g.z_m[-1])
-        axes[1, col].set_title(f"depth; Chamfer {100 * mt['chamfer_m']:.2f} cm, IoU {mt['iou']:.2f},\n"
-                               f"depth MAE {100 * mt['depth_mae_m']:.2f} cm, normals {mt['normal_error_deg']:.0f} deg",
-                               fontsize=8)
+        axes[1, col].set_title(f"depth; Chamfer {_fmt(mt.get('chamfer_m'), 100, '.2f')} cm, "
+                               f"IoU {_fmt(mt.get('iou'), 1, '.2f')},\n"
+                               f"depth MAE {_fmt(mt.get('depth_mae_m'), 100, '.2f')} cm, "
+                               f"normals {_fmt(mt.get('normal_error_deg'), 1, '.0f')} deg", fontsize=8)
         fig.colorbar(im, ax=axes[1, col], fraction=0.046, label="z (m)")
     fig.suptitle(f"{r.array}x{r.array} array, same counts: the paper's backprojection and {BEST_ARRAY_METHOD} "
                  "(midpoint conversion + f-k migration)", fontsize=10)
@@ -233,6 +234,11 @@ def _figure_histograms(path: Path, hists: dict, s: DemoSettings) -> None:
                  fontsize=10)
     fig.tight_layout(rect=(0, 0.07, 1, 1))
     _savefig(fig, path)
+
+
+def _fmt(v, scale: float, spec: str) -> str:
+    """``v * scale`` formatted, or ``n/a`` for a metric that could not be computed (e.g. an empty volume)."""
+    return "n/a" if v is None else format(scale * v, spec)
 
 
 def _jittered(values: np.ndarray, t_ns: np.ndarray, params) -> np.ndarray:

@@ -99,7 +99,7 @@ class TransientPath(mi.CppADIntegrator):
         self.rr_depth = get_int(props, self.NAME, "rr_depth", 5, min_value=1)
         #: None: the default for the sensor (see :meth:`replicates_for`)
         self.variance_replicates = (get_int(props, self.NAME, "variance_replicates", None, min_value=1,
-                                            max_value=1024) if props.has_property("variance_replicates") else None)
+                                            max_value=1024) if "variance_replicates" in props else None)
         self.nlos_options = self._read_nlos_options(props)
 
     def replicates_for(self, nlos: bool) -> int:

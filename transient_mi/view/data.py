@@ -180,7 +180,8 @@ def discover(path, ground_truth=None) -> Library:
             suf = Path(f).suffix.lower()
             if suf in HDF5_SUFFIXES:
                 lib.captures.append(d / f)
-            elif suf in MESH_SUFFIXES:
+            elif suf in MESH_SUFFIXES and not ("volume.npz" in filenames and f == "surface.ply"):
+                # (a reconstruction's own isosurface, recon/surface.py, is output, not ground truth)
                 lib.meshes.append(d / f)
         n += 1
         if len(lib.captures) + len(lib.recons) >= MAX_ENTRIES:
