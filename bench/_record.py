@@ -11,7 +11,7 @@ A record holds the benchmark's own result plus what is needed to judge it:
   is imported to read them);
 * ``note``: free text (e.g. "machine shared with 3 other engineers").
 
-The file is written atomically (``recon._atomic.atomic_file``): a reader sees
+The file is written atomically (``transient_core.atomic.atomic_file``): a reader sees
 the old record or the new one, never half of one. Peak memory in every
 benchmark is ``VmHWM`` from ``/proc/self/status`` (the process's own peak
 resident set since it started or since :func:`reset_peak_rss`; unlike
@@ -130,7 +130,7 @@ def record(name: str, result: dict, *, load_start: list[float] | None = None, no
 def save(rec: dict, path: str | os.PathLike | None = None) -> Path:
     """Write ``rec`` atomically to ``path`` (default ``bench/results/<name>.json``); returns the path."""
     sys.path.insert(0, str(ROOT))
-    from recon._atomic import atomic_file
+    from transient_core.atomic import atomic_file
 
     target = Path(path) if path is not None else RESULTS / f"{rec['name']}.json"
     target.parent.mkdir(parents=True, exist_ok=True)

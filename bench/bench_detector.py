@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _record  # noqa: E402
 import numpy as np  # noqa: E402
 
-from transient_mi.detector import DetectorParams, detect  # noqa: E402
+from spad_detector import DetectorParams, detect  # noqa: E402
 
 
 def synthetic_ideal(h: int, w: int, n_bins: int, bin_width_ps: float, seed: int = 0) -> np.ndarray:

@@ -207,7 +207,7 @@ def ours_worker(cfg_path: str) -> None:
     job = json.load(open(cfg_path))
     cfg = job["cfg"]
     if job.get("pipeline"):
-        from transient_mi.pipeline import render
+        from transient_mi.render_capture import render
 
         t0 = time.perf_counter()
         render(job["scene"], job["out_dir"], spp=job["spp"], seed=1, progress=False)

@@ -74,10 +74,10 @@ def run_demo(out: Path) -> dict:
 
 def run_techniques(spp: int) -> list[dict]:
     import transient_mi  # noqa: F401
-    from recon.io import stack
-    from transient_mi.detector import detect_stack
+    from transient_core import stack
+    from spad_detector import detect_stack
     from transient_mi.experiment import PaperConfig, paper_detector, scene_file
-    from transient_mi.pipeline import prepare_render, run_render
+    from transient_mi.render_capture import prepare_render, run_render
 
     cfg = PaperConfig(array=8, spots=2, spp=spp)
     out = []

@@ -332,7 +332,7 @@ def main(argv=None) -> int:
             row = {"case": case, "method": method, "capture": cap_name, "voxels": [n, n, n]}
             if ytal_py is not None:
                 print(f"[bench] {case}: y-tal", file=sys.stderr)
-                from recon.units import C_M_PER_PS
+                from transient_core.units import C_M_PER_PS
 
                 bin_ps = s["bin_ps"] if cap_name == "single" else s["conf_bin_ps"]
                 row["ytal"] = run_ytal(ytal_py, case, h5, n, inputs["pitch"][cap_name], bin_ps * C_M_PER_PS, tmp,

@@ -109,7 +109,7 @@ def main(argv=None) -> int:
     text = json.dumps(doc, indent=1) + "\n"
     if a.out is not None:
         sys.path.insert(0, str(ROOT))
-        from recon._atomic import atomic_file
+        from transient_core.atomic import atomic_file
 
         with atomic_file(a.out) as tmp:
             Path(tmp).write_text(text)

@@ -39,9 +39,9 @@ def main(argv=None) -> int:
 
     import transient_mi  # first: it sets up LLVM before drjit loads
     import mitsuba as mi
-    from recon.io import stack
+    from transient_core import stack
     from transient_mi.experiment import PaperConfig, scene_file
-    from transient_mi.pipeline import prepare_render, run_render
+    from transient_mi.render_capture import prepare_render, run_render
 
     cfg = PaperConfig(array=a.array, spp=a.spp)
     runs = {8: [], 1: []}

@@ -58,7 +58,7 @@ GOALS_S = {"first_page": 3.0, "detector_update": 1.0, "recon_update": 1.0}
 
 def make_capture(path: Path, pixels: int, n_bins: int) -> Path:
     """A single-spot ideal capture of two point reflectors (closed form, recon.synthetic)."""
-    from recon.io import stack
+    from transient_core import stack
     from recon.synthetic import point_capture
 
     cap = point_capture([(0.1, -0.05, 0.5), (-0.15, 0.1, 0.4)], pixels=pixels, wall_size_m=1.0, sigma_ps=30.0,
@@ -165,7 +165,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from playwright.sync_api import sync_playwright
 
-    from recon._atomic import atomic_file
+    from transient_core.atomic import atomic_file
 
     results = {}
     load_before = os.getloadavg()

@@ -39,7 +39,7 @@ def main(argv=None) -> int:
     import numpy as np
 
     import transient_mi  # noqa: F401
-    from recon._atomic import atomic_file
+    from transient_core.atomic import atomic_file
     from recon.grid import VoxelGrid
     from recon.metrics import GroundTruth, compute_metrics, mesh_depth_map, mesh_occupancy
     from recon.result import Reconstruction

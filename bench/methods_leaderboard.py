@@ -48,7 +48,7 @@ RUNS = {
 
 def run(scenes, argv) -> None:
     import transient_mi  # noqa: F401
-    from recon._atomic import atomic_file
+    from transient_core.atomic import atomic_file
     from transient_mi.study import run_methods_study
 
     for scene in scenes:
@@ -116,7 +116,7 @@ def table() -> str:
 
 
 def write_readme(text: str) -> None:
-    from recon._atomic import atomic_file
+    from transient_core.atomic import atomic_file
 
     readme = ROOT / "README.md"
     s = readme.read_text()

@@ -33,11 +33,11 @@ EXPOSURE_S = 0.01
 
 def main() -> None:
     import transient_mi  # noqa: F401
-    from recon.io import stack
-    from transient_mi.detector import detect_stack
-    from transient_mi.detector.model import apply_jitter_kernel
-    from transient_mi.detector.stack import resolve_gates, spot_model_for
-    from transient_mi.detector.budget import resolve_budget
+    from transient_core import stack
+    from spad_detector import detect_stack
+    from spad_detector.model import apply_jitter_kernel
+    from spad_detector.stream import resolve_gates, spot_model_for
+    from spad_detector.budget import resolve_budget
     from transient_mi.experiment import PaperConfig, paper_detector, render_ideal
     from transient_mi.reporting import save_figure, subplots
 

@@ -247,8 +247,8 @@ def nlos_pipeline_para(R) -> str:
     if m:
         mt = (f" mitransient holds the whole exhaustive capture in memory: its render peaks at "
               f"{_gb(max(m.get('render_rss_per_run_mb') or m['peak_rss_per_run_mb']))} per run.")
-    return (f"\nIts streaming render of the same capture (`transient-mi render`, one EXR file per spot, spp 4) peaks "
-            f"at " + ", ".join(parts) + f": memory does not grow with the number of spots.{mt} "
+    return ("\nIts streaming render of the same capture (`transient-mi render`, one EXR file per spot, spp 4) peaks "
+            "at " + ", ".join(parts) + f": memory does not grow with the number of spots.{mt} "
             f"{provenance(rec, short=True)}.\n")
 
 
@@ -571,7 +571,7 @@ def documents(root: Path) -> list[Path]:
 def regenerate(root: Path, results: Path, check: bool) -> list[str]:
     """Rewrite (or, with ``check``, compare) every marked region; returns the regions that differed."""
     sys.path.insert(0, str(ROOT))
-    from recon._atomic import atomic_file
+    from transient_core.atomic import atomic_file
 
     R = Records(results)
     differ = []

@@ -47,7 +47,7 @@ def main(argv=None) -> int:
 
     import transient_mi  # noqa: F401
     import recon
-    from recon._atomic import atomic_file
+    from transient_core.atomic import atomic_file
     from recon.metrics import GroundTruth, compute_metrics
     from transient_mi.experiment import PAPER_BOUNDS_M, PaperConfig, ground_truth, paper_detector, render_ideal
     from transient_mi.study.detection import Detection, IdealCapture

@@ -22,7 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from transient_mi.detector import (DetectorParams, coates_correction, detect, expected_counts_low_flux,  # noqa: E402
+from spad_detector import (DetectorParams, coates_correction, detect, expected_counts_low_flux,  # noqa: E402
                                    gate_mean)
 
 W_PS, T = 8.0, 750  # 6 ns window

@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 from matplotlib.colors import ListedColormap  # noqa: E402
 
 from recon.ground_truth import ground_truth_depth_map  # noqa: E402
-from recon.units import C_M_PER_PS  # noqa: E402
+from transient_core.units import C_M_PER_PS  # noqa: E402
 from transient_mi.scenes import mannequin as mq  # noqa: E402
 
 GROUP_COLOURS = {"head": "#d62728", "neck": "#8c564b", "torso": "#7f7f7f", "arms": "#1f77b4", "legs": "#2ca02c"}

@@ -30,11 +30,11 @@ from typing import Callable
 
 import numpy as np
 
-from ._progress import progress_bar
-from .errors import UserInputError
+from transient_core.progress import progress_bar
+from transient_core.errors import UserInputError
 from .grid import VoxelGrid
 from .result import Reconstruction
-from .wall import SAME_SPOT_TOLERANCE_M
+from .pixel_grid import SAME_SPOT_TOLERANCE_M
 
 __all__ = ["backprojection", "filtered_backprojection", "backproject", "fbp_time_filter"]
 

@@ -29,8 +29,8 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
-from .errors import UserInputError
-from .units import C_M_PER_PS
+from transient_core.errors import UserInputError
+from transient_core.units import C_M_PER_PS
 
 __all__ = ["Capture", "load_capture", "MODES", "KINDS"]
 
@@ -455,7 +455,7 @@ def _build(*, mode, kind, spots, pixel_centers, pixel_normals, spot_normals, las
 def _make_manifest(mode, kind, H, W, n_files, t0_ps, bin_width_ps, n_bins, include_first_last, sp, sn, pc, pn,
                    lo, do, spot_grid, quantity, extra) -> dict:
     """A stack manifest for an in-memory capture (validated when the origins are known)."""
-    from .io import stack
+    from transient_core import stack
 
     geometry = {
         "laser_origin": None if lo is None else lo.tolist(),
@@ -506,7 +506,7 @@ def load_capture(path: str | Path) -> Capture:
         its manifest and files disagree (the message names the file and the
         mismatch).
     """
-    from .io import stack
+    from transient_core import stack
 
     p = Path(path)
     if not p.exists():

@@ -1,7 +1,7 @@
 """Wave-based reconstructions of confocal captures: LCT (light-cone transform) and f-k migration.
 
 Both need a confocal capture on a regular square pixel grid in the plane
-z = 0 (:func:`recon.wall.require_regular_confocal`) and a time axis that
+z = 0 (:func:`recon.pixel_grid.require_regular_confocal`) and a time axis that
 starts at zero path length; captures are resampled onto it (first/last
 segments removed, a start ``t0`` that is not a whole number of bins shifted
 by an exact fractional-bin split, :func:`recon.preprocess.resample_time_axis`).
@@ -40,11 +40,11 @@ import math
 
 import numpy as np
 
-from .errors import UserInputError
+from transient_core.errors import UserInputError
 from .grid import VoxelGrid
 from .preprocess import resample_time_axis
 from .result import Reconstruction
-from .wall import require_regular_confocal
+from .pixel_grid import require_regular_confocal
 
 __all__ = ["lct", "fk_migration", "confocal_time_volume"]
 

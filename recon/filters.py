@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from .errors import UserInputError
+from transient_core.errors import UserInputError
 from .grid import VoxelGrid
 from .result import Reconstruction
 

@@ -13,7 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import UserInputError
+from transient_core.errors import UserInputError
 
 __all__ = ["VoxelGrid", "make_grid", "default_bounds", "parse_bounds", "reachable_depth_m"]
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import UserInputError
+from transient_core.errors import UserInputError
 
 __all__ = ["ground_truth_depth_map", "ground_truth_silhouette"]
 

@@ -62,7 +62,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UserInputError
+from transient_core.errors import UserInputError
 from .grid import VoxelGrid
 from .result import Reconstruction
 

@@ -45,9 +45,9 @@ import math
 import numpy as np
 
 from .capture import Capture
-from .errors import UserInputError
-from .units import C_M_PER_PS
-from .wall import regular_pixel_grid
+from transient_core.errors import UserInputError
+from transient_core.units import C_M_PER_PS
+from .pixel_grid import regular_pixel_grid
 
 __all__ = ["midpoint_confocal", "default_midpoint_bin_width_ps"]
 

@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import check_output_location, replace_dir, temp_dir_beside
-from ._json import to_json
-from .errors import UserInputError
+from transient_core.atomic import check_output_location, replace_dir, temp_dir_beside
+from transient_core._json import to_json
+from transient_core.errors import UserInputError
 from .filters import depth_map, projections
 from .result import Reconstruction
 

@@ -36,11 +36,11 @@ import math
 
 import numpy as np
 
-from ._progress import progress_bar
-from .errors import UserInputError
+from transient_core.progress import progress_bar
+from transient_core.errors import UserInputError
 from .grid import VoxelGrid
 from .result import Reconstruction
-from .wall import regular_pixel_grid
+from .pixel_grid import regular_pixel_grid
 
 __all__ = ["phasor_fields", "virtual_wave", "default_wavelength_m"]
 

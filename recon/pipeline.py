@@ -6,8 +6,8 @@ import time
 from pathlib import Path
 
 from .capture import Capture, load_capture
-from ._lock import output_lock
-from .errors import UserInputError
+from transient_core.lock import output_lock
+from transient_core.errors import UserInputError
 from .filters import DEFAULT_THRESHOLD, no_filter, paper_filter
 from .grid import VoxelGrid, make_grid
 from .result import Reconstruction
@@ -129,7 +129,7 @@ def _midpoint(capture: Capture, grid: VoxelGrid, method: str, opts: dict) -> Rec
 
     from .confocal import fk_migration, lct
     from .midpoint import default_midpoint_bin_width_ps, midpoint_confocal
-    from .units import C_M_PER_PS
+    from transient_core.units import C_M_PER_PS
 
     w_ps = default_midpoint_bin_width_ps(capture, grid)
     # deepest round trip the volume needs: from the farthest midpoint to the farthest voxel corner
@@ -157,7 +157,7 @@ def run(capture_path, out_dir, method: str = "bp", *, bounds=None, voxels=None, 
     """Load, preprocess, reconstruct, filter, score and write (the ``recon`` command).
 
     Returns ``(reconstruction, metrics or None, output directory)``. The output's lock
-    (:mod:`recon._lock`) is held from the first check to the last write: a second run into the same
+    (:mod:`transient_core.lock`) is held from the first check to the last write: a second run into the same
     directory is refused.
     """
     from .output import check_output_dir

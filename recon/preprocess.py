@@ -11,8 +11,8 @@ import math
 import numpy as np
 
 from .capture import Capture, PULSE_KEYS
-from .errors import UserInputError
-from .units import C_M_PER_PS
+from transient_core.errors import UserInputError
+from transient_core.units import C_M_PER_PS
 
 __all__ = ["remove_first_last", "resample_time_axis", "pileup_correction", "crop_time", "downsample_time"]
 
@@ -100,7 +100,7 @@ def blind_cycles_from_manifest(capture: Capture) -> tuple[int, str]:
     cycles after any detection in the window when ``tau >= b - a`` and
     ``m P + b <= a + tau <= (m + 1) P + a - (b - a)``, i.e.
     ``m = floor((a + tau - b) / P)`` (the detector model's condition,
-    ``transient_mi.detector.pileup.blind_cycles``). ``m = 0`` is Coates'
+    ``spad_detector.pileup.blind_cycles``). ``m = 0`` is Coates'
     classic setting.
 
     Returns
@@ -127,7 +127,7 @@ def blind_cycles_from_manifest(capture: Capture) -> tuple[int, str]:
 
 
 def pileup_correction(capture: Capture, n_cycles: float | None = None, blind_cycles: int | None = None) -> Capture:
-    """Coates' pile-up correction of a counts capture (see :func:`recon.pileup.coates_correction`).
+    """Coates' pile-up correction of a counts capture (see :func:`spad_detector.coates.coates_correction`).
 
     Each histogram becomes ``n_cycles * lambda_b``: the counts a detector
     without dead time would have recorded. Bins in which every remaining
@@ -144,7 +144,7 @@ def pileup_correction(capture: Capture, n_cycles: float | None = None, blind_cyc
         Whole cycles the detector is blind after each detection (dead time
         longer than the period); default :func:`blind_cycles_from_manifest`.
     """
-    from .pileup import coates_correction
+    from spad_detector.coates import coates_correction
 
     if capture.kind != "counts":
         raise UserInputError(f"pile-up correction needs a counts capture; this one is kind={capture.kind!r}")

@@ -24,7 +24,7 @@ import os
 
 import numpy as np
 
-from .errors import UserInputError
+from transient_core.errors import UserInputError
 from .grid import VoxelGrid
 
 #: Per edge axis (z, y, x): the quad's cell order runs around the edge in the plane of the two other
@@ -158,7 +158,7 @@ def normal_map(depth_m: np.ndarray, grid: VoxelGrid) -> np.ndarray:
 
 def write_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray) -> None:
     """Write a binary little-endian PLY mesh atomically (vertices in metres)."""
-    from ._atomic import atomic_file
+    from transient_core.atomic import atomic_file
 
     v = np.asarray(vertices, dtype="<f4").reshape(-1, 3)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)

@@ -27,8 +27,8 @@ import numpy as np
 from scipy.special import ndtr
 
 from .capture import Capture
-from .errors import UserInputError
-from .units import C_M_PER_PS
+from transient_core.errors import UserInputError
+from transient_core.units import C_M_PER_PS
 
 __all__ = ["wall_grid", "point_capture", "to_counts", "default_time_axis"]
 

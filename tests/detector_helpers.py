@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from recon.io.stack import new_manifest, write_stack
-from recon.units import photons_per_pulse
+from transient_core.stack import new_manifest, write_stack
+from transient_core.units import photons_per_pulse
 
 #: Significance level of every statistical test in the detector suite.
 ALPHA = 1e-3
@@ -119,7 +119,7 @@ def poison_spot(directory, index: int, manifest: dict, value: float = float("nan
     """Overwrite one pixel of an ideal spot file with ``value`` (bypassing the writer's checks)."""
     import OpenEXR
 
-    from recon.io.stack import _header, channel_names, read_spot, spot_path
+    from transient_core.stack import _header, channel_names, read_spot, spot_path
 
     data = read_spot(directory, index, manifest)
     data[0, 0, 0] = value

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from recon.units import C_M_PER_PS, photons_per_pulse
+from transient_core.units import C_M_PER_PS, photons_per_pulse
 
 WALL_ALBEDO = 0.8
 LASER = np.array([-0.9, 0.05, 1.2])

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recon.io import stack
+from transient_core import stack
 
 ROOT = Path(__file__).resolve().parents[1]
 CBOX = ROOT / "scenes" / "cornell_box.xml"

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from detector_helpers import make_ideal_capture
-from recon._progress import LineProgress, progress_mode
-from recon.io.stack import read_manifest
+from transient_core.progress import LineProgress, progress_mode
+from transient_core.stack import read_manifest
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMANDS = [["render"], ["detect"], ["recon"], ["demo"], ["dataset"], ["mannequin"], ["info"],
@@ -96,7 +96,7 @@ def test_commands_print_progress_lines_into_a_log(ideal, tmp_path):
 
 def test_engine_message_says_what_auto_does_as_the_docs_do():
     from transient_mi.commands.detect import engine_note
-    from transient_mi.detector.detect import AUTO_EXACT_MAX_EVENTS
+    from spad_detector.detect import AUTO_EXACT_MAX_EVENTS
 
     assert engine_note("auto", True) == " (exact)"
     note = engine_note("auto", False)

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recon.errors import UserInputError
-from recon.io import stack
+from transient_core.errors import UserInputError
+from transient_core import stack
 from transient_mi.dataset import item_status, read_index, run_dataset
 from transient_mi.dataset.worker import KILL_ENV
 

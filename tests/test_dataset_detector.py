@@ -1,6 +1,6 @@
 """The detector step of dataset items.
 
-``test_detector_step_wiring`` replaces ``transient_mi.detector.detect_stack`` by
+``test_detector_step_wiring`` replaces ``spad_detector.detect_stack`` by
 a recording wrapper bound to the real function's signature and checks what the
 item worker asks of it and where the counts land.
 ``test_detector_step_with_the_real_detector`` runs the real model on a tiny
@@ -10,14 +10,13 @@ skipped).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from recon.io import stack
+from transient_core import stack
 from transient_mi.dataset import expand_items, item_status, parse_spec
 from transient_mi.dataset.index import item_row
 from transient_mi.dataset.worker import build_item
@@ -31,7 +30,7 @@ def _recording_detect_stack(calls: list):
     Poisson counts (the real model needs an NLOS capture; the wiring test renders a small camera scene)."""
     import inspect
 
-    from transient_mi.detector import detect_stack as real
+    from spad_detector import detect_stack as real
 
     sig = inspect.signature(real)
 
@@ -55,10 +54,10 @@ def _recording_detect_stack(calls: list):
 
 
 def test_detector_step_wiring(tmp_path, monkeypatch):
-    import transient_mi.detector
+    import spad_detector
 
     calls: list = []
-    monkeypatch.setattr(transient_mi.detector, "detect_stack", _recording_detect_stack(calls))
+    monkeypatch.setattr(spad_detector, "detect_stack", _recording_detect_stack(calls))
     spec = parse_spec({"scene": "cornell_box", "seed": 4, "spp": 2, "defines": SMALL,
                        "detector": {"pulses": 1000, "engine": "analytic"},
                        "grid": {"detector.pde": [0.3, 0.9]}})
@@ -152,7 +151,7 @@ def test_scene_with_a_spad_film_gives_counts_items(tmp_path):
     # detector settings in the spec as well would detect twice: refused before any work
     both = parse_spec({"scene": str(scene), "spp": 4, "defines": {"width": 4, "height": 4},
                        "detector": {"pulses": 1000}})
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
 
     with pytest.raises(UserInputError, match="has a spad_film, which runs the detector itself"):
         validate_scene(both, expand_items(both, variant="llvm_ad_mono", scene_sha256="0" * 64))

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 from transient_mi.dataset import expand_items, parse_spec
 from transient_mi.dataset.distributions import Distribution
 from transient_mi.dataset.items import item_seed, params_digest

@@ -63,7 +63,7 @@ def test_losing_a_race_keeps_the_finished_item(mannequin_item, monkeypatch):
 
 def test_failure_leaves_no_item_and_no_temporary(mannequin_item, monkeypatch):
     item, items_dir, task = mannequin_item
-    import transient_mi.pipeline as pipeline
+    import transient_mi.render_capture as pipeline
 
     def broken(*a, **k):
         raise RuntimeError("disk on fire")
@@ -81,7 +81,7 @@ def test_scene_loads_on_one_thread_and_renders_on_all(mannequin_item, monkeypatc
 
     import mitsuba as mi
 
-    import transient_mi.pipeline as pipeline
+    import transient_mi.render_capture as pipeline
     import transient_mi.scene_io as scene_io
 
     item, items_dir, task = mannequin_item

@@ -36,8 +36,8 @@ def paper_capture(tmp_path_factory):
 
 
 def test_paper_scene_renders_the_documented_photon_budget(paper_capture):
-    from recon.io import read_manifest
-    from recon.units import photon_energy_j
+    from transient_core.stack import read_manifest
+    from transient_core.units import photon_energy_j
 
     cfg, ideal, counts = paper_capture
     m = read_manifest(ideal)
@@ -57,8 +57,8 @@ def test_paper_scene_renders_the_documented_photon_budget(paper_capture):
 
 
 def test_gate_suppresses_the_first_bounce_wall_return(paper_capture):
-    from recon.io import read_manifest, read_spot
-    from recon.units import C_M_PER_PS
+    from transient_core.stack import read_manifest, read_spot
+    from transient_core.units import C_M_PER_PS
 
     _, ideal, counts = paper_capture
     mi_, mc = read_manifest(ideal), read_manifest(counts)
@@ -99,7 +99,7 @@ def test_demo_quick_writes_every_output(quick_demo):
     import matplotlib.image as mpimg
     import trimesh
 
-    from recon.io import read_stack
+    from transient_core.stack import read_stack
 
     out = quick_demo
     for name in ("summary.md", "fig4_histograms.png", "fig5_reconstructions.png", "metrics.csv", "metrics.json",

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from detector_helpers import make_ideal_capture, poison_spot
-from recon.io.stack import read_manifest, read_stack
-from transient_mi.detector import param_names
+from transient_core.stack import read_manifest, read_stack
+from spad_detector import param_names
 
 ROOT = Path(__file__).resolve().parents[1]
 

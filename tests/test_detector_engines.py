@@ -9,8 +9,8 @@ import pytest
 from scipy import stats
 
 from detector_helpers import ALPHA, chisq_gof, two_sample_chisq
-from transient_mi.detector import DetectorParams, detect
-from transient_mi.detector.pileup import sample_renewal_counts
+from spad_detector import DetectorParams, detect
+from spad_detector.pileup import sample_renewal_counts
 
 
 def _nlos_like(n_pix: int, T: int, seed: int = 0) -> np.ndarray:
@@ -169,7 +169,7 @@ def test_crosstalk_reaches_the_four_neighbours_at_the_same_time():
 
 
 def test_jitter_kernel_convolution_matches_a_direct_sum():
-    from transient_mi.detector.model import apply_jitter_kernel
+    from spad_detector.model import apply_jitter_kernel
 
     rng = np.random.default_rng(0)
     for first, K in [(-3, 7), (2, 5), (-40, 81), (5, 30)]:  # direct and FFT paths
@@ -185,7 +185,7 @@ def test_jitter_kernel_convolution_matches_a_direct_sum():
 @pytest.mark.parametrize("kw", [dict(jitter_ps=25.0), dict(jitter_ps=10.0, irf_tail_fraction=0.3, irf_tail_ps=30.0),
                                 dict(jitter_ps=0.0, irf_tail_fraction=1.0, irf_tail_ps=12.0)])
 def test_jitter_bin_kernel_matches_sampled_delays(kw):
-    from transient_mi.detector import Jitter
+    from spad_detector import Jitter
 
     w = 8.0
     jit = Jitter.from_params(DetectorParams(**kw))
@@ -199,7 +199,7 @@ def test_jitter_bin_kernel_matches_sampled_delays(kw):
 
 
 def test_support_trims_only_negligible_intensity():
-    from transient_mi.detector.pileup import support
+    from spad_detector.pileup import support
 
     rng = np.random.default_rng(0)
     lam = rng.random((200, 30)) * (rng.random((200, 30)) < 0.3) * 1e-6

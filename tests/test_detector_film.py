@@ -7,7 +7,7 @@ import pytest
 import transient_mi  # noqa: F401  (first: LLVM + plug-ins)
 import mitsuba as mi
 
-from transient_mi.detector import DetectorParams
+from spad_detector import DetectorParams
 
 
 def _film(**kw):
@@ -68,8 +68,8 @@ def test_render_pipeline_detect_step_uses_the_film_parameters(tmp_path):
     import numpy as np
 
     from detector_helpers import make_ideal_capture
-    from recon.io.stack import read_manifest, read_stack
-    from transient_mi import pipeline
+    from transient_core.stack import read_manifest, read_stack
+    from transient_mi import render_capture
 
     film = _film(pulses=2000, auto_gate=True, pde=0.5, seed=4)
     out = tmp_path / "out"
@@ -78,7 +78,7 @@ def test_render_pipeline_detect_step_uses_the_film_parameters(tmp_path):
     data[..., 40:44] = 1e-3
     make_ideal_capture(out / "ideal", data, bin_width_ps=8.0, t0_ps=100.0)
     job = types.SimpleNamespace(out_dir=out, detect_kwargs=film.detect_kwargs())
-    assert pipeline._detect_into(job, out / "ideal") == out
+    assert render_capture._detect_into(job, out / "ideal") == out
     m, counts = read_stack(out)
     assert m["kind"] == "counts" and counts.shape == (2, 3, 4, 64) and counts.dtype == np.uint32
     d = m["detector"]

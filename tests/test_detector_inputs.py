@@ -8,10 +8,10 @@ import sys
 import numpy as np
 import pytest
 
-from recon.errors import UserInputError
-from recon.units import photons_per_pulse
-from transient_mi.detector import DetectorParams, detect, param_names, resolve_budget
-from transient_mi.detector.params import DEFAULT_PULSES, FWHM_PER_SIGMA
+from transient_core.errors import UserInputError
+from transient_core.units import photons_per_pulse
+from spad_detector import DetectorParams, detect, param_names, resolve_budget
+from spad_detector.params import DEFAULT_PULSES, FWHM_PER_SIGMA
 
 IDEAL = np.full((2, 3, 16), 1e-3)
 
@@ -27,7 +27,7 @@ def test_detector_package_does_not_import_mitsuba():
     code = ("import sys, importlib.util, types; "
             "sys.modules['transient_mi'] = types.ModuleType('transient_mi'); "
             "sys.modules['transient_mi'].__path__ = ['transient_mi']; "
-            "import transient_mi.detector as d; "
+            "import spad_detector as d; "
             "assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules, sorted(sys.modules)")
     root = __import__("pathlib").Path(__file__).resolve().parents[1]
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=root)

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from detector_helpers import LASER, make_ideal_capture, poison_spot
-from recon.errors import UserInputError
-from recon.io.stack import read_manifest, read_spot, read_stack
-from recon.units import C_M_PER_PS
+from transient_core.errors import UserInputError
+from transient_core.stack import read_manifest, read_spot, read_stack
+from transient_core.units import C_M_PER_PS
 from stats_helpers import ALPHA, z_bound
-from transient_mi.detector import DetectorParams, detect_stack, param_names, three_bounce_range_ps
+from spad_detector import DetectorParams, detect_stack, param_names, three_bounce_range_ps
 
 T, W_PS = 300, 16.0
 

@@ -16,10 +16,10 @@ from scipy.special import nbdtr
 
 from detector_helpers import ALPHA, bonferroni_z, chisq_gof, variance_ratio_pvalue
 from stats_helpers import z_bound
-from transient_mi.detector import (DetectorParams, coates_correction, coates_std, detect,
+from spad_detector import (DetectorParams, coates_correction, coates_std, detect,
                                    expected_counts_low_flux, first_photon_probabilities, gate_efficiency,
                                    gate_mean, nonparalyzable_rate, paralyzable_rate, pulsed_rate_per_cycle)
-from transient_mi.detector.gate import TEN_NINETY_PER_SIGMA, transition_10_90_ps
+from spad_detector.gate import TEN_NINETY_PER_SIGMA, transition_10_90_ps
 
 ENGINES = ["analytic", "exact"]
 # no dead time from the TCSPC, no dark counts: isolates the effect under test
@@ -104,7 +104,7 @@ def test_coates_correction_with_dead_time_longer_than_the_period():
 
 
 def test_coates_correction_rejects_impossible_input():
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
 
     with pytest.raises(UserInputError, match="counts exceed"):
         coates_correction(np.array([5.0, 6.0]), 10)
@@ -112,10 +112,10 @@ def test_coates_correction_rejects_impossible_input():
         coates_correction(np.array([5.0, 1.0]), 10, blind_cycles=2)
     with pytest.raises(UserInputError, match="n_cycles"):
         coates_correction(np.array([1.0]), 0)
-    import recon.pileup
-    import transient_mi.detector as det
+    import spad_detector.coates
+    import spad_detector as det
 
-    assert det.coates_correction is recon.pileup.coates_correction
+    assert det.coates_correction is spad_detector.coates.coates_correction
 
 
 # ---------------------------------------------------- dead time longer than P

@@ -54,8 +54,8 @@ def test_negative_dropped_fraction_is_recorded():
 
 def test_render_reports_invalid_contributions_in_the_manifest(tmp_path):
     """A result with invalid contributions (injected) lands in the manifest's 'dropped' and in a warning."""
-    from recon.io import stack
-    from transient_mi.pipeline import prepare_render, run_render
+    from transient_core import stack
+    from transient_mi.render_capture import prepare_render, run_render
 
     job = prepare_render(ROOT / "scenes" / "nlos_point_targets.xml", tmp_path / "c",
                          defines={"width": "2", "height": "2", "spots_x": "1", "spots_y": "1", "n_bins": "16",
@@ -79,8 +79,8 @@ def test_render_reports_invalid_contributions_in_the_manifest(tmp_path):
 
 
 def test_clean_render_reports_zero_invalid(tmp_path):
-    from recon.io import stack
-    from transient_mi.pipeline import render
+    from transient_core import stack
+    from transient_mi.render_capture import render
 
     render(ROOT / "scenes" / "nlos_point_targets.xml", tmp_path / "c",
            defines={"width": "2", "height": "2", "spots_x": "1", "spots_y": "1", "n_bins": "16",

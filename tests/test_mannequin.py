@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 from recon.ground_truth import ground_truth_depth_map, ground_truth_silhouette
-from recon.units import C_M_PER_PS
+from transient_core.units import C_M_PER_PS
 from transient_mi.scenes import mannequin as mq
 
 ROOT = Path(__file__).resolve().parents[1]

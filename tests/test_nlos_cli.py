@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recon.io import stack
+from transient_core import stack
 from transient_mi.scenes import scene_path
 
 ROOT = Path(__file__).resolve().parents[1]

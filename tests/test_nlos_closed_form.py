@@ -13,7 +13,7 @@ import pytest
 import transient_mi  # noqa: F401  (LLVM + variant + plug-ins)
 from nlos_helpers import (LASER, DETECTOR, bin_of, nlos_scene, patch_centers, render, seed_stats, square,
                           three_bounce_reference, wall_return_reference)
-from recon.units import C_M_PER_PS
+from transient_core.units import C_M_PER_PS
 from stats_helpers import chi2_bounds, t_bound, t_to_z
 
 X0 = np.array([0.05, -0.03, 0.35])

@@ -1,4 +1,4 @@
-"""One writer per output directory (``recon._lock``), stale locks and temporaries, and the commands using it."""
+"""One writer per output directory (``transient_core.lock``), stale locks and temporaries, and the commands using it."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ import pytest
 
 from detector_helpers import make_ideal_capture
 from recon import _lock
-from recon.errors import UserInputError
-from recon.io import stack
+from transient_core.errors import UserInputError
+from transient_core import stack
 from recon.synthetic import point_capture
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,7 +75,7 @@ def test_lock_file_names_its_owner_and_is_removed_after(tmp_path):
 
 def test_second_process_is_refused_while_the_first_holds_the_lock(tmp_path):
     out = tmp_path / "out"
-    code = ("import sys; from recon._lock import output_lock; from recon.errors import UserInputError\n"
+    code = ("import sys; from transient_core.lock import output_lock; from transient_core.errors import UserInputError\n"
             "try:\n    output_lock(sys.argv[1]).__enter__()\nexcept UserInputError as e:\n    print(e); sys.exit(3)\n")
     with _lock.output_lock(out):
         r = subprocess.run([sys.executable, "-c", code, str(out)], cwd=ROOT, capture_output=True, text=True)
@@ -177,7 +177,7 @@ def test_detect_removes_a_killed_runs_temporary_directory(tmp_path, inputs):
 
 
 def test_exact_engine_estimates_its_work_and_refuses_past_the_limit_unless_forced(tmp_path, inputs, monkeypatch):
-    from transient_mi.detector import stack as det_stack
+    from spad_detector import stream as det_stack
 
     # 2x2 pixels x 4 bins x 1e-3 photons per pulse, PDE 0.3 -> ~4.8e-3 events per pulse: 1e4 pulses ~ 48 events
     monkeypatch.setattr(det_stack, "EXACT_MAX_EVENTS", 10.0)

@@ -14,10 +14,10 @@ import pytest
 import scipy.io
 
 import recon
-from recon.io import stack
+from transient_core import stack
 from recon.io.real import read_fk_mat, read_znlos
 from recon.synthetic import point_capture
-from recon.units import C_M_PER_PS
+from transient_core.units import C_M_PER_PS
 
 ROOT = Path(__file__).resolve().parents[1]
 POINT = [0.1, -0.15, 0.5]
@@ -152,7 +152,7 @@ def test_znlos_exhaustive_layout(tmp_path):
 
 
 def test_readers_refuse_other_layouts_in_one_line(tmp_path):
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
 
     scipy.io.savemat(tmp_path / "meas.mat", {"meas": np.zeros((4, 5, 10))})
     with pytest.raises(UserInputError, match=r"meas has shape \(4, 5, 10\); expected \[N, N, T\]"):

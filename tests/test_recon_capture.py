@@ -10,10 +10,10 @@ import pytest
 
 from recon import load_capture
 from recon.capture import Capture
-from recon.errors import UserInputError
-from recon.io import stack
+from transient_core.errors import UserInputError
+from transient_core import stack
 from recon.synthetic import point_capture, to_counts, wall_grid
-from recon.units import C_M_PER_PS
+from transient_core.units import C_M_PER_PS
 
 ROOT = Path(__file__).resolve().parents[1]
 POINT = [[0.07, -0.04, 0.45]]

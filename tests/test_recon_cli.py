@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recon.io import stack
+from transient_core import stack
 from recon.io.ytal import write_ytal
 from recon.synthetic import point_capture
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 from recon.filters import (apply_threshold, depth_map, negative_laplacian_of_gaussian, otsu_threshold, paper_filter,
                            parse_threshold, projections)
 from recon.grid import VoxelGrid

@@ -18,7 +18,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from recon.backprojection import backprojection, box_sum, filtered_backprojection, voxel_path_bins
 from recon.capture import Capture
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 from recon.grid import VoxelGrid, make_grid
 from recon.phasor import _phasors, phasor_fields, virtual_wave
 from recon.pipeline import reconstruct

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 from recon.grid import VoxelGrid
 from recon.metrics import GroundTruth, compute_metrics, load_ground_truth, mesh_depth_map
 from recon.result import Reconstruction

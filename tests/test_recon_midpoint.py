@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 from recon.grid import VoxelGrid
 from recon.midpoint import midpoint_confocal
 from recon.pipeline import reconstruct

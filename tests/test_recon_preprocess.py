@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from recon.capture import Capture
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 from recon.preprocess import (blind_cycles_from_manifest, crop_time, downsample_time, pileup_correction,
                               remove_first_last, resample_time_axis)
 from recon.synthetic import point_capture, to_counts, wall_grid

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 from recon.grid import VoxelGrid
 from recon.metrics import GroundTruth, compute_metrics, visible_surface_points
 from recon.result import Reconstruction

@@ -6,11 +6,11 @@ import pytest
 import yaml
 
 from recon import load_capture
-from recon.errors import UserInputError
-from recon.io import stack
+from transient_core.errors import UserInputError
+from transient_core import stack
 from recon.io.ytal import GRIDFORMAT, HFORMAT, KEYS, read_ytal, write_ytal
 from recon.synthetic import point_capture, to_counts, wall_grid
-from recon.units import C_M_PER_PS
+from transient_core.units import C_M_PER_PS
 
 POINT = [[0.07, -0.04, 0.45]]
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import transient_mi  # noqa: F401
-from recon.io import stack
-from transient_mi.detector import DetectorParams, detect_stack
-from transient_mi.detector.model import build_model
-from transient_mi.detector.render_noise import NoiseRatio, spp_for_threshold, warning_line
+from transient_core import stack
+from spad_detector import DetectorParams, detect_stack
+from spad_detector.model import build_model
+from spad_detector.render_noise import NoiseRatio, spp_for_threshold, warning_line
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "nlos_point_targets.xml"
@@ -75,7 +75,7 @@ def test_warning_line_names_ratio_and_spp():
 
 @pytest.fixture(scope="module")
 def small_capture(tmp_path_factory):
-    from transient_mi.pipeline import render
+    from transient_mi.render_capture import render
 
     out = tmp_path_factory.mktemp("noise") / "ideal"
     render(SCENE, out, defines=SMALL, spp=64, seed=3, progress=False)
@@ -113,7 +113,7 @@ def test_detect_reports_render_noise_and_warns_once(small_capture, tmp_path):
 
 
 def test_detect_says_when_variance_is_unknown(tmp_path):
-    from transient_mi.pipeline import render
+    from transient_mi.render_capture import render
 
     ideal = tmp_path / "one_rep"
     render(SCENE, ideal, defines=dict(SMALL, spots_x="1", spots_y="1"), spp=13, seed=0, progress=False)
@@ -133,7 +133,7 @@ def _cli(*args):
 def test_noise_target_render_meets_target_and_resumes_to_the_same_bytes(tmp_path):
     """render --noise-target: pilot, fresh capture at the chosen spp, ratio met and recorded; resume is exact."""
     from transient_mi.noise_target import PLAN_MARGIN, GroupState, NoiseTargetSpec
-    from transient_mi.pipeline import prepare_render, run_render
+    from transient_mi.render_capture import prepare_render, run_render
 
     defines = dict(SMALL, spots_x="1", spots_y="1")
 

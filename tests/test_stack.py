@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from recon.io import stack
+from transient_core import stack
 
 
 def _manifest(kind="ideal", capture="camera", n_files=1, H=3, W=4, T=7, **kw):
@@ -138,7 +138,7 @@ def test_stack_reader_needs_no_mitsuba(tmp_path):
 
     m = _manifest()
     stack.write_stack(tmp_path / "s", m, np.ones((1, 3, 4, 7), np.float32))
-    code = ("import sys; from recon.io import read_stack; m, d = read_stack(sys.argv[1]); "
+    code = ("import sys; from transient_core.stack import read_stack; m, d = read_stack(sys.argv[1]); "
             "assert d.shape == (1, 3, 4, 7); assert 'mitsuba' not in sys.modules and 'drjit' not in sys.modules")
     r = subprocess.run([sys.executable, "-c", code, str(tmp_path / "s")], capture_output=True, text=True,
                        cwd=os.path.dirname(os.path.dirname(__file__)))

@@ -85,7 +85,7 @@ def test_scene_with_width_and_height(tmp_path):
 ])
 def test_bad_arguments_fail_before_any_work(tmp_path, kwargs, match):
     import transient_mi  # noqa: F401
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
     from transient_mi.study import run_array_size_study
 
     kw = dict(TINY)

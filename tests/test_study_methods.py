@@ -73,7 +73,7 @@ def test_scene_ground_truth_is_the_letter():
 
 
 def test_bad_input(tmp_path):
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
     from transient_mi.study import run_methods_study
 
     with pytest.raises(UserInputError, match="need confocal captures"):

@@ -126,11 +126,11 @@ def test_per_bin_snr_follows_sqrt_n_at_low_flux(study):
 
 def test_signal_and_background_split(study):
     """Counts split into the scene's photons and background by their intensities per bin (snr.py)."""
-    from recon.io.stack import read_manifest
+    from transient_core.stack import read_manifest
     from scipy.integrate import quad
     from scipy.stats import norm
 
-    from transient_mi.detector.gate import auto_gate, gate_sigma_ps
+    from spad_detector.gate import auto_gate, gate_sigma_ps
     from transient_mi.experiment import paper_detector
 
     m = read_manifest(study.out_dir / "ideal")
@@ -196,8 +196,8 @@ def test_pixel_totals_follow_the_dead_time_renewal_model(study):
 
 def test_in_memory_detection_equals_detect_stack(study, tmp_path):
     """A study row's counts are those `transient-mi detect --seed S` writes (same bytes)."""
-    from recon.io import read_stack
-    from transient_mi.detector import detect_stack
+    from transient_core.stack import read_stack
+    from spad_detector import detect_stack
     from transient_mi.experiment import paper_detector
     from transient_mi.study.detection import Detection, IdealCapture
 
@@ -260,7 +260,7 @@ def test_other_scene_with_point_targets_and_without_ground_truth(tmp_path):
 ])
 def test_bad_arguments_fail_before_any_work(tmp_path, kwargs, match):
     import transient_mi  # noqa: F401
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
     from transient_mi.study import run_photon_budget_study
 
     kw = dict(TINY, exposures_s=(1e-6,))

@@ -14,7 +14,7 @@ import pytest
 import transient_mi  # noqa: F401  (first: LLVM + plug-ins)
 import mitsuba as mi
 
-from recon.units import C_M_PER_PS
+from transient_core.units import C_M_PER_PS
 from stats_helpers import ALPHA, t_bound, welch_df
 from transient_mi.time_axis import TimeAxis, gaussian_kernel_taps
 

@@ -103,9 +103,9 @@ def test_the_core_install_does_not_import_the_viewer_libraries():
 
 def test_detector_panel_counts_equal_transient_mi_detect(tree, tmp_path):
     """The live counts are the ones ``detect_stack`` writes for the same parameters, pulses and seed."""
-    from recon.io.stack import read_spot
+    from transient_core.stack import read_spot
 
-    from transient_mi.detector import DetectorParams, detect_stack
+    from spad_detector import DetectorParams, detect_stack
     from transient_mi.view.data import CaptureData
     from transient_mi.view.detector_panel import simulate_counts
 
@@ -120,9 +120,9 @@ def test_detector_panel_counts_equal_transient_mi_detect(tree, tmp_path):
 
 
 def test_detector_panel_auto_gate_matches_detect_per_spot_gates(tree, tmp_path):
-    from recon.io.stack import read_manifest
+    from transient_core.stack import read_manifest
 
-    from transient_mi.detector import DetectorParams, detect_stack
+    from spad_detector import DetectorParams, detect_stack
     from transient_mi.view.data import CaptureData
     from transient_mi.view.detector_panel import simulate_counts
 
@@ -227,7 +227,7 @@ def test_video_command_and_its_errors(tmp_path, monkeypatch):
 
 
 def test_mp4_without_imageio_ffmpeg_is_refused_clearly(tmp_path, monkeypatch):
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
 
     from transient_mi.view.video import write_video
 
@@ -474,7 +474,7 @@ def test_server_binds_to_localhost_by_default(server):
 @pytest.fixture(scope="module")
 def scene_captures(tmp_path_factory):
     """Every embedded scene rendered small (in this process; a few seconds each)."""
-    from transient_mi.pipeline import prepare_render, run_render
+    from transient_mi.render_capture import prepare_render, run_render
 
     root = tmp_path_factory.mktemp("scenes")
     nlos = {"width": "4", "height": "4", "spots_x": "2", "spots_y": "1"}  # 512 bins: the hidden objects arrive late

@@ -12,7 +12,7 @@ POINT = (0.05, -0.05, 0.45)
 def ideal_capture(path: Path, *, pixels: int = 16, spots: int = 2, n_bins: int = 256, bin_width_ps: float = 16.0,
                   mode: str = "array") -> Path:
     """An ideal capture of one point reflector (recon.synthetic) written as an EXR stack at ``path``."""
-    from recon.io import stack
+    from transient_core import stack
     from recon.synthetic import point_capture, wall_grid
 
     kw = {}
@@ -41,7 +41,7 @@ def view_tree(root: Path) -> Path:
     """``root/{ideal, counts, recon_bp, ground_truth.ply, notes/secret.txt}``: what the viewer tests open."""
     from recon.pipeline import run
 
-    from transient_mi.detector import DetectorParams, detect_stack
+    from spad_detector import DetectorParams, detect_stack
 
     root.mkdir(parents=True, exist_ok=True)
     ideal_capture(root / "ideal")
@@ -53,7 +53,7 @@ def view_tree(root: Path) -> Path:
 
 def camera_capture(path: Path, h: int = 12, w: int = 16, n_bins: int = 40) -> Path:
     """A camera (transient video) capture: a bright disc expanding over time."""
-    from recon.io import stack
+    from transient_core import stack
 
     yy, xx = np.mgrid[0:h, 0:w]
     r = np.hypot(yy - h / 2, xx - w / 2)

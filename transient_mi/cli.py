@@ -1,7 +1,7 @@
 """The ``transient-mi`` command line.
 
 Sub-commands live in :mod:`transient_mi.commands` (one module each, with a
-``register(app)`` function). User mistakes (:class:`recon.errors.UserInputError`)
+``register(app)`` function). User mistakes (:class:`transient_core.errors.UserInputError`)
 are printed as one line ``error: ...`` with exit status 2 and no traceback.
 """
 
@@ -14,7 +14,7 @@ import sys
 import typer
 import typer.main
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 from .commands._options import BadOptionValue
 
@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``transient-mi`` console script.
 
     Usage errors are reported by typer (exit status 2); a
-    :class:`~recon.errors.UserInputError` raised by a command becomes
+    :class:`~transient_core.errors.UserInputError` raised by a command becomes
     ``error: <message>`` on stderr and exit status 2.
     """
     try:

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 from .experiment import (PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, detect_counts, ground_truth,
                          paper_detector, reconstruct, render_ideal, summed_histogram, write_ground_truth)
@@ -243,8 +243,8 @@ def _fmt(v, scale: float, spec: str) -> str:
 
 def _jittered(values: np.ndarray, t_ns: np.ndarray, params) -> np.ndarray:
     """``values`` (per bin, bin centres ``t_ns``) convolved with the detector's jitter kernel."""
-    from transient_mi.detector.jitter import Jitter
-    from transient_mi.detector.model import apply_jitter_kernel
+    from spad_detector.jitter import Jitter
+    from spad_detector.model import apply_jitter_kernel
 
     bw_ps = float(t_ns[1] - t_ns[0]) * 1000.0 if len(t_ns) > 1 else 1.0
     first, kernel = Jitter.from_params(params).bin_kernel(bw_ps, max_shift_bins=len(values))

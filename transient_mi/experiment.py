@@ -93,8 +93,8 @@ def paper_detector(**overrides):
     120 ps transitions opened automatically between the earliest and latest three-bounce
     arrivals from the hidden volume 25-75 cm in front of the wall (which keeps the wall's
     first-bounce return out), TCSPC limited to 20 MHz; ``overrides`` replace any field of
-    :class:`transient_mi.detector.DetectorParams`."""
-    from transient_mi.detector import DetectorParams
+    :class:`spad_detector.DetectorParams`."""
+    from spad_detector import DetectorParams
 
     base = dict(pde=0.70, jitter_ps=25.0, dark_count_rate_cps=25.0, gate_transition_ps=120.0, auto_gate=True,
                 auto_gate_depth_min_m=PAPER_BOUNDS_M[4], auto_gate_depth_max_m=PAPER_BOUNDS_M[5],
@@ -127,7 +127,7 @@ def render_ideal(cfg: PaperConfig, out_dir, *, seed: int = 0, resume: bool = Fal
     photon variance for ``exposure_s`` per spot and the detector ``params``
     (default :func:`paper_detector`); see :mod:`transient_mi.noise_target`.
     """
-    from transient_mi.pipeline import prepare_render, run_render
+    from transient_mi.render_capture import prepare_render, run_render
 
     spec = None
     if noise_target is not None:
@@ -143,7 +143,7 @@ def render_ideal(cfg: PaperConfig, out_dir, *, seed: int = 0, resume: bool = Fal
 def detect_counts(ideal_dir, out_dir, *, params=None, pulses: int | None = None, exposure_s: float | None = None,
                   seed: int = 0, progress: bool = True) -> Path:
     """Counts capture of ``ideal_dir`` for a photon budget (``pulses`` or ``exposure_s`` per spot)."""
-    from transient_mi.detector import detect_stack
+    from spad_detector import detect_stack
 
     return detect_stack(ideal_dir, out_dir, params if params is not None else paper_detector(), pulses=pulses,
                         exposure_s=exposure_s, seed=seed, progress=progress)
@@ -186,7 +186,7 @@ def reconstruct(capture_dir, *, voxels=(64, 64, 32), bounds=PAPER_BOUNDS_M, meth
 
 def summed_histogram(capture_dir) -> tuple[np.ndarray, np.ndarray]:
     """``(t_ns, values)``: a capture's histograms summed over spots and pixels."""
-    from recon.io import iter_spots, read_manifest
+    from transient_core.stack import iter_spots, read_manifest
 
     m = read_manifest(capture_dir)
     t = m["time"]

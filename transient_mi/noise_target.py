@@ -2,7 +2,7 @@
 
 An ideal capture feeds a photon budget; its Monte Carlo noise should be a
 small part of the photon noise that budget gives (see
-:mod:`transient_mi.detector.render_noise` for the ratio and its definition).
+:mod:`spad_detector.render_noise` for the ratio and its definition).
 Rendering with a noise target works group of spots by group of spots:
 
 1. render the base ``spp`` as ``R0`` independent replicates of ``n = spp / R0``
@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recon._atomic import atomic_file
-from recon.errors import UserInputError
+from transient_core.atomic import atomic_file
+from transient_core.errors import UserInputError
 
 #: Default cap on samples per pixel per spot.
 DEFAULT_MAX_SPP = 1 << 20
@@ -176,8 +176,8 @@ class TargetRun:
     budget: object = None
 
     def __post_init__(self):
-        from transient_mi.detector.budget import resolve_budget
-        from transient_mi.detector.stack import resolve_gates
+        from spad_detector.budget import resolve_budget
+        from spad_detector.stream import resolve_gates
 
         m = self.manifest
         self.budget = resolve_budget(self.spec.params, m.get("laser"), pulses=self.spec.pulses,
@@ -185,14 +185,14 @@ class TargetRun:
         self._run_params, _, self._spot_gates = resolve_gates(m, self.spec.params)
 
     def model(self, j: int):
-        from transient_mi.detector.stack import spot_model_for
+        from spad_detector.stream import spot_model_for
 
         if j not in self.models:
             self.models[j] = spot_model_for(self.manifest, self._run_params, self._spot_gates, j, self.budget)
         return self.models[j]
 
     def ratio(self, j: int, stats) -> float:
-        from transient_mi.detector.render_noise import NoiseRatio
+        from spad_detector.render_noise import NoiseRatio
 
         var = stats.variance()
         if var is None:
@@ -220,9 +220,9 @@ def render_group(job, run: TargetRun, group: list[int], seed: int, digest: str, 
     the capture reaches is measured on the capture itself and reported as it
     is, met or not.
 
-    ``job`` is a :class:`transient_mi.pipeline.RenderJob` whose ``noise_target`` is set.
+    ``job`` is a :class:`transient_mi.render_capture.RenderJob` whose ``noise_target`` is set.
     """
-    from transient_mi.detector.render_noise import spp_for_threshold
+    from spad_detector.render_noise import spp_for_threshold
     from transient_mi.integrators._replicates import DEFAULT_REPLICATES, effective_replicates
 
     spec = run.spec

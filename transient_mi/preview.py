@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon._atomic import atomic_file
+from transient_core.atomic import atomic_file
 
 
 def _tonemap(img: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 
 class PluginParameterError(UserInputError):

@@ -23,10 +23,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
-from recon._atomic import atomic_file, check_output_location, replace_dir, temp_dir_beside
-from recon._json import to_json
-from recon._lock import output_lock
-from recon.errors import UserInputError
+from transient_core.atomic import atomic_file, check_output_location, replace_dir, temp_dir_beside
+from transient_core._json import to_json
+from transient_core.lock import output_lock
+from transient_core.errors import UserInputError
 
 #: Metrics of :func:`recon.metrics.compute_metrics` reported in the demo and study tables.
 METRIC_KEYS = ("chamfer_m", "accuracy_m", "completeness_m", "depth_mae_m", "depth_coverage", "iou")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import mitsuba as mi
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 

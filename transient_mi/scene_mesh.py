@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 #: Shapes whose bounding box ends at or below this depth belong to the wall plane, not the hidden scene (m).
 WALL_PLANE_TOL_M = 1e-6

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
-from recon.units import C_M_PER_PS
+from transient_core.units import C_M_PER_PS
 
 #: Half-width of the truncated Gaussian kernel, in standard deviations.
 KERNEL_HALF_WIDTH_SIGMA = 5.0

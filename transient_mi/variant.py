@@ -20,7 +20,7 @@ DEFAULT_VARIANT = "llvm_ad_mono"
 ENV_VAR = "TRANSIENT_MI_VARIANT"
 
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 
 class VariantError(UserInputError):

@@ -17,13 +17,13 @@
 # ## Render
 #
 # `import transient_mi` comes first: it sets up LLVM, selects the `llvm_ad_mono` variant and registers
-# the plug-ins. `transient_mi.pipeline.render` is what `transient-mi render` runs; the scene's
+# the plug-ins. `transient_mi.render_capture.render` is what `transient-mi render` runs; the scene's
 # `<default>` parameters are overridden like `-D name=value` on the command line. The film covers
 # 10 ns to 40 ns after emission (the light needs about 13 ns to reach the camera).
 
 # %%
 import transient_mi  # noqa: F401  (registers the plug-ins and selects the LLVM before Mitsuba runs)
-from transient_mi.pipeline import render
+from transient_mi.render_capture import render
 from transient_mi.scenes import scene_path
 
 if SMALL:
@@ -42,11 +42,11 @@ print(f"rendered {size} x {size} pixels x {n_bins} bins of {bin_width_ps:g} ps a
 # ## Load the stack
 #
 # A capture is a directory: `manifest.json` (time axis, provenance, ...) and one EXR file per laser
-# spot (a camera render has one). `recon.io.read_stack` returns the manifest and the data as
+# spot (a camera render has one). `transient_core.stack.read_stack` returns the manifest and the data as
 # `[file, pixel_y, pixel_x, time]`.
 
 # %%
-from recon.io import read_stack
+from transient_core.stack import read_stack
 
 manifest, data = read_stack(capture)
 hist = data[0]                                   # [pixel_y, pixel_x, time], float32

@@ -25,7 +25,7 @@
 
 # %%
 import transient_mi  # noqa: F401  (registers the plug-ins and selects the LLVM before Mitsuba runs)
-from transient_mi.pipeline import render
+from transient_mi.render_capture import render
 from transient_mi.scenes import scene_path
 
 targets = np.array([[0.2, 0.15, 0.4], [-0.15, -0.1, 0.55], [0.05, -0.25, 0.7]])  # disk centres, m
@@ -55,7 +55,7 @@ print("array:   ", len(list(array.glob("spot_*.exr"))), "spot files")
 # spots `S_j` (scan order row-major) and the wall patch centres `P_k` the pixels see.
 
 # %%
-from recon.io import read_manifest, read_spot
+from transient_core.stack import read_manifest, read_spot
 
 mc, ma = read_manifest(confocal), read_manifest(array)
 g = ma["geometry"]
@@ -102,7 +102,7 @@ plt.show()
 # against one pixel of the confocal capture.
 
 # %%
-from recon.units import C_M_PER_PS, photons_per_pulse
+from transient_core.units import C_M_PER_PS, photons_per_pulse
 
 laser_info = mc["laser"]
 N = photons_per_pulse(laser_info["pulse_energy_j"], laser_info["wavelength_nm"])

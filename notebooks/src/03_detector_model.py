@@ -5,7 +5,7 @@
 # A real SPAD with time-correlated single-photon counting (TCSPC) electronics records integer counts,
 # and on the way light meets, in order: the **photon budget** (number of pulses), the **photon
 # detection efficiency** (PDE), the **time gate**, **dark counts and ambient light**, **dead time and
-# pile-up**, **afterpulsing**, **optical crosstalk** and **timing jitter**. `transient_mi.detector`
+# pile-up**, **afterpulsing**, **optical crosstalk** and **timing jitter**. `spad_detector`
 # models all of them (pure numpy; see `docs/detector.md`).
 #
 # Part 1 applies `detect` to a hand-made histogram, one effect at a time. Part 2 runs `detect_stack` on a
@@ -27,7 +27,7 @@
 # time, handy for showing a single effect without noise.
 
 # %%
-from transient_mi.detector import (DetectorParams, coates_correction, detect, expected_counts_low_flux,
+from spad_detector import (DetectorParams, coates_correction, detect, expected_counts_low_flux,
                                    gate_mean)
 
 W_PS, T = 8.0, 750
@@ -142,7 +142,7 @@ plt.show()
 # (50 ns at 20 MHz, i.e. longer than the 20 ns laser period) to convert a time stamp. At most one photon
 # per cycle is recorded, and the earliest one wins: with a lot of light the histogram is skewed towards
 # early bins (**pile-up**). Coates' estimator undoes it from the counts alone (`coates_correction`, also
-# `recon.pileup`); with the 50 ns TCSPC dead time every count blinds the detector for two whole cycles
+# `spad_detector.coates`); with the 50 ns TCSPC dead time every count blinds the detector for two whole cycles
 # (`blind_cycles=2`).
 
 # %%
@@ -260,11 +260,11 @@ print("counts per pixel with crosstalk:\n", c5.sum(-1))
 
 # %%
 import transient_mi  # noqa: F401  (registers the plug-ins and selects the LLVM before Mitsuba runs)
-from transient_mi.detector import detect_stack
+from spad_detector import detect_stack
 from transient_mi.experiment import paper_detector
-from transient_mi.pipeline import render
+from transient_mi.render_capture import render
 from transient_mi.scenes import scene_path
-from recon.io import read_stack
+from transient_core.stack import read_stack
 
 px, spots, spp = (8, 2, 64) if SMALL else (16, 4, 512)
 ideal_dir = render(scene_path("nlos_point_targets"), OUT / "ideal", spp=spp, progress=False,

@@ -29,7 +29,7 @@
 
 # %%
 import transient_mi  # noqa: F401  (registers the plug-ins and selects the LLVM before Mitsuba runs)
-from transient_mi.pipeline import render
+from transient_mi.render_capture import render
 from transient_mi.scenes import scene_path
 
 if SMALL:

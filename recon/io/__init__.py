@@ -1,31 +1,9 @@
-"""Capture I/O: the EXR histogram stack, y-tal HDF5 (``read_ytal``/``write_ytal``) and public real-capture
-layouts (:mod:`recon.io.real`).
+"""Interchange with other ecosystems: y-tal HDF5 (``read_ytal``/``write_ytal``) and public real-capture
+layouts (:mod:`recon.io.real`). transient-mi's own EXR stack is :mod:`transient_core.stack`.
 
 The HDF5 readers and writers are imported on first use (h5py is only needed then)."""
 
-from .stack import (
-    FORMAT,
-    FORMAT_VERSION,
-    StackError,
-    channel_names,
-    iter_spots,
-    missing_spots,
-    new_manifest,
-    read_manifest,
-    read_spot,
-    read_stack,
-    spot_filename,
-    spot_is_complete,
-    write_manifest,
-    write_spot,
-    write_stack,
-)
-
-__all__ = [
-    "FORMAT", "FORMAT_VERSION", "StackError", "channel_names", "iter_spots", "missing_spots",
-    "new_manifest", "read_manifest", "read_spot", "read_stack", "spot_filename",
-    "spot_is_complete", "write_manifest", "write_spot", "write_stack", "read_ytal", "write_ytal",
-]
+__all__ = ["read_ytal", "write_ytal"]
 
 _LAZY = {"read_ytal": "ytal", "write_ytal": "ytal"}
 

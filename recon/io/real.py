@@ -42,8 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UserInputError
-from ..units import C_M_PER_PS
+from transient_core.errors import UserInputError
+from transient_core.units import C_M_PER_PS
 
 __all__ = ["read_fk_mat", "read_znlos", "FK_BIN_WIDTH_PS", "FK_WALL_SIZE_M"]
 

@@ -41,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_file
-from ..errors import UserInputError
-from ..units import C_M_PER_PS
+from transient_core.atomic import atomic_file
+from transient_core.errors import UserInputError
+from transient_core.units import C_M_PER_PS
 
 __all__ = ["write_ytal", "read_ytal", "HFORMAT", "GRIDFORMAT"]
 

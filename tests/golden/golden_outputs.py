@@ -40,7 +40,7 @@ def _sha(a) -> str:
 def _stack_hash(d: Path) -> dict:
     import numpy as np
 
-    from recon.io.stack import has_variance, read_stack, read_variance
+    from transient_core.stack import has_variance, read_stack, read_variance
 
     m, data = read_stack(d)
     out = {"data": _sha(data)}
@@ -53,9 +53,9 @@ def _stack_hash(d: Path) -> dict:
 
 def compute(work: Path) -> dict:
     import transient_mi  # noqa: F401  (LLVM set-up and plug-ins first)
-    from transient_mi.pipeline import render
+    from transient_mi.render_capture import render
     from transient_mi.scenes import scene_path
-    from transient_mi.detector import detect_stack
+    from spad_detector import detect_stack
     from recon.pipeline import run
 
     hashes = {}

@@ -26,7 +26,7 @@ def demo(
     a metrics table against the ground-truth mesh, and summary.md."""
     import dataclasses
 
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
     from transient_mi.demo import QUICK, DemoSettings, run_demo
 
     s = QUICK if quick else DemoSettings()

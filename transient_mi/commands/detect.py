@@ -13,7 +13,7 @@ _D = None  # DetectorParams defaults, filled lazily for the help texts
 
 
 def _default(name: str) -> str:
-    from transient_mi.detector.params import DetectorParams
+    from spad_detector.params import DetectorParams
 
     global _D
     _D = _D or DetectorParams()
@@ -57,7 +57,7 @@ def detect(
                                           "variance exceeds this share of the photon variance (docs/noise.md)."),
 ) -> None:
     """Turn an ideal capture into photon counts with the SPAD + TCSPC model (see docs/detector.md)."""
-    from transient_mi.detector import DetectorParams, detect_stack
+    from spad_detector import DetectorParams, detect_stack
 
     given = dict(pde=pde, dark_count_rate_cps=dark_count_rate_cps, ambient_rate_cps=ambient_rate_cps,
                  jitter_ps=jitter_ps, irf_tail_fraction=irf_tail_fraction, irf_tail_ps=irf_tail_ps,
@@ -76,7 +76,7 @@ def detect(
     params = DetectorParams(**kwargs)
     path = detect_stack(ideal, out, params, pulses=pulses, exposure_s=exposure_s, seed=seed, engine=engine,
                         overwrite=overwrite, noise_threshold=noise_threshold, force=force)
-    from recon.io.stack import read_manifest
+    from transient_core.stack import read_manifest
 
     m = read_manifest(path)
     d = m["detector"]
@@ -97,7 +97,7 @@ def engine_note(engine: str, exact: bool) -> str:
     if exact:
         return " (exact)"
     if engine == "auto":
-        from transient_mi.detector.detect import AUTO_EXACT_MAX_EVENTS
+        from spad_detector.detect import AUTO_EXACT_MAX_EVENTS
 
         return (f" (approximate: the analytic engine is not exact for this capture and the exact one would "
                 f"simulate more than {AUTO_EXACT_MAX_EVENTS:.0e} events per spot; --engine exact forces it, "

@@ -20,8 +20,8 @@ def export(
 
     A confocal capture is written with the laser grid equal to the sensor grid, so y-tal sees it as confocal."""
     from recon import load_capture
-    from recon._lock import output_lock
-    from recon.errors import UserInputError
+    from transient_core.lock import output_lock
+    from transient_core.errors import UserInputError
     from recon.io.ytal import write_ytal
 
     if to not in FORMATS:

@@ -8,7 +8,7 @@ import typer
 
 from ._options import whole_number
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 
 def _parse_position(text: str) -> tuple[float, float, float]:

@@ -13,7 +13,7 @@ import typer
 
 from ._options import whole_number
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 
 def _voxels(text: str | None):

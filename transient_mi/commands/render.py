@@ -30,8 +30,8 @@ def render(
                                             "pixel per spot (default 2**20)."),
 ) -> None:
     """Render SCENE into a capture directory: manifest.json, spot_NNNNN.exr, variance/, preview.png."""
-    from recon.errors import UserInputError
-    from transient_mi.pipeline import prepare_render, run_render
+    from transient_core.errors import UserInputError
+    from transient_mi.render_capture import prepare_render, run_render
     from transient_mi.scene_io import parse_defines
 
     if spp is not None and spp < 1:
@@ -64,7 +64,7 @@ def render(
 
 
 def _whole(name: str, v):
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
 
     if v is None:
         return None

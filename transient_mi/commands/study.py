@@ -21,7 +21,7 @@ study_app = typer.Typer(
 def _numbers(values: Optional[List[str]], option: str, *, lo: float = 0.0, lo_open: bool = True,
              scale: float = 1.0) -> Optional[tuple]:
     """Comma-separated and/or repeated numbers -> tuple (times ``scale``); None when the option is absent."""
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
     from transient_mi.study.validate import numbers_list
 
     if not values:
@@ -39,7 +39,7 @@ def _numbers(values: Optional[List[str]], option: str, *, lo: float = 0.0, lo_op
 
 
 def _ints(text: Optional[str], option: str, example: str) -> Optional[tuple]:
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
 
     if text is None:
         return None
@@ -106,7 +106,7 @@ def photon_budget(
     """One render of SCENE, then detection over decades of photon budget x dark-count rates x dead times x seeds,
     reconstruction of each; reconstruction error and per-bin SNR against detected photons (CSV, JSON, plots,
     summary.md)."""
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
     from transient_mi.study import run_photon_budget_study
 
     scene, defines, vox = _common(scene, define, voxels)
@@ -156,7 +156,7 @@ def array_size(
     array size (CSV, JSON, plot, summary.md)."""
     import math
 
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
     from transient_mi.study import run_array_size_study
 
     scene, defines, vox = _common(scene, define, voxels)
@@ -197,7 +197,7 @@ def methods(
     """Leaderboard: every reconstruction method x SPAD array size x photon budget on SCENE (one render per array
     size): Chamfer, completeness, IoU, depth MAE, visible-surface errors, time and peak memory (CSV, JSON, plots,
     summary.md)."""
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
     from transient_mi.study import run_methods_study
 
     scene, defines, vox = _common(scene, define, voxels)

@@ -18,7 +18,7 @@ def view(
                                                 "reconstructions against (default: found beside the data)."),
 ) -> None:
     """Start the viewer on PATH and print its address (read-only; Ctrl+C stops it). See docs/view.md."""
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
 
     from transient_mi.view import require_bokeh
 

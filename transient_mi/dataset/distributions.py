@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 #: Distribution names and what their argument list means.
 DISTRIBUTIONS: dict[str, str] = {

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 from .objects import MESH_NAME, OBJECT_KINDS
 from .spec import DETECT_ARGS, DETECTOR_ENGINES, DatasetSpec, canonical_key, is_reference
@@ -141,7 +141,7 @@ def _detector_record(spec: DatasetSpec, values: dict[str, Any], seed: int, index
     if exposure_s is not None and (isinstance(exposure_s, (bool, str)) or not exposure_s > 0):
         raise UserInputError(f"{where}.exposure_s={exposure_s!r}: expected a time in seconds > 0")
     engine = d.get("engine", "auto")
-    from transient_mi.detector import DetectorParams
+    from spad_detector import DetectorParams
 
     if engine not in DETECTOR_ENGINES:
         raise UserInputError(f"{where}.engine={engine!r}: allowed {', '.join(DETECTOR_ENGINES)}")

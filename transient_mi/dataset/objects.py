@@ -43,7 +43,7 @@ def _mannequin_resolve(given: dict[str, Any]) -> dict[str, Any]:
             p[k] = v
     pos = p["position"]
     if not isinstance(pos, (list, tuple)) or len(pos) != 3:
-        from recon.errors import UserInputError
+        from transient_core.errors import UserInputError
 
         raise UserInputError(f"object.position={pos!r}: expected three numbers [x, y, z] in metres")
     pos = list(pos)

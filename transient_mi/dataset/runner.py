@@ -33,8 +33,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from recon._progress import progress_bar
-from recon.errors import UserInputError
+from transient_core.progress import progress_bar
+from transient_core.errors import UserInputError
 
 from .index import INDEX_CSV, INDEX_JSONL, item_row, write_index
 from .items import Item, define_string, expand_items
@@ -191,7 +191,7 @@ def validate_scene(spec: DatasetSpec, items: list[Item]) -> int:
         A ``-D`` name the scene does not use, or a value the scene rejects
         (the message names the spec key and the value).
     """
-    from transient_mi.pipeline import prepare_render
+    from transient_mi.render_capture import prepare_render
 
     scene_file = spec.scene_file
     known = scene_parameters(scene_file)

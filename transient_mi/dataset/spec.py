@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 from .distributions import Distribution
 from .objects import OBJECT_KINDS
@@ -71,10 +71,10 @@ _REF = re.compile(r"^\$\{([A-Za-z_][A-Za-z0-9_.]*)\}$")
 
 
 def detector_param_names() -> list[str] | None:
-    """Names of the detector's parameters, or None when :mod:`transient_mi.detector` is not installed."""
+    """Names of the detector's parameters, or None when :mod:`spad_detector` is not installed."""
     try:
-        from transient_mi.detector import DetectorParams  # noqa: F401  (lazy: optional part)
-        from transient_mi.detector import detect_stack  # noqa: F401
+        from spad_detector import DetectorParams  # noqa: F401  (lazy: optional part)
+        from spad_detector import detect_stack  # noqa: F401
     except ImportError:
         return None
     import dataclasses
@@ -350,7 +350,7 @@ def parse_spec(data: dict, *, spec_file: str | Path | None = None) -> DatasetSpe
                 spec.detector = {}
     _check_spp_values(spec)
     if spec.has_detector and detector_param_names() is None:
-        raise UserInputError("detector: the spec asks for detector settings, but transient_mi.detector is not "
+        raise UserInputError("detector: the spec asks for detector settings, but spad_detector is not "
                              "available in this installation; remove the detector settings")
     return spec
 
@@ -358,7 +358,7 @@ def parse_spec(data: dict, *, spec_file: str | Path | None = None) -> DatasetSpe
 def _check_detector_name(where: str, name: Any) -> None:
     names = detector_param_names()
     if names is None:
-        raise UserInputError(f"{where}: the spec asks for detector settings, but transient_mi.detector is not "
+        raise UserInputError(f"{where}: the spec asks for detector settings, but spad_detector is not "
                              "available in this installation; remove the detector settings")
     if name not in names and name not in DETECT_ARGS:
         raise UserInputError(f"{where}: unknown detector setting {name!r}; allowed: "

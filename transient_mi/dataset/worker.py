@@ -6,7 +6,7 @@ An item is built in a temporary sibling directory,
 a final name is always complete. Inside, in this order:
 
 1. ``mesh.ply``: the generated object (when the spec has one);
-2. ``capture/``: the ideal capture, rendered by :mod:`transient_mi.pipeline`
+2. ``capture/``: the ideal capture, rendered by :mod:`transient_mi.render_capture`
    with the item's ``-D`` values, spp and render seed; with detector
    settings in the spec (or a ``spad_film`` in the scene) the counts capture
    goes to ``capture/`` and the ideal one to ``capture/ideal/`` (the layout
@@ -41,7 +41,7 @@ from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 from .items import params_digest
 from .objects import MESH_NAME, OBJECT_KINDS
@@ -243,7 +243,7 @@ def _worker_id() -> str:
 
 def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
     """Write the item's files into ``tmp`` (see the module docstring); return result.json's content."""
-    from transient_mi.pipeline import prepare_render, run_render
+    from transient_mi.render_capture import prepare_render, run_render
 
     t_start = time.perf_counter()
     times = {}
@@ -274,7 +274,7 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
         detector_seed = None
         render_noise = None
         if counts:
-            from recon.io import stack
+            from transient_core import stack
 
             det_m = stack.read_manifest(capture).get("detector") or {}
             detector_seed = det_m.get("seed")
@@ -289,7 +289,7 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
         "kind": "counts" if counts else "ideal",
         "ideal": ideal.relative_to(tmp).as_posix(),
         "detector_seed": detector_seed,
-        # rendering variance / photon variance of the counts (transient_mi.detector.render_noise), None without
+        # rendering variance / photon variance of the counts (spad_detector.render_noise), None without
         # a detector or without stored variance
         "render_noise_ratio": (render_noise or {}).get("ratio"),
         **times,
@@ -303,8 +303,8 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
 
 
 def _detect(ideal: Path, out: Path, det: dict) -> None:
-    """Counts for the item's detector settings (``transient_mi.detector``, imported lazily)."""
-    from transient_mi.detector import DetectorParams, detect_stack
+    """Counts for the item's detector settings (``spad_detector``, imported lazily)."""
+    from spad_detector import DetectorParams, detect_stack
 
     params = DetectorParams.from_dict(det["params"])
     detect_stack(ideal, out, params, pulses=det["pulses"], exposure_s=det["exposure_s"], seed=det["seed"],

@@ -8,7 +8,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from recon.units import photon_energy_j
+from transient_core.units import photon_energy_j
 from transient_mi.props import PluginParameterError, _has, get_float, get_int, get_vector3
 from transient_mi.wall import WallFrame
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from transient_mi.films.transient_film import TransientFilm
 from transient_mi.props import PluginParameterError, get_bool, get_choice, get_float, get_int
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 PLUGIN = ("film", "spad_film", "SpadFilm")
 
@@ -25,7 +25,7 @@ class SpadFilm(TransientFilm):
     file alone defines a photon-counting capture. ``transient-mi render``
     renders the ideal capture (expected photons per pulse) into
     ``OUT/ideal/`` and runs the detector model
-    (:func:`transient_mi.detector.detect_stack`) to write the counts capture
+    (:func:`spad_detector.detect_stack`) to write the counts capture
     into ``OUT/``; ``transient-mi detect OUT/ideal -o ...`` reruns detection
     with other settings without re-rendering.
 
@@ -93,8 +93,8 @@ class SpadFilm(TransientFilm):
 
     def __init__(self, props):
         super().__init__(props)
-        from transient_mi.detector.budget import resolve_budget
-        from transient_mi.detector.params import DEAD_TIME_MODELS, ENGINES, DetectorParams
+        from spad_detector.budget import resolve_budget
+        from spad_detector.params import DEAD_TIME_MODELS, ENGINES, DetectorParams
 
         name = self.NAME
         kw = {}
@@ -141,7 +141,7 @@ class SpadFilm(TransientFilm):
     # ------------------------------------------------------------------ queries
 
     def detector_params(self):
-        """The film's :class:`~transient_mi.detector.DetectorParams` (validated)."""
+        """The film's :class:`~spad_detector.DetectorParams` (validated)."""
         return self.params
 
     def detector_pulses(self):
@@ -157,7 +157,7 @@ class SpadFilm(TransientFilm):
         return int(np.random.SeedSequence([int(render_seed), 0x5BAD]).generate_state(1, dtype=np.uint32)[0])
 
     def detect_kwargs(self, render_seed: int = 0) -> dict:
-        """Keyword arguments of :func:`transient_mi.detector.detect_stack` for this film.
+        """Keyword arguments of :func:`spad_detector.detect_stack` for this film.
 
         ``render_seed``: the render's seed, from which the detection seed is
         derived when the film has no ``seed`` property.

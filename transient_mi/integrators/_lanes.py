@@ -27,7 +27,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from recon.units import C_M_PER_PS
+from transient_core.units import C_M_PER_PS
 from transient_mi.time_axis import TimeAxis, apply_kernel
 
 #: Lanes to aim for per launch (enough to keep every CPU thread's SIMD busy).

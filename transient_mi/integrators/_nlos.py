@@ -9,7 +9,7 @@ Radiometry (what one bin of an ideal capture holds)
 All quantities are per laser pulse; distances in metres.
 
 1. Photons per pulse: ``N = E_pulse / (h c / lambda)``
-   (:func:`recon.units.photons_per_pulse`).
+   (:func:`transient_core.units.photons_per_pulse`).
 2. The beam hits the wall at the laser spot ``S`` (first surface hit by the
    ray from the laser origin ``L`` towards the scan point). All ``N``
    photons arrive at ``S``; the wall re-emits them like a point source of

@@ -9,7 +9,7 @@ import numpy as np
 
 from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_streams,
                                              seed_rng, to_mono)
-from transient_mi.integrators._replicates import (DEFAULT_REPLICATES, ReplicateStats, effective_replicates,
+from transient_mi.integrators._replicates import (ReplicateStats, effective_replicates,
                                                   replicate_seed)
 from transient_mi.props import PluginParameterError, get_bool, get_float, get_int
 
@@ -107,7 +107,7 @@ class TransientPath(mi.CppADIntegrator):
         variance: the fastest render, as ``mi.render`` and direct calls get). ``transient-mi render`` and
         everything built on it (demo, studies, datasets) set
         :data:`~transient_mi.integrators._replicates.DEFAULT_REPLICATES` for NLOS captures, so the captures
-        they write carry their variance (:func:`transient_mi.pipeline.prepare_render`)."""
+        they write carry their variance (:func:`transient_mi.render_capture.prepare_render`)."""
         return int(self.variance_replicates) if self.variance_replicates is not None else 1
 
     def _read_nlos_options(self, props) -> dict:

@@ -15,7 +15,7 @@ def scene_path(name: str) -> Path:
     """Path of a shipped scene, by file name (``"cornell_box.xml"``) or stem."""
     p = SCENES_DIR / (name if name.endswith(".xml") else f"{name}.xml")
     if not p.is_file():
-        from recon.errors import UserInputError
+        from transient_core.errors import UserInputError
 
         avail = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.xml")))
         raise UserInputError(f"scene {name!r} is not shipped with transient-mi; available: {avail}")

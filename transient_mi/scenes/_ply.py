@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recon._atomic import atomic_file
-from recon.errors import UserInputError
+from transient_core.atomic import atomic_file
+from transient_core.errors import UserInputError
 
 
 def ply_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:

@@ -49,9 +49,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 from recon.ground_truth import ground_truth_depth_map, ground_truth_silhouette
-from recon.units import C_M_PER_PS
+from transient_core.units import C_M_PER_PS
 
 from ._ply import ply_bytes, write_bytes_atomic
 

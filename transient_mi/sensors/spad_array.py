@@ -166,7 +166,7 @@ class SpadArray(mi.Sensor):
         return self._setup
 
     def capture_layout(self, scene) -> dict:
-        """What the render pipeline needs to lay out the capture (see :mod:`transient_mi.pipeline`)."""
+        """What the render pipeline needs to lay out the capture (see :mod:`transient_mi.render_capture`)."""
         s = self.nlos_setup(scene)
         return {
             "capture": s.capture,

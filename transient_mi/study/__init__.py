@@ -18,7 +18,7 @@ from .array_size import DEFAULT_ARRAYS, run_array_size_study
 from .methods import run_methods_study
 from .photon_budget import (DEFAULT_DARK_COUNT_RATES_CPS, DEFAULT_DEAD_TIMES_NS, DEFAULT_EXPOSURES_S,
                             run_photon_budget_study)
-from .result import StudyResult
+from .study_result import StudyResult
 
 __all__ = ["run_photon_budget_study", "run_array_size_study", "run_methods_study", "StudyResult", "DEFAULT_EXPOSURES_S",
            "DEFAULT_DARK_COUNT_RATES_CPS", "DEFAULT_DEAD_TIMES_NS", "DEFAULT_ARRAYS"]

@@ -24,14 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from recon._progress import progress_bar
-from recon.errors import UserInputError
+from transient_core.progress import progress_bar
+from transient_core.errors import UserInputError
 from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv, write_json
 
 from . import validate as V
 from .common import (METRIC_COLUMNS, bar_enabled, check_method_fits, front_view, metric_values, quiet_inner_bars,
                      reconstruct, render)
-from .result import StudyResult
+from .study_result import StudyResult
 from .scene import array_size_defines, base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
 
 #: The paper's array sizes and 64x64.
@@ -142,8 +142,8 @@ def _dir_bytes(path: Path) -> int:
 
 def _one(tmp: Path, sc, n: int, params, exposure: float, vox, seed: int, bounds, method, threshold, gt, keep: bool):
     import recon
-    from recon.io.stack import iter_spots, read_manifest
-    from transient_mi.detector import detect_stack
+    from transient_core.stack import iter_spots, read_manifest
+    from spad_detector import detect_stack
 
     cap_dir = tmp / "captures" / f"array_{n:02d}"
     cap_dir.mkdir(parents=True)

@@ -18,7 +18,7 @@ def render(scene, out_dir, seed: int, noise_target=None, log=None) -> Path:
 
     ``noise_target``: a :class:`transient_mi.noise_target.NoiseTargetSpec` (the scene's spp is then the pilot).
     """
-    from transient_mi.pipeline import prepare_render, run_render
+    from transient_mi.render_capture import prepare_render, run_render
 
     job = prepare_render(scene.path, out_dir, defines=scene.defines, spp=scene.spp, seed=seed,
                          noise_target=noise_target)
@@ -26,9 +26,9 @@ def render(scene, out_dir, seed: int, noise_target=None, log=None) -> Path:
 
 
 def bar_enabled(progress: bool | None) -> str:
-    """How a study reports its progress (``recon._progress.progress_mode``): ``progress`` True/False forces the
+    """How a study reports its progress (``transient_core.progress.progress_mode``): ``progress`` True/False forces the
     bar on/off; None: a bar on a terminal, periodic lines otherwise. Decided before the inner bars are quieted."""
-    from recon._progress import progress_mode
+    from transient_core.progress import progress_mode
 
     return progress_mode(None if progress is None else not progress)
 
@@ -64,7 +64,7 @@ def reconstruct(capture, *, method: str, bounds, voxels, threshold: str, ground_
 
 def check_method_fits(method: str, manifest: dict) -> None:
     """``lct``/``fk`` need a confocal capture: refuse them for array captures (before reconstructing)."""
-    from recon.errors import UserInputError
+    from transient_core.errors import UserInputError
     from recon.pipeline import CONFOCAL_ONLY
 
     if method in CONFOCAL_ONLY and manifest.get("capture") != "confocal":

@@ -3,7 +3,7 @@
 A photon-budget study detects the same ideal capture dozens of times; writing
 and re-reading an EXR counts stack for each would cost more than the physics.
 :class:`Detection` produces, for one detector setting and budget, exactly the
-counts :func:`transient_mi.detector.detect_stack` would write (the same
+counts :func:`spad_detector.detect_stack` would write (the same
 per-spot gates, photon scale, engine choice and random stream
 ``SeedSequence(seed, spawn_key=(spot,))``; a test checks byte equality), so
 any row of a study can be reproduced on disk with ``transient-mi detect``.
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.errors import UserInputError
-from recon.io.stack import StackError, missing_spots, read_manifest, read_spot, spot_filename
+from transient_core.errors import UserInputError
+from transient_core.stack import StackError, missing_spots, read_manifest, read_spot, spot_filename
 
 #: Ideal captures up to this size (float32 bytes) are kept in memory; larger ones are re-read per spot.
 CACHE_LIMIT_BYTES = 1 << 30
@@ -68,7 +68,7 @@ class Detection:
     ideal : IdealCapture
     params : DetectorParams
         May use ``auto_gate`` (resolved per laser spot for array captures, as
-        :func:`~transient_mi.detector.detect_stack` does).
+        :func:`~spad_detector.detect_stack` does).
     exposure_s, pulses : optional
         The budget per laser spot (one of them).
     engine : {"auto", "analytic", "exact"}
@@ -76,9 +76,9 @@ class Detection:
 
     def __init__(self, ideal: IdealCapture, params, *, exposure_s: float | None = None, pulses: int | None = None,
                  engine: str = "auto"):
-        from transient_mi.detector.budget import resolve_budget
-        from transient_mi.detector.detect import check_engine
-        from transient_mi.detector.gate import auto_gate
+        from spad_detector.budget import resolve_budget
+        from spad_detector.detect import check_engine
+        from spad_detector.gate import auto_gate
 
         self.ideal = ideal
         self.params = params.validate()
@@ -107,9 +107,9 @@ class Detection:
         return self.budget.n_pulses
 
     def model(self, j: int):
-        """The :class:`~transient_mi.detector.model.DetectorModel` of spot ``j`` (its own gate)."""
+        """The :class:`~spad_detector.model.DetectorModel` of spot ``j`` (its own gate)."""
         if j not in self._models:
-            from transient_mi.detector.model import build_model
+            from spad_detector.model import build_model
 
             t = self.ideal.manifest["time"]
             self._models[j] = build_model(self.spot_params[j], bin_width_ps=t["bin_width_ps"], n_bins=t["n_bins"],
@@ -118,7 +118,7 @@ class Detection:
 
     def scaled_ideal(self, j: int) -> np.ndarray:
         """Spot ``j`` as float64 ``[H*W, T]`` photons per pulse with the budget's photon scale applied."""
-        from transient_mi.detector.detect import check_ideal
+        from spad_detector.detect import check_ideal
 
         _, H, W, T = self.ideal.shape
         arr = check_ideal(self.ideal.spot(j), where=f"{self.ideal.path / spot_filename(j)}")
@@ -128,9 +128,9 @@ class Detection:
 
     def render_noise(self) -> dict:
         """How much of this budget's count variance is the ideal capture's rendering noise
-        (:mod:`transient_mi.detector.render_noise`; ``available: false`` without stored variance)."""
-        from recon.io.stack import has_variance, read_variance
-        from transient_mi.detector.render_noise import NoiseRatio, unavailable
+        (:mod:`spad_detector.render_noise`; ``available: false`` without stored variance)."""
+        from transient_core.stack import has_variance, read_variance
+        from spad_detector.render_noise import NoiseRatio, unavailable
 
         m = self.ideal.manifest
         if not has_variance(m):
@@ -149,8 +149,8 @@ class Detection:
 
     def counts(self, j: int, seed: int) -> tuple[np.ndarray, dict]:
         """Counts of spot ``j`` for detection seed ``seed``: uint32 ``[H, W, T]`` and the engine's info."""
-        from transient_mi.detector.detect import run_spot, to_uint32
-        from transient_mi.detector.stack import spot_rng
+        from spad_detector.detect import run_spot, to_uint32
+        from spad_detector.stream import spot_rng
 
         _, H, W, T = self.ideal.shape
         counts, info = run_spot(self.model(j), self.scaled_ideal(j), self.n_pulses, spot_rng(seed, j), self.engine,

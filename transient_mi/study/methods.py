@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recon._progress import progress_bar
-from recon.errors import UserInputError
+from transient_core.progress import progress_bar
+from transient_core.errors import UserInputError
 from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv, write_json
 
 from . import validate as V

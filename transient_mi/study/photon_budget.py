@@ -27,14 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
-from recon._progress import progress_bar
-from recon.errors import UserInputError
+from transient_core.progress import progress_bar
+from transient_core.errors import UserInputError
 from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv, write_json
 
 from . import validate as V
 from .common import (METRIC_COLUMNS, bar_enabled, check_method_fits, front_view, metric_values, quiet_inner_bars,
                      reconstruct, render)
-from .result import StudyResult
+from .study_result import StudyResult
 from .scene import base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
 
 #: Exposure per laser spot (s): in the paper scene from 5 pulses (~0.07 detected counts per pixel per spot) to
@@ -343,7 +343,7 @@ def detect_flags(base, with_power: bool) -> str:
     are given per row), plus ``--laser-power-w P`` when the study varies the power."""
     import dataclasses
 
-    from transient_mi.detector import DetectorParams
+    from spad_detector import DetectorParams
 
     default = DetectorParams()
     flags = []

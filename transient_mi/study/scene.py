@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 #: ``-D`` names of ``scenes/paper_mannequin.xml`` -> (PaperConfig field, type).
 PAPER_DEFINES = {
@@ -239,11 +239,11 @@ def reconstruction_bounds(scene: StudyScene, bounds=None):
 def base_detector(scene: StudyScene, detector=None):
     """The detector the study varies: ``detector``, the paper's for the paper scene, else the defaults with the
     automatic gate (docs/detector.md)."""
-    from transient_mi.detector import DetectorParams
+    from spad_detector import DetectorParams
 
     if detector is not None:
         if not isinstance(detector, DetectorParams):
-            raise UserInputError(f"detector={detector!r}: expected a transient_mi.detector.DetectorParams")
+            raise UserInputError(f"detector={detector!r}: expected a spad_detector.DetectorParams")
         return detector.validate()
     if scene.is_paper:
         from transient_mi.experiment import paper_detector

@@ -10,7 +10,7 @@ window) has a mean ``K`` and variance ``s2_K``.
 and the render deposited light, ``ideal_b > 0``), bins are pooled into classes
 of equal expected counts (4 per decade of the low-flux expectation
 ``mu_b = N (pde g_b ideal_b + background_b)``, convolved with the jitter,
-see :func:`transient_mi.detector.expected_counts_low_flux`). Per class:
+see :func:`spad_detector.expected_counts_low_flux`). Per class:
 ``mean = <x_b>``, ``var = <s2_b>``, ``SNR = mean / sqrt(var)``. Counts in a
 bin are Poisson to a very good approximation when the per-cycle probability of
 a count in that bin is small (always, for bins much narrower than the window):
@@ -120,8 +120,8 @@ class SpotExpectation:
 
     def __init__(self, detection, j: int, selected: np.ndarray):
         # (_clean_first_photon: the analytic engine's Coates probabilities of the whole-blind-cycles regime)
-        from transient_mi.detector.engines.analytic import CLEAN, NONE, _clean_first_photon, classify
-        from transient_mi.detector.model import apply_jitter_kernel
+        from spad_detector.engines.analytic import CLEAN, NONE, _clean_first_photon, classify
+        from spad_detector.model import apply_jitter_kernel
 
         model = detection.model(j)
         N = detection.n_pulses

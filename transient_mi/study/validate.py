@@ -1,4 +1,4 @@
-"""Argument checks of the studies: every mistake is a one-line :class:`~recon.errors.UserInputError`
+"""Argument checks of the studies: every mistake is a one-line :class:`~transient_core.errors.UserInputError`
 naming the parameter, the value and what is allowed, raised before any work starts."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import numbers
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 
 def _is_real(v) -> bool:

@@ -15,10 +15,10 @@ __all__ = ["require_bokeh"]
 
 
 def require_bokeh() -> None:
-    """Raise :class:`recon.errors.UserInputError` with the install line when Bokeh is missing."""
+    """Raise :class:`transient_core.errors.UserInputError` with the install line when Bokeh is missing."""
     try:
         import bokeh  # noqa: F401
     except ImportError:
-        from recon.errors import UserInputError
+        from transient_core.errors import UserInputError
 
         raise UserInputError("the viewer needs Bokeh: pip install 'transient-mi[view]'") from None

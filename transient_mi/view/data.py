@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 __all__ = ["Library", "CaptureData", "discover", "MESH_SUFFIXES", "HDF5_SUFFIXES"]
 
@@ -237,7 +237,7 @@ class CaptureData:
             self.capture = load_capture(self.path)
             self.manifest = self.capture.manifest
         else:
-            from recon.io.stack import read_manifest
+            from transient_core.stack import read_manifest
 
             self.manifest = read_manifest(self.path)
             if self.manifest.get("capture") in ("array", "confocal"):
@@ -271,7 +271,7 @@ class CaptureData:
         if self.capture is not None:
             arr = self.capture.spot(j)
         else:
-            from recon.io.stack import read_spot
+            from transient_core.stack import read_spot
 
             arr = read_spot(self.path, j, self.manifest)
         arr = np.asarray(arr, dtype=np.float32)

@@ -3,7 +3,7 @@
 The sliders set the photon budget (laser pulses per spot), the photon
 detection efficiency, the dark-count rate, the timing jitter (FWHM), the
 SPAD dead time and the time gate; every change reruns the analytic engine of
-:mod:`transient_mi.detector` (the same model, budget resolution and seed
+:mod:`spad_detector` (the same model, budget resolution and seed
 rule as ``transient-mi detect``: spot ``j`` draws from ``spot_rng(seed, j)``)
 on the spot on screen. The ideal histogram of the chosen pixel (expected
 photons per pulse) is drawn beside its counts, with the gate's efficiency
@@ -31,11 +31,11 @@ def simulate_counts(ideal_spot: np.ndarray, data: CaptureData, params, pulses: i
     Returns ``(counts[H, W, T] int64, info, params_run)`` where ``params_run`` has the gate resolved
     (``auto_gate`` turned into explicit times for this spot).
     """
-    from transient_mi.detector.budget import resolve_budget
-    from transient_mi.detector.detect import check_ideal, run_spot
-    from transient_mi.detector.gate import auto_gate
-    from transient_mi.detector.model import build_model
-    from transient_mi.detector.stack import spot_rng
+    from spad_detector.budget import resolve_budget
+    from spad_detector.detect import check_ideal, run_spot
+    from spad_detector.gate import auto_gate
+    from spad_detector.model import build_model
+    from spad_detector.stream import spot_rng
 
     params = params.validate()
     m = data.manifest
@@ -66,7 +66,7 @@ class DetectorPanel:
                                   Range1d, RangeSlider, Slider)
         from bokeh.plotting import figure
 
-        from transient_mi.detector.params import DEFAULT_PULSES, DetectorParams
+        from spad_detector.params import DEFAULT_PULSES, DetectorParams
 
         self.data, self.doc = data, doc
         d0 = DetectorParams()
@@ -140,7 +140,7 @@ class DetectorPanel:
     # ---------------------------------------------------------------- model
 
     def params(self):
-        from transient_mi.detector.params import DetectorParams
+        from spad_detector.params import DetectorParams
 
         mode = GATE_MODES[self.gate_mode.active]
         gate = {}
@@ -157,9 +157,9 @@ class DetectorPanel:
 
     def update(self) -> None:
         """Recompute the counts of the spot on screen and redraw (timed, reported in the status line)."""
-        from recon.errors import UserInputError
+        from transient_core.errors import UserInputError
 
-        from transient_mi.detector.gate import gate_efficiency
+        from spad_detector.gate import gate_efficiency
 
         t_start, cpu_start = time.perf_counter(), time.process_time()
         try:

@@ -170,7 +170,7 @@ class ReconPanel:
 
     def update(self) -> None:
         """Reconstruct (or re-filter the stored volume) and redraw; metrics follow on the next tick."""
-        from recon.errors import UserInputError
+        from transient_core.errors import UserInputError
         from recon.filters import no_filter, paper_filter
         from recon.pipeline import reconstruct
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 __all__ = ["write_video", "video_frames", "FORMATS", "NORMALIZE"]
 
@@ -102,7 +102,7 @@ def write_video(capture_path, out, *, spot: int = 0, fps: float = 20.0, stride: 
     dict
         ``path``, ``n_frames``, ``width``, ``height`` (pixels), ``fps``, ``bins`` shown.
     """
-    from recon._atomic import atomic_file
+    from transient_core.atomic import atomic_file
 
     from .data import CaptureData
 

@@ -57,7 +57,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import nbdtr
 
-from recon.pileup import coates_correction  # noqa: F401  (re-exported)
 
 from .cycle import CycleGrid
 

@@ -19,7 +19,7 @@ file to remove once that run is known to be gone.
 
 While the lock is held nobody else writes that output, so temporary siblings
 left by a killed run (``.<name>.XXXXXXXX.tmp`` / ``.old``, from
-:func:`recon._atomic.temp_dir_beside` and :func:`recon._atomic.replace_dir`)
+:func:`transient_core.atomic.temp_dir_beside` and :func:`transient_core.atomic.replace_dir`)
 are removed on acquisition.
 
 The lock is re-entrant within one process (``render`` of a ``spad_film``
@@ -159,7 +159,7 @@ def acquire(out: str | os.PathLike, option: str = "-o", command: str | None = No
 
     Raises
     ------
-    recon.errors.UserInputError
+    transient_core.errors.UserInputError
         When another live process holds it, or the lock cannot be created.
     """
     path = lock_path(out)
@@ -219,7 +219,7 @@ def remove_stale_temporaries(out: str | os.PathLike) -> list[Path]:
     """Remove ``.<name>.XXXXXXXX.tmp`` / ``.old`` siblings of ``out`` (call only while holding its lock).
 
     They are the temporary and moved-aside directories (or files) of
-    :mod:`recon._atomic` that a killed run of the same output left behind.
+    :mod:`transient_core.atomic` that a killed run of the same output left behind.
     Returns the removed paths.
     """
     o = Path(out)

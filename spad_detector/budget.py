@@ -1,7 +1,7 @@
 """Photon budget: how many laser pulses, and how many photons each carries.
 
 * Pulses: ``pulses`` directly, or ``exposure_s x repetition_rate_hz`` (rounded
-  to the nearest integer), or :data:`~transient_mi.detector.params.DEFAULT_PULSES`.
+  to the nearest integer), or :data:`~spad_detector.params.DEFAULT_PULSES`.
 * Repetition rate: ``params.repetition_rate_hz``, else the capture's
   ``laser.repetition_rate_hz``, else 50 MHz.
 * Laser overrides: the ideal capture stores expected photons per pulse for
@@ -19,8 +19,8 @@ import math
 import numbers
 from dataclasses import dataclass, field
 
-from recon.errors import UserInputError
-from recon.units import photons_per_pulse
+from transient_core.errors import UserInputError
+from transient_core.units import photons_per_pulse
 
 from .params import DEFAULT_PULSES, DEFAULT_REPETITION_RATE_HZ, DetectorParams
 

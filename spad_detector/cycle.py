@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 #: Most slots used to resolve the part of the period outside the histogram window.
 MAX_REMAINDER_SLOTS = 256

@@ -41,7 +41,7 @@ parameter                   default       meaning (units in the name)
 ==========================  ============  =====================================================
 
 The number of pulses, the seed and the engine are arguments of
-:func:`~transient_mi.detector.detect` / :func:`~transient_mi.detector.detect_stack`,
+:func:`~spad_detector.detect` / :func:`~spad_detector.detect_stack`,
 not detector properties.
 """
 
@@ -53,7 +53,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 #: Repetition rate used when neither the parameters nor the manifest give one (the paper's).
 DEFAULT_REPETITION_RATE_HZ = 50e6
@@ -70,7 +70,7 @@ class DetectorParams:
     """Every parameter of the SPAD + TCSPC model (see the module docstring for the table).
 
     Call :meth:`validate` (done by every public entry point) to get a
-    :class:`~recon.errors.UserInputError` naming a bad parameter, its value
+    :class:`~transient_core.errors.UserInputError` naming a bad parameter, its value
     and the allowed range.
     """
 

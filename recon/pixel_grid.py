@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import UserInputError
+from transient_core.errors import UserInputError
 
 __all__ = ["regular_pixel_grid", "RegularGrid", "SAME_SPOT_TOLERANCE_M"]
 

@@ -32,11 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from recon._atomic import check_output_location
-from recon._lock import output_lock
-from recon._progress import progress_bar
-from recon.errors import UserInputError
-from recon.io import stack
+from transient_core.atomic import check_output_location
+from transient_core.lock import output_lock
+from transient_core.progress import progress_bar
+from transient_core.errors import UserInputError
+from transient_core import stack
 
 from . import __version__
 from .scene_io import file_sha256, load_scene
@@ -218,7 +218,7 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
 
 def _resolve_noise_target(spec, integrator, spp: int, layout: dict, detect_kwargs, scene_file):
     """Validate a noise-target request; fill in the detector and budget from the scene's spad_film if unset."""
-    from transient_mi.detector import DetectorParams
+    from spad_detector import DetectorParams
     from transient_mi.integrators._replicates import effective_replicates
 
     if layout["quantity"] != "photons_per_pulse":
@@ -465,14 +465,14 @@ def _detect_into(job: RenderJob, ideal_dir: Path) -> Path:
     (``detect_stack`` writes into a temporary sibling and moves the files in
     with the manifest last, keeping ``ideal/``.)
     """
-    from transient_mi.detector import detect_stack
+    from spad_detector import detect_stack
 
     return detect_stack(ideal_dir, job.out_dir, progress=True, **job.detect_kwargs)
 
 
 def render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int = 0, variant: str | None = None,
            resume: bool = False, progress: bool | None = None, noise_target=None) -> Path:
-    """Validate, render and write a capture; see :mod:`transient_mi.pipeline`."""
+    """Validate, render and write a capture; see :mod:`transient_mi.render_capture`."""
     job = prepare_render(scene_file, out_dir, defines=defines, spp=spp, seed=seed, variant=variant,
                          resume=resume, noise_target=noise_target)
     return run_render(job, progress=progress)

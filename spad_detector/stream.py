@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from recon._progress import progress_bar
-from recon._atomic import check_output_location, temp_dir_beside
-from recon._lock import output_lock
-from recon.errors import UserInputError
-from recon.io.stack import (MANIFEST_NAME, StackError, has_variance, missing_spots, new_manifest, read_manifest,
+from transient_core.progress import progress_bar
+from transient_core.atomic import check_output_location, temp_dir_beside
+from transient_core.lock import output_lock
+from transient_core.errors import UserInputError
+from transient_core.stack import (MANIFEST_NAME, StackError, has_variance, missing_spots, new_manifest, read_manifest,
                             read_spot, read_variance, spot_filename, write_manifest, write_spot)
 
 from .budget import resolve_budget
@@ -35,7 +35,7 @@ from .params import DetectorParams
 from .render_noise import DEFAULT_THRESHOLD, NoiseRatio, unavailable, warning_line
 
 #: ``engine="exact"`` refuses (unless forced) a capture whose estimated number of simulated triggering
-#: events (:func:`~transient_mi.detector.engines.exact.estimated_events`, summed over spots) exceeds this.
+#: events (:func:`~spad_detector.engines.exact.estimated_events`, summed over spots) exceeds this.
 EXACT_MAX_EVENTS = 5e8
 #: Version of the detector model recorded in counts manifests.
 MODEL_VERSION = 1
@@ -90,12 +90,12 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         Detector model (default: the paper's).
     pulses, exposure_s : optional
         Photon budget per laser spot (one of them; default 1e6 pulses), see
-        :func:`~transient_mi.detector.budget.resolve_budget`.
+        :func:`~spad_detector.budget.resolve_budget`.
     seed : int
         Master seed; spot ``j`` uses :func:`spot_rng` ``(seed, j)``.
     engine : {"auto", "analytic", "exact"}
     progress : bool
-        Draw a progress bar (when stderr is a terminal, see ``recon._progress``).
+        Draw a progress bar (when stderr is a terminal, see ``transient_core.progress``).
     overwrite : bool
         Replace an existing counts capture in ``out_dir``.
     noise_threshold : float

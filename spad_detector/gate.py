@@ -43,8 +43,8 @@ import math
 import numpy as np
 from scipy.special import ndtr
 
-from recon.errors import UserInputError
-from recon.units import C_M_PER_PS
+from transient_core.errors import UserInputError
+from transient_core.units import C_M_PER_PS
 
 #: 10-90 % time of an error-function edge in units of its sigma: 2 * Phi^-1(0.9).
 TEN_NINETY_PER_SIGMA = 2.0 * 1.2815515655446004

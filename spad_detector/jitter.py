@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 from scipy.special import log_ndtr, ndtr
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 from .params import FWHM_PER_SIGMA, DetectorParams
 

@@ -1,6 +1,6 @@
 """Detection engines: ``analytic`` (fast, per-cycle probabilities + one draw) and ``exact`` (event Monte Carlo).
 
-Both take a :class:`~transient_mi.detector.model.DetectorModel`, the ideal
+Both take a :class:`~spad_detector.model.DetectorModel`, the ideal
 photons per pulse ``[n_pix, n_bins]`` of one spot, the number of pulses and
 a numpy Generator, and return ``(counts[n_pix, n_bins] int64, info)``.
 """

@@ -6,7 +6,7 @@ import numbers
 
 import numpy as np
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 from .engines import estimated_events, is_exact, run_analytic, run_exact
 from .model import DetectorModel, build_model

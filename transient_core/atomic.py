@@ -99,7 +99,7 @@ def check_output_location(out: str | os.PathLike, option: str = "-o") -> Path:
 
     Raises
     ------
-    recon.errors.UserInputError
+    transient_core.errors.UserInputError
         Naming the option, the path and the problem.
     """
     from .errors import UserInputError

@@ -75,9 +75,9 @@ TOTAL_CHANNEL = "total"
 _DTYPES = {"ideal": np.dtype(np.float32), "counts": np.dtype(np.uint32)}
 
 
-from .._atomic import atomic_file
-from .._json import to_json
-from ..errors import UserInputError
+from .atomic import atomic_file
+from ._json import to_json
+from .errors import UserInputError
 
 
 class StackError(UserInputError):

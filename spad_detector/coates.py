@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import UserInputError
+from transient_core.errors import UserInputError
 
 __all__ = ["coates_correction", "coates_std"]
 

@@ -2,7 +2,7 @@ r"""How much of a detection's noise is rendering noise.
 
 An ideal capture is a Monte Carlo estimate ``x_b`` of the expected photons per
 pulse in bin ``b``, with its own variance ``s_b^2`` (stored beside the capture,
-see :mod:`recon.io.stack`, ``variance/``). Detection draws counts whose mean is
+see :mod:`transient_core.stack`, ``variance/``). Detection draws counts whose mean is
 the *estimate*, so the counts carry two noises: the photon (shot) noise the
 user wants to study, and the frozen rendering noise of ``x``. For a photon
 budget of ``N`` pulses, the low-flux mean counts after the gate ``g_b``, the

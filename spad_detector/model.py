@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from recon.errors import UserInputError
+from transient_core.errors import UserInputError
 
 from .cycle import CycleGrid, make_cycle_grid
 from .gate import gate_mean, gate_sigma_ps
@@ -76,7 +76,7 @@ def build_model(params: DetectorParams, *, bin_width_ps: float, n_bins: int, t0_
     """Validate the parameters against the time axis and precompute gate, background and jitter kernel.
 
     ``params`` must have explicit gate times if any (resolve ``auto_gate``
-    first, see :func:`~transient_mi.detector.gate.auto_gate`).
+    first, see :func:`~spad_detector.gate.auto_gate`).
     """
     params.validate()
     if params.auto_gate:

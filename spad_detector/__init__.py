@@ -1,0 +1,52 @@
+"""spad_detector: the SPAD + TCSPC detector model (numpy/scipy/numba; never imports Mitsuba or drjit).
+
+Turns an ideal capture (expected photons per pulse per bin) into photon
+counts, modelling in the order light meets them: photon budget, photon
+detection efficiency, time gate, dark counts and ambient light, dead time and
+pile-up (SPAD and TCSPC), afterpulsing, crosstalk and timing jitter. See
+``docs/detector.md``.
+
+Public API
+----------
+DetectorParams          every parameter, with units and the paper's defaults
+detect                  arrays: ideal[..., T] -> counts[..., T] (uint32)
+detect_stack            capture directories, streamed spot by spot
+coates_correction       pile-up correction of measured histograms (:mod:`.coates`)
+resolve_budget, auto_gate, gate_efficiency, gate_mean, Jitter
+nonparalyzable_rate, paralyzable_rate, pulsed_rate_per_cycle, first_photon_probabilities
+"""
+
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "coates_correction": "coates", "coates_std": "coates",
+    "Budget": "budget", "resolve_budget": "budget",
+    "detect": "detect", "expected_counts_low_flux": "detect",
+    "auto_gate": "gate", "gate_efficiency": "gate", "gate_mean": "gate", "gate_sigma_ps": "gate",
+    "three_bounce_range_ps": "gate",
+    "Jitter": "jitter", "load_irf": "jitter",
+    "DEFAULT_PULSES": "params", "DEFAULT_REPETITION_RATE_HZ": "params", "DetectorParams": "params",
+    "param_names": "params",
+    "first_photon_probabilities": "pileup", "nonparalyzable_rate": "pileup", "paralyzable_rate": "pileup",
+    "pulsed_rate_per_cycle": "pileup",
+    "detect_stack": "stream",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    """Public names load their module on first use, so ``import spad_detector`` is cheap and a user of one
+    part (say the Coates correction) does not pay for numba kernels they never call."""
+    mod = _EXPORTS.get(name)
+    if mod is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{mod}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))
