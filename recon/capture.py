@@ -553,4 +553,5 @@ def load_capture(path: str | Path) -> Capture:
         if not stack.spot_is_complete(p, j, m):
             stack.read_spot(p, j, m)  # raises StackError naming the file and the mismatch
     manifest = m
-    return Capture.from_manifest(manifest, lambda j: stack.read_spot(p, j, manifest), source=str(p))
+    # multi-channel captures (colour, Stokes) are reconstructed from one intensity per bin (stack.intensity)
+    return Capture.from_manifest(manifest, lambda j: stack.read_intensity(p, j, manifest), source=str(p))

@@ -23,8 +23,8 @@ from transient_core.progress import progress_bar
 from transient_core.atomic import check_output_location, temp_dir_beside
 from transient_core.lock import output_lock
 from transient_core.errors import UserInputError
-from transient_core.stack import (MANIFEST_NAME, StackError, has_variance, missing_spots, new_manifest, read_manifest,
-                            read_spot, read_variance, spot_filename, write_manifest, write_spot)
+from transient_core.stack import (MANIFEST_NAME, StackError, has_variance, missing_spots, new_manifest, read_intensity,
+                                  read_manifest, read_variance, spot_filename, write_manifest, write_spot)
 
 from .budget import resolve_budget
 from .detect import check_engine, check_ideal, run_spot, to_uint32
@@ -41,7 +41,7 @@ EXACT_MAX_EVENTS = 5e8
 MODEL_VERSION = 1
 _STANDARD_KEYS = {"format", "format_version", "status", "kind", "capture", "quantity", "width", "height",
                   "n_files", "time", "include_first_last", "geometry", "laser", "detector", "render",
-                  "source_ideal", "variance"}
+                  "source_ideal", "variance", "channels", "intensity"}
 
 
 def spot_rng(seed: int, spot: int) -> np.random.Generator:
@@ -185,7 +185,8 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         kind="counts", capture=m["capture"], width=W, height=H, n_files=m["n_files"], t0_ps=t["t0_ps"],
         bin_width_ps=t["bin_width_ps"], n_bins=T, quantity="counts",
         include_first_last=m["include_first_last"], geometry=m.get("geometry"), laser=budget.laser,
-        detector=dict(detector, resolved=resolved), render=m.get("render"), source_ideal=source_ideal, **extra)
+        detector=dict(detector, resolved=resolved), render=m.get("render"), source_ideal=source_ideal,
+        **({"detected_intensity": m["intensity"]} if m.get("channels") else {}), **extra)
 
     with output_lock(out, option="output"):
         _check_output(out, ideal, overwrite)  # again under the lock: another run may have written OUT meanwhile
@@ -207,12 +208,14 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
     try:
         write_manifest(tmp, manifest)
         engines_used, exact, regimes = [], True, {}
-        noise = NoiseRatio(threshold=float(noise_threshold)) if has_variance(m) else None
+        # multi-channel ideal captures store per-channel variances, not the variance of the intensity the
+        # detector sees (channel covariances are not recorded): no noise ratio for them
+        noise = NoiseRatio(threshold=float(noise_threshold)) if has_variance(m) and not m.get("channels") else None
         N = budget.n_pulses
         with progress_bar(f"detect {ideal.name}", total=m["n_files"] * N,
                           disable=None if progress else True) as advance:
             for j in range(m["n_files"]):
-                data = read_spot(ideal, j, m)
+                data = read_intensity(ideal, j, m)  # one intensity per bin (luminance Y, Stokes S0 or mono)
                 arr = check_ideal(data, where=f"{ideal / spot_filename(j)}")
                 if budget.photon_scale != 1.0:
                     arr = arr * budget.photon_scale
@@ -266,7 +269,7 @@ def estimate_exact_work(ideal: Path, m: dict, model, budget, spot_gates=None, ru
     with progress_bar(f"estimate exact work {ideal.name}", total=m["n_files"],
                       disable=None if progress else True) as advance:
         for j in range(m["n_files"]):
-            arr = check_ideal(read_spot(ideal, j, m), where=f"{ideal / spot_filename(j)}")
+            arr = check_ideal(read_intensity(ideal, j, m), where=f"{ideal / spot_filename(j)}")
             if budget.photon_scale != 1.0:
                 arr = arr * budget.photon_scale
             spot_model = model if spot_gates is None else spot_model_for(m, run_params, spot_gates, j, budget)

@@ -103,7 +103,7 @@ def make_ideal_capture(path, data, *, bin_width_ps: float, t0_ps: float = 0.0, c
                        spots=None, laser=LASER, **extra):
     """Write an ideal capture ``data[n_files, H, W, T]`` (photons per pulse) with a wall geometry."""
     data = np.asarray(data, np.float32)
-    S, H, W, T = data.shape
+    S, H, W, T = data.shape[:4]  # (a fifth axis: channels, with channels=... in extra)
     if spots is None:
         spots = [[0.05 * (j - (S - 1) / 2), 0.0, 0.0] for j in range(S)]
     geo = wall_geometry(H, W, spots, capture=capture)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from detector_helpers import make_ideal_capture
-from recon import _lock
+from transient_core import lock as _lock
 from transient_core.errors import UserInputError
 from transient_core import stack
 from recon.synthetic import point_capture

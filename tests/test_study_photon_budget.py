@@ -131,7 +131,7 @@ def test_signal_and_background_split(study):
     from scipy.stats import norm
 
     from spad_detector.gate import auto_gate, gate_sigma_ps
-    from transient_mi.experiment import paper_detector
+    from transient_mi.paper import paper_detector
 
     m = read_manifest(study.out_dir / "ideal")
     d = paper_detector()
@@ -198,7 +198,7 @@ def test_in_memory_detection_equals_detect_stack(study, tmp_path):
     """A study row's counts are those `transient-mi detect --seed S` writes (same bytes)."""
     from transient_core.stack import read_stack
     from spad_detector import detect_stack
-    from transient_mi.experiment import paper_detector
+    from transient_mi.paper import paper_detector
     from transient_mi.study.detection import Detection, IdealCapture
 
     ideal = study.out_dir / "ideal"

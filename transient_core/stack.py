@@ -14,6 +14,15 @@ names sort in time order) and hold FLOAT (expected photons or radiance, kind
 ``ideal``) or UINT (photon counts, kind ``counts``). Key metadata is repeated
 as header attributes (prefix ``tmi_``) so one file is self-describing.
 
+Multi-channel captures (colour, Stokes vectors) hold one EXR layer per time
+bin: channels ``tNNNNN.R``, ``tNNNNN.G``, ``tNNNNN.B`` (or ``tNNNNN.S0`` ..
+``tNNNNN.S3``), so a layer-aware viewer shows one time bin as one image. The
+manifest's ``channels`` lists the channel names in order (absent or null:
+mono, channels ``tNNNNN``) and ``intensity`` says how one intensity is formed
+from them (:func:`intensity`), which is what the detector model and the
+reconstruction use. Arrays of such captures carry a last axis for the
+channel: ``[pixel_y, pixel_x, time, channel]``.
+
 A confocal capture (laser spot k on pixel k's wall patch) is one file,
 ``spot_00000.exr``, whose pixel k was recorded with the laser on patch k.
 
@@ -64,8 +73,17 @@ __all__ = [
     "channel_names", "dtype_for", "new_manifest", "validate_manifest", "write_manifest", "read_manifest",
     "config_digest", "spot_path", "write_spot", "read_spot", "spot_is_complete", "missing_spots",
     "iter_spots", "read_stack", "write_stack", "VARIANCE_DIR", "TOTAL_CHANNEL", "has_variance",
-    "write_variance", "read_variance", "variance_is_complete",
+    "write_variance", "read_variance", "variance_is_complete", "data_shape", "intensity", "CHANNEL_SETS",
+    "INTENSITY_RULES", "read_intensity",
 ]
+
+#: Channel sets a multi-channel capture may hold, and the rule that makes one intensity of them.
+CHANNEL_SETS = {("R", "G", "B"): "luminance", ("S0", "S1", "S2", "S3"): "S0"}
+#: Intensity rules: ``luminance`` = CIE Y of linear Rec. 709 RGB (Mitsuba's ``luminance``), ``S0`` = the
+#: first Stokes component (total intensity), ``mono`` = the one channel.
+INTENSITY_RULES = ("mono", "luminance", "S0")
+#: Rec. 709 / sRGB primaries (linear) to CIE Y, as Mitsuba's ``mi.luminance``.
+LUMINANCE_WEIGHTS = (0.212671, 0.715160, 0.072169)
 
 #: Sub-directory of an ideal capture holding the per-bin variance files.
 VARIANCE_DIR = "variance"
@@ -92,10 +110,39 @@ def spot_filename(index: int) -> str:
     return f"spot_{int(index):05d}.exr"
 
 
-def channel_names(n_bins: int) -> list[str]:
-    """Channel names for ``n_bins`` time bins, sorting in time order."""
+def channel_names(n_bins: int, channels=None) -> list[str]:
+    """EXR channel names for ``n_bins`` time bins, sorting in time order.
+
+    Mono (``channels`` None): ``t00000``, ``t00001``, ...; multi-channel:
+    ``t00000.R``, ``t00000.G``, ... (time major, channel minor).
+    """
     width = max(5, len(str(max(n_bins - 1, 0))))
-    return [f"t{b:0{width}d}" for b in range(n_bins)]
+    if not channels:
+        return [f"t{b:0{width}d}" for b in range(n_bins)]
+    return [f"t{b:0{width}d}.{c}" for b in range(n_bins) for c in channels]
+
+
+def data_shape(manifest: dict) -> tuple[int, ...]:
+    """Shape of one spot's array: ``(height, width, n_bins)``, plus ``n_channels`` for multi-channel captures."""
+    shape = (manifest["height"], manifest["width"], manifest["time"]["n_bins"])
+    ch = manifest.get("channels")
+    return shape + (len(ch),) if ch else shape
+
+
+def intensity(data: np.ndarray, manifest: dict) -> np.ndarray:
+    """One intensity per bin: ``data`` itself for mono captures, else the manifest's ``intensity`` rule over
+    the last axis (``luminance``: Y of linear Rec. 709 RGB; ``S0``: the Stokes intensity). float32 for
+    ideal captures; counts are never multi-channel (the detector records one intensity)."""
+    ch = manifest.get("channels")
+    if not ch:
+        return data
+    rule = manifest.get("intensity")
+    if rule == "luminance":
+        w = np.asarray(LUMINANCE_WEIGHTS, dtype=np.float32)
+        return np.tensordot(data.astype(np.float32, copy=False), w, axes=([-1], [0])).astype(np.float32)
+    if rule == "S0":
+        return np.ascontiguousarray(data[..., list(ch).index("S0")])
+    raise StackError(f"intensity rule {rule!r} for channels {ch}: allowed {', '.join(INTENSITY_RULES)}")
 
 
 def dtype_for(kind: str) -> np.dtype:
@@ -124,6 +171,7 @@ def new_manifest(
     laser: dict | None = None,
     detector: dict | None = None,
     render: dict | None = None,
+    channels=None,
     **extra: Any,
 ) -> dict:
     """Build a manifest dictionary (validated).
@@ -150,6 +198,10 @@ def new_manifest(
     geometry, laser, detector, render : dict, optional
         Scene geometry (positions in metres), laser, detector model
         parameters and provenance; see the README for the keys.
+    channels : sequence of str, optional
+        Channel names of a multi-channel capture (``("R", "G", "B")`` or
+        ``("S0", "S1", "S2", "S3")``, see :data:`CHANNEL_SETS`); None: mono.
+        The manifest then also records the ``intensity`` rule.
     **extra
         Further top-level keys, stored verbatim (JSON-serialisable).
     """
@@ -170,6 +222,9 @@ def new_manifest(
         "detector": detector,
         "render": render,
     }
+    if channels:
+        m["channels"] = [str(c) for c in channels]
+        m["intensity"] = CHANNEL_SETS.get(tuple(m["channels"]))
     m.update(extra)
     return validate_manifest(_jsonable(m), "manifest")
 
@@ -224,6 +279,15 @@ def validate_manifest(m: dict, where: str | os.PathLike = "manifest") -> dict:
         raise bad(f"time.t0_ps={t0!r} must be a finite number")
     if not isinstance(m.get("include_first_last"), bool):
         raise bad(f"include_first_last={m.get('include_first_last')!r} must be true or false")
+    ch = m.get("channels")
+    if ch is not None:
+        if not isinstance(ch, list) or tuple(ch) not in CHANNEL_SETS:
+            raise bad(f"channels={ch!r}, allowed: null (mono) or one of "
+                      + ", ".join(str(list(k)) for k in CHANNEL_SETS))
+        if m.get("intensity") != CHANNEL_SETS[tuple(ch)]:
+            raise bad(f"intensity={m.get('intensity')!r} for channels {ch}, expected {CHANNEL_SETS[tuple(ch)]!r}")
+        if m["kind"] == "counts":
+            raise bad("a counts capture has one intensity per bin: channels must be null")
     if m["capture"] in ("camera", "confocal") and m["n_files"] != 1:
         raise bad(f"n_files={m['n_files']} but a {m['capture']} capture is stored in exactly 1 file")
     geo = m.get("geometry")
@@ -310,6 +374,8 @@ def _header(manifest: dict, index: int) -> dict:
         "tmi_time_axis": np.array([t["t0_ps"], t["bin_width_ps"], t["n_bins"]], dtype=np.float64),
         "tmi_include_first_last": int(manifest["include_first_last"]),
     }
+    if manifest.get("channels"):
+        h["tmi_channels"] = ",".join(manifest["channels"])
     geo = manifest.get("geometry")
     if isinstance(geo, dict) and manifest["capture"] == "array":
         h["tmi_spot_position"] = np.asarray(geo["spots"][index], dtype=np.float64)
@@ -332,8 +398,8 @@ def write_spot(directory: str | os.PathLike, index: int, data: np.ndarray, manif
         Capture directory (must exist).
     index : int
         Spot index in scan order, ``0 <= index < manifest['n_files']``.
-    data : ndarray, shape (height, width, n_bins)
-        Values for this spot; cast to float32 (``ideal``) or uint32
+    data : ndarray, shape (height, width, n_bins[, n_channels])
+        Values for this spot (a last channel axis for multi-channel captures); cast to float32 (``ideal``) or uint32
         (``counts``). Ideal data must be finite and >= 0; counts must be
         integers in [0, 2**32).
     manifest : dict
@@ -342,12 +408,12 @@ def write_spot(directory: str | os.PathLike, index: int, data: np.ndarray, manif
     import OpenEXR
 
     d = Path(directory)
-    H, W, T = manifest["height"], manifest["width"], manifest["time"]["n_bins"]
     if not 0 <= int(index) < manifest["n_files"]:
         raise StackError(f"spot index {index} out of range [0, {manifest['n_files']})")
     arr = np.asarray(data)
-    if arr.shape != (H, W, T):
-        raise StackError(f"{spot_path(d, index)}: data shape {arr.shape}, manifest says ({H}, {W}, {T})")
+    shape = data_shape(manifest)
+    if arr.shape != shape:
+        raise StackError(f"{spot_path(d, index)}: data shape {arr.shape}, manifest says {shape}")
     dt = dtype_for(manifest["kind"])
     if manifest["kind"] == "ideal":
         arr = arr.astype(np.float32, copy=False)
@@ -360,12 +426,45 @@ def write_spot(directory: str | os.PathLike, index: int, data: np.ndarray, manif
         if arr.size and (arr.min() < 0 or arr.max() > np.iinfo(np.uint32).max):
             raise StackError(f"{spot_path(d, index)}: counts must lie in [0, 2**32)")
         arr = arr.astype(dt, copy=False)
-    names = channel_names(T)
-    channels = {name: np.ascontiguousarray(arr[:, :, b]) for b, name in enumerate(names)}
+    channels = _layers(arr, manifest)
     path = spot_path(d, index)
     with atomic_file(path, fsync=True) as tmp:
         OpenEXR.File(_header(manifest, index), channels).write(str(tmp))
     return path
+
+
+def _layers(arr: np.ndarray, manifest: dict) -> dict:
+    """EXR channels (name -> [H, W] array) of one spot's ``arr`` (``data_shape(manifest)``)."""
+    T, ch = manifest["time"]["n_bins"], manifest.get("channels")
+    names = channel_names(T, ch)
+    if not ch:
+        return {name: np.ascontiguousarray(arr[:, :, b]) for b, name in enumerate(names)}
+    C = len(ch)
+    return {name: np.ascontiguousarray(arr[:, :, i // C, i % C]) for i, name in enumerate(names)}
+
+
+def _unlayer(path: Path, chans: dict, manifest: dict, dt, names_extra=()) -> np.ndarray:
+    """Inverse of :func:`_layers`: the spot array from EXR channels, checking names, types and sizes."""
+    T, ch = manifest["time"]["n_bins"], manifest.get("channels")
+    names = channel_names(T, ch)
+    if set(chans) != set(names) | set(names_extra):
+        missing = sorted(set(names) - set(chans))[:3]
+        extra = sorted(set(chans) - set(names) - set(names_extra))[:3]
+        what = f"{T} time bins" + (f" x {len(ch)} channels ({', '.join(ch)})" if ch else "")
+        raise StackError(
+            f"{path}: has {len(chans) - len(names_extra)} channels, manifest says {what}"
+            + (f"; missing e.g. {missing}" if missing else "")
+            + (f"; unexpected e.g. {extra}" if extra else "")
+        )
+    out = np.empty(data_shape(manifest), dtype=dt)
+    flat = out.reshape(out.shape[0], out.shape[1], -1)  # [H, W, T * C]: channel names in the same order
+    for i, name in enumerate(names):
+        px = chans[name].pixels
+        if px is None or px.dtype != dt or px.shape != out.shape[:2]:
+            got = None if px is None else (px.dtype, px.shape)
+            raise StackError(f"{path}: channel {name} is {got}, expected ({dt}, {out.shape[:2]})")
+        flat[:, :, i] = px
+    return out
 
 
 def _open_exr(path: Path, header_only: bool) -> tuple[dict, dict | None]:
@@ -379,7 +478,8 @@ def _open_exr(path: Path, header_only: bool) -> tuple[dict, dict | None]:
     if not path.is_file():
         raise StackError(f"{path}: missing")
     try:
-        f = OpenEXR.File(str(path), header_only=header_only)
+        # separate_channels: OpenEXR would otherwise merge tNNNNN.R/G/B into one RGB array
+        f = OpenEXR.File(str(path), header_only=header_only, separate_channels=True)
         header = f.header()
         channels = None if header_only else f.channels()
     except Exception as e:  # OpenEXR raises RuntimeError/ValueError/OSError
@@ -406,6 +506,9 @@ def _check_header(path: Path, hdr: dict, manifest: dict, index: int) -> None:
             f"{path}: time axis (t0_ps, bin_width_ps, n_bins)={tuple(axis.tolist())}, "
             f"manifest says {tuple(want.tolist())}"
         )
+    want_ch = ",".join(manifest["channels"]) if manifest.get("channels") else None
+    if hdr.get("tmi_channels") != want_ch:
+        raise StackError(f"{path}: header tmi_channels={hdr.get('tmi_channels')!r}, manifest says {want_ch!r}")
     digest = (manifest.get("render") or {}).get("config_sha256")
     if digest and hdr.get("tmi_config_sha256") != digest:
         raise StackError(f"{path}: written by a different render configuration than {MANIFEST_NAME} describes")
@@ -433,9 +536,11 @@ def spot_is_complete(directory: str | os.PathLike, index: int, manifest: dict) -
 
 
 def read_spot(directory: str | os.PathLike, index: int, manifest: dict | None = None) -> np.ndarray:
-    """Read laser spot ``index`` as an array of shape (height, width, n_bins).
+    """Read laser spot ``index`` as an array of shape (height, width, n_bins[, n_channels]).
 
-    The dtype is float32 for ``ideal`` and uint32 for ``counts`` captures.
+    The dtype is float32 for ``ideal`` and uint32 for ``counts`` captures;
+    multi-channel captures have a last channel axis in the manifest's
+    ``channels`` order (see :func:`intensity` for one intensity per bin).
 
     Raises
     ------
@@ -448,24 +553,14 @@ def read_spot(directory: str | os.PathLike, index: int, manifest: dict | None = 
     path = spot_path(d, index)
     header, chans = _open_exr(path, header_only=False)
     _check_header(path, header, m, index)
-    names = channel_names(m["time"]["n_bins"])
-    if set(chans) != set(names):
-        missing = sorted(set(names) - set(chans))[:3]
-        extra = sorted(set(chans) - set(names))[:3]
-        raise StackError(
-            f"{path}: has {len(chans)} channels, manifest says {len(names)} time bins"
-            + (f"; missing e.g. {missing}" if missing else "")
-            + (f"; unexpected e.g. {extra}" if extra else "")
-        )
-    dt = dtype_for(m["kind"])
-    out = np.empty((m["height"], m["width"], len(names)), dtype=dt)
-    for b, name in enumerate(names):
-        px = chans[name].pixels
-        if px is None or px.dtype != dt or px.shape != out.shape[:2]:
-            got = None if px is None else (px.dtype, px.shape)
-            raise StackError(f"{path}: channel {name} is {got}, expected ({dt}, {out.shape[:2]})")
-        out[:, :, b] = px
-    return out
+    return _unlayer(path, chans, m, dtype_for(m["kind"]))
+
+
+def read_intensity(directory: str | os.PathLike, index: int, manifest: dict | None = None) -> np.ndarray:
+    """Spot ``index`` as one intensity per bin, ``[height, width, n_bins]``: :func:`read_spot` reduced by the
+    manifest's intensity rule (:func:`intensity`); mono captures are returned as read."""
+    m = read_manifest(directory) if manifest is None else manifest
+    return intensity(read_spot(directory, index, m), m)
 
 
 def missing_spots(directory: str | os.PathLike, manifest: dict | None = None) -> list[int]:
@@ -488,7 +583,7 @@ def _require_complete(d: Path, m: dict) -> None:
 
 
 def iter_spots(directory: str | os.PathLike) -> Iterator[tuple[int, np.ndarray]]:
-    """Yield ``(index, data[height, width, n_bins])`` spot by spot (bounded memory)."""
+    """Yield ``(index, data[height, width, n_bins[, n_channels]])`` spot by spot (bounded memory)."""
     d = Path(directory)
     m = read_manifest(d)
     _require_complete(d, m)
@@ -497,29 +592,30 @@ def iter_spots(directory: str | os.PathLike) -> Iterator[tuple[int, np.ndarray]]
 
 
 def read_stack(directory: str | os.PathLike) -> tuple[dict, np.ndarray]:
-    """Read a whole capture: ``(manifest, data[n_files, height, width, n_bins])``.
+    """Read a whole capture: ``(manifest, data[n_files, height, width, n_bins[, n_channels]])``.
 
     Holds everything in memory; use :func:`iter_spots` for large captures.
     """
     d = Path(directory)
     m = read_manifest(d)
     _require_complete(d, m)
-    data = np.empty((m["n_files"], m["height"], m["width"], m["time"]["n_bins"]), dtype=dtype_for(m["kind"]))
+    data = np.empty((m["n_files"],) + data_shape(m), dtype=dtype_for(m["kind"]))
     for j in range(m["n_files"]):
         data[j] = read_spot(d, j, m)
     return m, data
 
 
 def write_stack(directory: str | os.PathLike, manifest: dict, data: np.ndarray) -> Path:
-    """Write a whole capture held in memory (``data[n_files, H, W, T]``).
+    """Write a whole capture held in memory (``data[n_files, H, W, T[, C]]``).
 
     Creates ``directory`` (its parent must exist), writes the manifest as
     ``incomplete``, every spot, then the manifest as ``complete``.
     """
     d = Path(directory)
     arr = np.asarray(data)
-    if arr.ndim != 4 or arr.shape[0] != manifest["n_files"]:
-        raise StackError(f"data shape {arr.shape}, expected ({manifest['n_files']}, H, W, T)")
+    want = (manifest["n_files"],) + data_shape(manifest)
+    if arr.shape != want:
+        raise StackError(f"data shape {arr.shape}, expected {want}")
     d.mkdir(exist_ok=True)
     m = dict(manifest, status="incomplete")
     write_manifest(d, m)
@@ -551,31 +647,43 @@ def write_variance(directory: str | os.PathLike, index: int, variance: np.ndarra
 
     Parameters
     ----------
-    variance : ndarray, shape (height, width, n_bins)
+    variance : ndarray, shape (height, width, n_bins[, n_channels])
         Estimated variance of every stored value (>= 0, finite).
-    total_variance : ndarray, shape (height, width)
-        Estimated variance of each pixel's sum over time.
+    total_variance : ndarray, shape (height, width[, n_channels])
+        Estimated variance of each pixel's sum over time (per channel).
     """
     import OpenEXR
 
     vd = _variance_dir(directory, manifest)
     vd.mkdir(exist_ok=True)
-    H, W, T = manifest["height"], manifest["width"], manifest["time"]["n_bins"]
+    shape = data_shape(manifest)
+    tot_shape = shape[:2] + shape[3:]
     var = np.asarray(variance, dtype=np.float32)
     tot = np.asarray(total_variance, dtype=np.float32)
     path = vd / spot_filename(index)
-    if var.shape != (H, W, T) or tot.shape != (H, W):
-        raise StackError(f"{path}: variance shapes {var.shape} and {tot.shape}, expected ({H}, {W}, {T}) "
-                         f"and ({H}, {W})")
+    if var.shape != shape or tot.shape != tot_shape:
+        raise StackError(f"{path}: variance shapes {var.shape} and {tot.shape}, expected {shape} and {tot_shape}")
     if not (np.all(np.isfinite(var)) and np.all(np.isfinite(tot))) or (var.size and var.min() < 0) \
             or (tot.size and tot.min() < 0):
         raise StackError(f"{path}: variance must be finite and >= 0")
-    channels = {name: np.ascontiguousarray(var[:, :, b]) for b, name in enumerate(channel_names(T))}
-    channels[TOTAL_CHANNEL] = np.ascontiguousarray(tot)
+    channels = _layers(var, manifest)
+    channels.update(_total_layers(tot, manifest))
     header = dict(_header(manifest, index), tmi_layer="variance")
     with atomic_file(path, fsync=True) as tmp:
         OpenEXR.File(header, channels).write(str(tmp))
     return path
+
+
+def _total_names(manifest: dict) -> list[str]:
+    ch = manifest.get("channels")
+    return [f"{TOTAL_CHANNEL}.{c}" for c in ch] if ch else [TOTAL_CHANNEL]
+
+
+def _total_layers(tot: np.ndarray, manifest: dict) -> dict:
+    names = _total_names(manifest)
+    if not manifest.get("channels"):
+        return {names[0]: np.ascontiguousarray(tot)}
+    return {n: np.ascontiguousarray(tot[:, :, c]) for c, n in enumerate(names)}
 
 
 def variance_is_complete(directory: str | os.PathLike, index: int, manifest: dict) -> bool:
@@ -595,7 +703,7 @@ def variance_is_complete(directory: str | os.PathLike, index: int, manifest: dic
 
 def read_variance(directory: str | os.PathLike, index: int, manifest: dict | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """``(variance[height, width, n_bins] float32, total_variance[height, width] float32)`` of spot ``index``.
+    """``(variance[height, width, n_bins[, C]] float32, total_variance[height, width[, C]] float32)`` of spot ``index``.
 
     Raises
     ------
@@ -609,11 +717,7 @@ def read_variance(directory: str | os.PathLike, index: int, manifest: dict | Non
     _check_header(path, header, m, index)
     if header.get("tmi_layer") != "variance":
         raise StackError(f"{path}: header tmi_layer={header.get('tmi_layer')!r}, expected 'variance'")
-    names = channel_names(m["time"]["n_bins"])
-    if set(chans) != set(names) | {TOTAL_CHANNEL}:
-        raise StackError(f"{path}: has {len(chans)} channels, expected {len(names)} time bins and "
-                         f"{TOTAL_CHANNEL!r}")
-    var = np.empty((m["height"], m["width"], len(names)), dtype=np.float32)
-    for b, name in enumerate(names):
-        var[:, :, b] = chans[name].pixels
-    return var, np.asarray(chans[TOTAL_CHANNEL].pixels, dtype=np.float32)
+    totals = _total_names(m)
+    var = _unlayer(path, chans, m, np.dtype(np.float32), names_extra=totals)
+    tot = np.stack([np.asarray(chans[n].pixels, dtype=np.float32) for n in totals], axis=-1)
+    return var, (tot if m.get("channels") else tot[..., 0])

@@ -30,8 +30,9 @@ import numpy as np
 
 from transient_core.errors import UserInputError
 
-from .experiment import (PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, detect_counts, ground_truth,
-                         paper_detector, reconstruct, render_ideal, summed_histogram, write_ground_truth)
+from .experiment import (detect_counts, ground_truth, reconstruct, render_ideal, summed_histogram,
+                         write_ground_truth)
+from .paper import (PAPER, PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, paper_detector)
 from .reporting import METRIC_KEYS, atomic_output_dir, save_figure as _savefig, subplots, write_csv
 
 
@@ -214,8 +215,8 @@ def _figure_histograms(path: Path, hists: dict, s: DemoSettings) -> None:
     axes = np.atleast_1d(axes)
     for ax, n in zip(axes, arrays):
         t, ideal, counts, resolved = hists[n]
-        pulses = s.exposure_s * 50e6
-        expected = _jittered(ideal, t, paper_detector()) * pulses * 0.7
+        pulses = s.exposure_s * PAPER.repetition_rate_hz
+        expected = _jittered(ideal, t, paper_detector()) * pulses * PAPER.pde
         ax.semilogy(t, np.clip(expected, 1e-3, None), color="0.6", lw=0.8,
                     label="expected counts: photons x PDE, jitter (no gate)")
         ax.semilogy(t, np.clip(counts, 0.5, None), color="C3", lw=0.8, label="detected counts (gated)")
@@ -343,17 +344,20 @@ def _write_summary(path: Path, results: list[ArrayResult], s: DemoSettings, quic
     rows = json.loads((path.parent / "metrics.json").read_text())["rows"]
     timing = "\n".join(f"| {r.array}x{r.array} | {r.times_s['render']:.1f} | {r.times_s['detect']:.1f} | "
                        f"{r.times_s['reconstruct']:.1f} |" for r in results)
+    P, B = PAPER, PAPER_BOUNDS_M
     text = f"""# transient-mi demo: the paper's mannequin experiment{' (--quick)' if quick else ''}
 
-Scene `scenes/paper_mannequin.xml`: 1 m x 1 m Lambertian relay wall (albedo 0.8) at z = 0, a
-70 cm x 60 cm mannequin (albedo 0.5) centred 50 cm in front of it, 1550 nm laser at 50 MHz and
-{s.power_w * 1e3:g} mW scanned over {s.spots} x {s.spots} wall spots, SPAD arrays whose pixels each see
-1 cm^2 of wall spread over the whole wall. {_spp_text(s)}, {s.n_bins} bins of
-{s.bin_width_ps:g} ps from {s.t0_ps / 1000:g} ns. Detector: the paper's (70 % PDE, 25 ps FWHM jitter,
-25 cps dark counts, automatic gate with 120 ps transitions, 20 MHz TCSPC), {s.exposure_s * 1e3:g} ms per
+Scene `scenes/paper_mannequin.xml`: {P.wall_size_m:g} m x {P.wall_size_m:g} m Lambertian relay wall (albedo
+{P.wall_albedo:g}) at z = 0, a {P.mannequin_height_m * 100:g} cm x {P.mannequin_width_m * 100:g} cm mannequin (albedo
+{P.mannequin_albedo:g}) centred {P.mannequin_distance_m * 100:g} cm in front of it, {P.wavelength_nm:g} nm laser at
+{P.repetition_rate_hz / 1e6:g} MHz and {s.power_w * 1e3:g} mW scanned over {s.spots} x {s.spots} wall spots, SPAD arrays
+whose pixels each see {P.pixel_footprint_m * 100:g} cm x {P.pixel_footprint_m * 100:g} cm of wall spread over the whole
+wall. {_spp_text(s)}, {s.n_bins} bins of {s.bin_width_ps:g} ps from {s.t0_ps / 1000:g} ns. Detector: the paper's
+({P.pde * 100:g} % PDE, {P.jitter_ps:g} ps FWHM jitter, {P.dark_count_rate_cps:g} cps dark counts, automatic gate with
+{P.gate_transition_ps:g} ps transitions, {P.tcspc_max_count_rate_hz / 1e6:g} MHz TCSPC), {s.exposure_s * 1e3:g} ms per
 laser spot. Reconstruction: ellipsoidal backprojection, Gaussian + Laplacian filter, threshold
-`{s.threshold}`, {s.voxels[0]} x {s.voxels[1]} x {s.voxels[2]} voxels over x, y in [-0.5, 0.5] m,
-z in [0.25, 0.75] m. Seed {s.seed}. Total time {total_s:.0f} s.
+`{s.threshold}`, {s.voxels[0]} x {s.voxels[1]} x {s.voxels[2]} voxels over x in [{B[0]:g}, {B[1]:g}] m,
+y in [{B[2]:g}, {B[3]:g}] m, z in [{B[4]:g}, {B[5]:g}] m. Seed {s.seed}. Total time {total_s:.0f} s.
 
 ## Metrics against the rendered mannequin
 

@@ -6,8 +6,8 @@ was rendered. ``transient-mi demo``, the studies and the notebooks are built
 from these functions:
 
 =====================  ====================================================
-:class:`PaperConfig`   scene parameters of ``scenes/paper_mannequin.xml``
-:func:`paper_detector` the paper's SPAD + TCSPC settings (auto gate)
+:class:`PaperConfig`   scene parameters of ``scenes/paper_mannequin.xml`` (from :mod:`.paper`)
+:func:`paper_detector` the paper's SPAD + TCSPC settings (auto gate; :mod:`.paper`)
 :func:`render_ideal`   ideal capture (expected photons per pulse per bin)
 :func:`detect_counts`  counts capture for a photon budget
 :func:`reconstruct`    backprojection + the paper's filter, with metrics
@@ -17,104 +17,27 @@ from these functions:
 
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-#: Array sizes compared in the paper (Fig. 4 and Fig. 5).
-PAPER_ARRAY_SIZES = (4, 8, 16, 32)
-#: Reconstruction volume: the wall's extent in x and y, 25 cm to 75 cm in front of it.
-PAPER_BOUNDS_M = (-0.5, 0.5, -0.5, 0.5, 0.25, 0.75)
-
-
-@dataclass(frozen=True)
-class PaperConfig:
-    """Parameters of ``scenes/paper_mannequin.xml`` (see the scene file).
-
-    Attributes
-    ----------
-    array : int
-        SPAD array side (pixels); each pixel sees 1 cm^2 of wall, the array
-        spans the 1 m wall.
-    spots : int
-        Laser scan grid side (spots spread over ``scan_extent_m`` of wall,
-        default 2 x 2 over 1 m).
-    scan_extent_m : float
-        Side of the wall square the laser scan covers.
-    distance_m, pose, rotation_deg
-        The mannequin: depth of its centre (m), pose, rotation about y.
-    power_w : float
-        Laser average power (50 MHz, 1550 nm).
-    spp : int
-        Samples per pixel per laser spot.
-    t0_ps, n_bins, bin_width_ps
-        Time axis (t = 0: the pulse leaves the laser).
-    max_depth : int
-        4 = three-bounce light (the paper's model), -1 = every bounce.
-    """
-
-    array: int = 16
-    spots: int = 2
-    scan_extent_m: float = 1.0
-    distance_m: float = 0.5
-    pose: str = "arms_down"
-    rotation_deg: float = 0.0
-    power_w: float = 0.01
-    spp: int = 1024
-    t0_ps: float = 12500.0
-    n_bins: int = 11500
-    bin_width_ps: float = 1.0
-    max_depth: int = 4
-
-    def defines(self) -> dict[str, str]:
-        """The ``-D`` values for ``scenes/paper_mannequin.xml``."""
-        return {
-            "array": str(self.array), "spots": str(self.spots), "scan_extent": repr(float(self.scan_extent_m)), "distance": repr(float(self.distance_m)),
-            "pose": self.pose, "rotation": repr(float(self.rotation_deg)), "power_w": repr(float(self.power_w)),
-            "spp": str(self.spp), "t0_ps": repr(float(self.t0_ps)), "n_bins": str(self.n_bins),
-            "bin_width_ps": repr(float(self.bin_width_ps)), "max_depth": str(self.max_depth),
-        }
-
-    def replace(self, **changes) -> "PaperConfig":
-        return dataclasses.replace(self, **changes)
-
-
-def scene_file() -> Path:
-    """``scenes/paper_mannequin.xml``."""
-    from transient_mi.scenes import scene_path
-
-    return scene_path("paper_mannequin")
-
-
-def paper_detector(**overrides):
-    """The paper's detector: 70 % PDE, 25 ps FWHM jitter, < 25 cps dark counts, a gate with
-    120 ps transitions opened automatically between the earliest and latest three-bounce
-    arrivals from the hidden volume 25-75 cm in front of the wall (which keeps the wall's
-    first-bounce return out), TCSPC limited to 20 MHz; ``overrides`` replace any field of
-    :class:`spad_detector.DetectorParams`."""
-    from spad_detector import DetectorParams
-
-    base = dict(pde=0.70, jitter_ps=25.0, dark_count_rate_cps=25.0, gate_transition_ps=120.0, auto_gate=True,
-                auto_gate_depth_min_m=PAPER_BOUNDS_M[4], auto_gate_depth_max_m=PAPER_BOUNDS_M[5],
-                tcspc_max_count_rate_hz=20e6)
-    base.update(overrides)
-    return DetectorParams(**base).validate()
+from .paper import PAPER, PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, paper_detector, scene_file  # noqa: F401
 
 
 def ground_truth(cfg: PaperConfig):
     """The mannequin the scene renders (``trimesh.Trimesh``), for metrics and figures."""
     from transient_mi.scenes.mannequin import make_mannequin
 
-    return make_mannequin(pose=cfg.pose, rotation_deg=cfg.rotation_deg, position=(0.0, 0.0, cfg.distance_m))
+    return make_mannequin(pose=cfg.pose, rotation_deg=cfg.rotation_deg, position=(0.0, 0.0, cfg.distance_m),
+                          width_m=PAPER.mannequin_width_m, height_m=PAPER.mannequin_height_m)
 
 
 def write_ground_truth(cfg: PaperConfig, path) -> Path:
     """Write :func:`ground_truth` as PLY (atomically)."""
     from transient_mi.scenes.mannequin import write_mannequin
 
-    return write_mannequin(path, pose=cfg.pose, rotation_deg=cfg.rotation_deg, position=(0.0, 0.0, cfg.distance_m))
+    return write_mannequin(path, pose=cfg.pose, rotation_deg=cfg.rotation_deg, position=(0.0, 0.0, cfg.distance_m),
+                           width_m=PAPER.mannequin_width_m, height_m=PAPER.mannequin_height_m)
 
 
 def render_ideal(cfg: PaperConfig, out_dir, *, seed: int = 0, resume: bool = False,
@@ -186,12 +109,13 @@ def reconstruct(capture_dir, *, voxels=(64, 64, 32), bounds=PAPER_BOUNDS_M, meth
 
 def summed_histogram(capture_dir) -> tuple[np.ndarray, np.ndarray]:
     """``(t_ns, values)``: a capture's histograms summed over spots and pixels."""
-    from transient_core.stack import iter_spots, read_manifest
+    from transient_core.stack import intensity, iter_spots, read_manifest
 
     m = read_manifest(capture_dir)
     t = m["time"]
     total = np.zeros(t["n_bins"], dtype=np.float64)
     for _, data in iter_spots(capture_dir):
+        data = intensity(data, m)
         total += data.reshape(-1, t["n_bins"]).sum(axis=0, dtype=np.float64)
     t_ns = (t["t0_ps"] + (np.arange(t["n_bins"]) + 0.5) * t["bin_width_ps"]) / 1000.0
     return t_ns, total

@@ -261,7 +261,7 @@ print("counts per pixel with crosstalk:\n", c5.sum(-1))
 # %%
 import transient_mi  # noqa: F401  (registers the plug-ins and selects the LLVM before Mitsuba runs)
 from spad_detector import detect_stack
-from transient_mi.experiment import paper_detector
+from transient_mi.paper import paper_detector
 from transient_mi.render_capture import render
 from transient_mi.scenes import scene_path
 from transient_core.stack import read_stack

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from transient_core.errors import UserInputError
-from transient_core.stack import StackError, missing_spots, read_manifest, read_spot, spot_filename
+from transient_core.stack import StackError, missing_spots, read_intensity, read_manifest, spot_filename
 
 #: Ideal captures up to this size (float32 bytes) are kept in memory; larger ones are re-read per spot.
 CACHE_LIMIT_BYTES = 1 << 30
@@ -53,7 +53,7 @@ class IdealCapture:
         """Spot ``j``: float32 ``[H, W, T]`` (read-only when cached)."""
         if self._cache is not None and j in self._cache:
             return self._cache[j]
-        data = read_spot(self.path, j, self.manifest)
+        data = read_intensity(self.path, j, self.manifest)
         if self._cache is not None:
             data.setflags(write=False)
             self._cache[j] = data
@@ -135,6 +135,8 @@ class Detection:
         m = self.ideal.manifest
         if not has_variance(m):
             return unavailable("the ideal capture stores no variance")
+        if m.get("channels"):
+            return unavailable("a multi-channel capture stores per-channel variances, not its intensity's")
         _, H, W, T = self.ideal.shape
         nr = NoiseRatio()
         s2 = self.budget.photon_scale ** 2

@@ -38,7 +38,7 @@ def paper_base(quick: bool):
     from transient_mi.demo import QUICK, DemoSettings
 
     s = QUICK if quick else DemoSettings()
-    from transient_mi.experiment import PaperConfig
+    from transient_mi.paper import PaperConfig
 
     return PaperConfig(spots=s.spots, power_w=s.power_w, spp=s.spp, t0_ps=s.t0_ps, n_bins=s.n_bins,
                        bin_width_ps=s.bin_width_ps)
@@ -146,7 +146,7 @@ def _paper_config(base, defines: dict):
 
 def study_scene(scene, defines=None, *, quick: bool = False) -> StudyScene:
     """Resolve ``scene`` and its defines (see the module docstring)."""
-    from transient_mi.experiment import scene_file
+    from transient_mi.paper import scene_file
 
     path = resolve_scene_file(scene)
     given = check_defines(defines)
@@ -230,7 +230,7 @@ def reconstruction_bounds(scene: StudyScene, bounds=None):
                                  "with each min < max")
         return b
     if scene.is_paper:
-        from transient_mi.experiment import PAPER_BOUNDS_M
+        from transient_mi.paper import PAPER_BOUNDS_M
 
         return PAPER_BOUNDS_M
     return None
@@ -246,7 +246,7 @@ def base_detector(scene: StudyScene, detector=None):
             raise UserInputError(f"detector={detector!r}: expected a spad_detector.DetectorParams")
         return detector.validate()
     if scene.is_paper:
-        from transient_mi.experiment import paper_detector
+        from transient_mi.paper import paper_detector
 
         return paper_detector()
     return DetectorParams(auto_gate=True).validate()

@@ -271,9 +271,9 @@ class CaptureData:
         if self.capture is not None:
             arr = self.capture.spot(j)
         else:
-            from transient_core.stack import read_spot
+            from transient_core.stack import read_intensity
 
-            arr = read_spot(self.path, j, self.manifest)
+            arr = read_intensity(self.path, j, self.manifest)
         arr = np.asarray(arr, dtype=np.float32)
         self._cached = (j, arr)
         return arr
