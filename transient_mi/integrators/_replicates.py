@@ -70,15 +70,15 @@ class ReplicateStats:
     ----------
     n : int
         Replicates accumulated.
-    mean : ndarray of float32, shape ``(n_pixels, n_bins)``
+    mean : ndarray of float32, shape ``(n_pixels, n_bins)`` or ``(n_pixels, n_bins, n_channels)``
         Mean of the replicates (the capture's values). The first replicate's
         array is used in place, not copied (a large camera film is not held
         twice).
     m2 : ndarray of float32, same shape, or None
         Sum of squared deviations from the mean (None while ``n < 2``:
         allocated by the second replicate).
-    total_mean, total_m2 : ndarray of float64, shape ``(n_pixels,)``
-        The same for each pixel's time-integrated (in-range) total.
+    total_mean, total_m2 : ndarray of float64, shape ``(n_pixels,)`` (or ``(n_pixels, n_channels)``)
+        The same for each pixel's time-integrated (in-range) total (summed over axis 1, time).
     """
 
     n: int
@@ -90,7 +90,7 @@ class ReplicateStats:
     @classmethod
     def first(cls, hist: np.ndarray) -> "ReplicateStats":
         h = np.asarray(hist, dtype=np.float32)
-        tot = h.sum(axis=-1, dtype=np.float64)
+        tot = h.sum(axis=1, dtype=np.float64)
         return cls(1, h, None, tot, np.zeros_like(tot))
 
     def add(self, hist: np.ndarray) -> None:
@@ -103,7 +103,7 @@ class ReplicateStats:
         self.mean += delta / np.float32(self.n)
         delta *= h - self.mean
         self.m2 += delta
-        tot = h.sum(axis=-1, dtype=np.float64)
+        tot = h.sum(axis=1, dtype=np.float64)
         d = tot - self.total_mean
         self.total_mean += d / self.n
         self.total_m2 += d * (tot - self.total_mean)
@@ -138,11 +138,14 @@ class ReplicateStats:
     def from_result(cls, result) -> "ReplicateStats":
         """Rebuild the statistics of a :class:`TransientResult` (to merge a later batch into it)."""
         n = int(result.replicates)
-        mean = np.asarray(result.histogram, dtype=np.float32).reshape(-1, result.histogram.shape[-1]).copy()
+        h = np.asarray(result.histogram, dtype=np.float32)
+        # [H, W, T] -> [P, T]; [H, W, T, C] -> [P, T, C]
+        mean = h.reshape((-1,) + h.shape[2:]).copy()
+        tot = mean.sum(axis=1, dtype=np.float64)
         if n >= 2 and result.variance is not None:
             m2 = np.asarray(result.variance, dtype=np.float32).reshape(mean.shape) * np.float32(n * (n - 1))
-            tm2 = np.asarray(result.total_variance, dtype=np.float64).reshape(-1) * (n * (n - 1))
+            tm2 = np.asarray(result.total_variance, dtype=np.float64).reshape(tot.shape) * (n * (n - 1))
         else:
             m2 = None
-            tm2 = np.zeros(mean.shape[0])
-        return cls(n, mean, m2, mean.sum(axis=-1, dtype=np.float64), tm2)
+            tm2 = np.zeros_like(tot)
+        return cls(n, mean, m2, tot, tm2)
