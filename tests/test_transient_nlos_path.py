@@ -114,3 +114,32 @@ def test_mi_render_returns_the_film_histogram():
     img = np.asarray(mi.render(sc, spp=4))
     assert img.shape == (2, 3, WINDOW["n_bins"])
     assert np.array_equal(img, sc.sensors()[0].film().result.histogram)
+
+
+def test_one_lane_policy_gives_the_stream_counts_of_both_former_rules():
+    """``_lanes.streams_for`` replaced two loops (cameras: ``choose_streams``; NLOS groups: ``group_layout``);
+    the stream count K, and so every byte, must be what the former rules gave, in every case, the memory cap
+    binding or not."""
+    from transient_mi.integrators._lanes import (CAMERA_TARGET_LANES_LLVM, MAX_SLOT_FLOATS,
+                                                 NLOS_GROUP_TARGET_LANES, choose_streams)
+    from transient_mi.integrators._nlos_render import group_layout
+
+    def camera_before(P, spp, T):
+        k = 1
+        while k * 2 <= spp and P * k * 2 <= CAMERA_TARGET_LANES_LLVM and P * k * 2 * T <= MAX_SLOT_FLOATS:
+            k *= 2
+        return k
+
+    def nlos_before(P, spp):
+        k = 1
+        while k * 2 <= spp and P * k * 2 <= NLOS_GROUP_TARGET_LANES:
+            k *= 2
+        return k
+
+    assert (CAMERA_TARGET_LANES_LLVM, NLOS_GROUP_TARGET_LANES, MAX_SLOT_FLOATS) == (1 << 15, 1 << 10, 1 << 28)
+    for P in (1, 3, 16, 100, 1024, 4096, 1 << 15, 1 << 17):
+        for spp in (1, 2, 7, 64, 1000, 1 << 16):
+            for T in (1, 48, 1500, 1 << 14, 1 << 18, (1 << 20) + 40):
+                if P * T <= MAX_SLOT_FLOATS:  # (both rules raise MemoryError beyond)
+                    assert choose_streams(P, spp, T) == camera_before(P, spp, T), (P, spp, T)
+                assert group_layout(P, spp, T, 8)[0] == nlos_before(P, spp), (P, spp, T)
