@@ -9,7 +9,8 @@ import numpy as np
 
 from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_streams,
                                              seed_rng, to_mono)
-from transient_mi.integrators._path_options import read_nlos_options, read_path_params
+from transient_mi.integrators._path_options import (check_render_call, read_nlos_options, read_path_params,
+                                                     replicates_for)
 from transient_mi.integrators._replicates import (ReplicateStats, effective_replicates,
                                                   replicate_seed)
 from transient_mi.integrators.transient_nlos_path import is_nlos_sensor, render_nlos
@@ -104,12 +105,8 @@ class TransientPath(mi.CppADIntegrator):
         self.nlos_options = read_nlos_options(props, self.NAME)
 
     def replicates_for(self, nlos: bool) -> int:
-        """Replicates a render is split into: ``variance_replicates`` if given, else 1 (a single estimate, no
-        variance: the fastest render, as ``mi.render`` and direct calls get). ``transient-mi render`` and
-        everything built on it (demo, studies, datasets) set
-        :data:`~transient_mi.integrators._replicates.DEFAULT_REPLICATES` for NLOS captures, so the captures
-        they write carry their variance (:func:`transient_mi.render_capture.prepare_render`)."""
-        return int(self.variance_replicates) if self.variance_replicates is not None else 1
+        """Replicates a render is split into (cameras and NLOS alike, see :func:`~._path_options.replicates_for`)."""
+        return replicates_for(self.variance_replicates)
 
     # ---------------------------------------------------------------- API
 
@@ -154,23 +151,7 @@ class TransientPath(mi.CppADIntegrator):
         -------
         TransientResult
         """
-        film = sensor.film()
-        if not hasattr(film, "is_transient"):
-            raise PluginParameterError(
-                f"{self.NAME}: the sensor's film is {type(film).__name__}; use a transient_film or spad_film"
-            )
-        if not mi.variant().startswith(("llvm_", "cuda_")):
-            raise PluginParameterError(
-                f"{self.NAME}: rendering needs a JIT variant (llvm_* or cuda_*), not {mi.variant()}; "
-                "scalar_* variants load scenes and construct plug-ins for debugging only")
-        if not 0 <= seed < 2**32:
-            raise PluginParameterError(f"{self.NAME}: seed={seed} must be in [0, 2**32)")
-        film.set_result(None)  # release the previous render's histogram before allocating
-        spp = spp or int(sensor.sampler().sample_count())
-        if spp < 1:
-            raise PluginParameterError(f"{self.NAME}: spp={spp} must be >= 1")
-        if replicates is not None and (replicates < 1 or spp % replicates):
-            raise PluginParameterError(f"{self.NAME}: replicates={replicates} must be >= 1 and divide spp={spp}")
+        film, spp = check_render_call(self.NAME, sensor, seed, spp, replicates)
         if is_nlos_sensor(sensor):  # the estimator of transient_nlos_path, with this integrator's parameters
             return render_nlos(self, scene, sensor, seed=seed, spp=spp, spot=spot, spots=spots, progress=progress,
                                replicate_offset=replicate_offset, replicates=replicates)
