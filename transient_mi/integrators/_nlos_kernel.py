@@ -288,6 +288,13 @@ def _first_bounce(scene, si, active, u, rng, c, hidden_ptrs, distr, wall_ptr, ct
     return si_next, weight, eta, active & si_next.is_valid()
 
 
+def _sensor_weight(c: KernelConstants, d, dist2):
+    """``W0 = A_ap cos(theta_ap) A_pix cos(theta_q) / |q - D|^2`` (m^2 sr) for the direction ``d`` from the
+    detector to the patch point ``q`` at squared distance ``dist2`` (m^2); 0 behind the aperture."""
+    return c.aperture_area_m2 * dr.maximum(dr.dot(d, c.aperture_normal), 0.0) * c.pixel_area_m2 * \
+        dr.abs(dr.dot(d, c.wall_normal)) / dist2
+
+
 @dr.syntax
 def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelScene):
     """Trace the samples ``[j0, j1)`` of every lane (``k + j K``, :class:`~._lanes.LaneLayout`) and record
@@ -323,12 +330,10 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
             to_c = si_c.p - c.detector
             si_c.wi = si_c.to_local(-dr.normalize(to_c))
         else:
-            si_c = scene.ray_intersect(mi.Ray3f(c.detector, dr.normalize(centre - c.detector)), ray_flags=mi.RayFlags.All,
-                                       coherent=True)
+            si_c = scene.ray_intersect(mi.Ray3f(c.detector, dr.normalize(centre - c.detector)),
+                                       ray_flags=mi.RayFlags.All, coherent=True)
         to_c = centre - c.detector
-        d_c = dr.normalize(to_c)
-        w0_c = c.aperture_area_m2 * dr.maximum(dr.dot(d_c, c.aperture_normal), 0.0) * c.pixel_area_m2 * dr.abs(dr.dot(d_c, c.wall_normal)) / \
-            dr.squared_norm(to_c)
+        w0_c = _sensor_weight(c, dr.normalize(to_c), dr.squared_norm(to_c))
         opl_c = c.first_last_factor * dr.norm(si_c.p - c.detector)
 
     j = mi.UInt32(dr.opaque(mi.UInt32, j0))
@@ -353,8 +358,7 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
             to_q = q - c.detector
             dist_q = dr.norm(to_q)
             d0 = to_q / dist_q
-            w0 = c.aperture_area_m2 * dr.maximum(dr.dot(d0, c.aperture_normal), 0.0) * c.pixel_area_m2 * dr.abs(dr.dot(d0, c.wall_normal)) / \
-                dr.square(dist_q)
+            w0 = _sensor_weight(c, d0, dr.square(dist_q))
             si = scene.ray_intersect(mi.Ray3f(c.detector, d0), ray_flags=mi.RayFlags.All, coherent=True)
             opl = c.first_last_factor * si.t
         active = si.is_valid()

@@ -73,10 +73,10 @@ array's current spot, or in confocal mode the spot on patch ``k``):
   other strategy can reach it: no MIS weight is needed.
 * **Next direction at the patch point: one-sample MIS** between BSDF
   sampling (probability ``1 - alpha``) and hidden-geometry sampling
-  (probability ``alpha``, integrator parameter ``hidden_geometry_prob``): a hidden shape is chosen in proportion to its area
-  and a point ``X`` uniformly on it (area pdf ``1/A_hidden`` for every
-  hidden point), as in Royo et al. 2022, "Non-line-of-sight transient
-  rendering". The ray towards ``X`` is traced; if its first hit is not
+  (probability ``alpha``, integrator parameter ``hidden_geometry_prob``):
+  a hidden shape is chosen in proportion to its area and a point ``X``
+  uniformly on it (area pdf ``1/A_hidden`` for every hidden point), as in
+  Royo et al. 2022, "Non-line-of-sight transient rendering". The ray towards ``X`` is traced; if its first hit is not
   ``X`` (occluded) the sample contributes nothing. Either way the
   continuation vertex ``Y`` is weighted with the balance heuristic,
   ``f cos / (alpha p_hidden(w) + (1 - alpha) p_bsdf(w))`` with
@@ -100,8 +100,8 @@ array's current spot, or in confocal mode the spot on patch ``k``):
   than ``1/sqrt(spp)``. Deeper dimensions use PCG32 streams. ``rqmc=false``
   (integrator parameter) draws every dimension from PCG32 (plain Monte
   Carlo), for comparisons.
-* **Spot groups (array captures):** :func:`~._nlos_render.render_spots` renders several
-  spots together; they share each sample's detector-side sub-path and
+* **Spot groups (array captures):** :func:`~._nlos_render.render_spots`
+  renders several spots together; they share each sample's detector-side sub-path and
   differ only in the final spot connection (each estimate unbiased).
 * **Patch centres only** (``pixel_sampling="center"``): the wall point is
   the patch centre (the point approximation of mitransient/y-tal); in
