@@ -124,7 +124,7 @@ def ours_scene_dict(cfg):
 
     d = {
         "type": "scene",
-        "integrator": {"type": "transient_path", "max_depth": 4,
+        "integrator": {"type": "transient_nlos_path", "max_depth": 4,
                        "hidden_geometry_prob": cfg.get("hidden_geometry_prob", 0.8)},
         "laser": {"type": "pulsed_laser", "origin": mi.ScalarPoint3f(*LASER), "target": mi.ScalarPoint3f(0, 0, 0),
                   "spots_x": W if cfg["capture"] == "array" else 1, "spots_y": W if cfg["capture"] == "array" else 1,
@@ -157,7 +157,7 @@ def ours_scene_xml(cfg, n_spots_side: int) -> str:
     <bsdf type="diffuse"><rgb name="reflectance" value="{r['albedo']}"/></bsdf></shape>""")
     return f"""<scene version="3.0.0">
   <default name="spp" value="4"/>
-  <integrator type="transient_path"><integer name="max_depth" value="4"/></integrator>
+  <integrator type="transient_nlos_path"><integer name="max_depth" value="4"/></integrator>
   <emitter type="pulsed_laser"><point name="origin" value="{', '.join(map(str, LASER))}"/>
     <point name="target" value="0, 0, 0"/><integer name="spots_x" value="{n_spots_side}"/>
     <integer name="spots_y" value="{n_spots_side}"/><float name="spot_spacing_m" value="{fp}"/>

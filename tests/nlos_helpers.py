@@ -36,11 +36,12 @@ def square(center, side, albedo, *, normal_z=-1.0, id_="target"):
 def nlos_scene(*, width=4, height=4, footprint=0.05, capture="array", spots=(1, 1), spacing=0.0,
                laser_target=(0.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), include_first_last=True,
                include_wall_return=True, max_depth=4, n_bins=256, bin_width_ps=10.0, t0_ps=0.0,
-               hidden=None, laser=LASER, detector=DETECTOR, spp=64, hidden_geometry_prob=None, pitch=None):
+               hidden=None, laser=LASER, detector=DETECTOR, spp=64, hidden_geometry_prob=None, pitch=None,
+               integrator="transient_nlos_path"):
     """Load an NLOS scene: 1 m x 1 m relay wall at z = 0 plus ``hidden`` shapes (dicts)."""
     import mitsuba as mi
 
-    integ = {"type": "transient_path", "max_depth": max_depth}
+    integ = {"type": integrator, "max_depth": max_depth}
     if hidden_geometry_prob is not None:
         integ["hidden_geometry_prob"] = hidden_geometry_prob
     d = {

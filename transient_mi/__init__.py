@@ -7,7 +7,8 @@ Importing this package
 2. selects a Mitsuba variant (``llvm_ad_mono`` unless ``TRANSIENT_MI_VARIANT``
    says otherwise, see :mod:`transient_mi.variant`),
 3. registers the plug-ins ``transient_film``, ``spad_film``,
-   ``transient_path``, ``spad_array`` and ``pulsed_laser`` with Mitsuba, so
+   ``transient_path``, ``transient_nlos_path``, ``spad_array`` and
+   ``pulsed_laser`` with Mitsuba, so
    they can be used from XML scenes and Python dictionaries.
 
 Switch variants afterwards with :func:`transient_mi.set_variant`, which

@@ -138,7 +138,8 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
     integrator = scene.integrator()
     if not hasattr(integrator, "render_transient"):
         raise UserInputError(f"{scene_file}: integrator is {type(integrator).__name__}; "
-                             "use <integrator type=\"transient_path\"> for transient renders")
+                             "use <integrator type=\"transient_path\"> (cameras) or \"transient_nlos_path\" "
+                             "(spad_array) for transient renders")
     film = sensor.film()
     if not hasattr(film, "is_transient"):
         raise UserInputError(f"{scene_file}: the sensor's film must be a transient_film or spad_film")

@@ -11,7 +11,7 @@ from ._options import whole_number
 
 
 def render(
-    scene: Path = typer.Argument(..., help="Mitsuba XML scene (transient_path integrator, transient_film/spad_film)."),
+    scene: Path = typer.Argument(..., help="Mitsuba XML scene (transient_path or transient_nlos_path integrator, transient_film/spad_film)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output capture directory."),
     define: Optional[List[str]] = typer.Option(None, "-D", "--define", help="Scene parameter name=value ($name in the XML). Repeatable."),
     spp: Optional[int] = typer.Option(None, "--spp", parser=whole_number("--spp"), metavar="<int>", help="Samples per pixel, >= 1 (default: the scene's sampler "

@@ -36,7 +36,7 @@ class PulsedLaser(mi.Emitter):
     The emitter is a delta in position and direction: Mitsuba's own
     integrators can neither hit nor sample it (it emits nothing for them).
     It is used by the ``spad_array`` sensor's NLOS estimator, which treats
-    the lit spot as a point source (see :mod:`transient_mi.integrators._nlos`).
+    the lit spot as a point source (see :mod:`transient_mi.integrators.transient_nlos_path`).
     In a ``confocal`` capture the sensor aims the laser at each pixel's
     patch centre instead, and the scan grid is not used.
 

@@ -69,7 +69,7 @@ class TransientFilm(mi.Film):
     Stores, for every pixel, a histogram of the light arriving over time.
     Works under any sensor: a perspective camera gives a transient video, a
     ``spad_array`` an NLOS capture. Render it with the ``transient_path``
-    integrator.
+    integrator (cameras) or ``transient_nlos_path`` (``spad_array``).
 
     .. list-table::
        :header-rows: 1
@@ -147,14 +147,14 @@ class TransientFilm(mi.Film):
     def develop(self, raw: bool = False):
         """The last render's histograms as ``mi.TensorXf [height, width, n_bins]``."""
         if self.result is None:
-            raise RuntimeError(f"{self.NAME}: nothing rendered yet (render with the transient_path integrator)")
+            raise RuntimeError(f"{self.NAME}: nothing rendered yet (render with the transient_path or transient_nlos_path integrator)")
         return mi.TensorXf(self.result.histogram)
 
     # Mitsuba's C++ integrators would call these; they cannot fill a transient film.
     def prepare(self, aovs):
         raise RuntimeError(
-            f"{self.NAME} must be rendered with the transient_path integrator "
-            "(Mitsuba's own integrators do not record path lengths)"
+            f"{self.NAME} must be rendered with the transient_path integrator (or transient_nlos_path under a "
+            "spad_array; Mitsuba's own integrators do not record path lengths)"
         )
 
     def to_string(self):

@@ -14,8 +14,14 @@ output element per lane of a gather kernel).
 number of threads), so results are byte-identical across runs and machines
 with the same backend.
 
-Memory: ``lanes * n_bins_ext`` float32 values (``n_bins_ext`` = bins plus
-kernel padding); ``K`` is reduced to keep this under ``MAX_SLOT_FLOATS``.
+One lane-layout policy (:func:`streams_for`) serves both integrators; only
+the lane target differs (:data:`CAMERA_TARGET_LANES_LLVM`,
+:data:`CAMERA_TARGET_LANES_CUDA` for cameras, :data:`NLOS_GROUP_TARGET_LANES`
+for NLOS spot groups) and the memory bound: a camera's lane histograms hold
+``lanes * n_bins_ext`` float32 values (``n_bins_ext`` = bins plus kernel
+padding), kept under :data:`MAX_SLOT_FLOATS` by reducing ``K``; an NLOS spot
+group's memory is bounded by the number of spots rendered together instead
+(see :func:`transient_mi.integrators._nlos_render.group_layout`).
 """
 
 from __future__ import annotations
@@ -30,10 +36,17 @@ import numpy as np
 from transient_core.units import C_M_PER_PS
 from transient_mi.time_axis import TimeAxis, apply_kernel
 
-#: Lanes to aim for per launch (enough to keep every CPU thread's SIMD busy).
-TARGET_LANES_LLVM = 1 << 15
-TARGET_LANES_CUDA = 1 << 19
-#: Upper bound on the float32 values held in lane histograms (1 GiB).
+#: Lanes per launch for cameras (:func:`choose_streams`): many lanes, enough to fill every CPU thread's
+#: SIMD units (LLVM) or the GPU (CUDA); each lane traces few samples, and the lane histograms are summed
+#: once per render.
+CAMERA_TARGET_LANES_LLVM = 1 << 15
+CAMERA_TARGET_LANES_CUDA = 1 << 19
+#: Lanes per launch for NLOS spot groups (:func:`~transient_mi.integrators._nlos_render.group_layout`): few
+#: lanes, since every lane holds one histogram per spot of its group and these are zeroed and summed for
+#: every launch; fewer lanes leave room for more spots per group (which share the detector-side
+#: sub-paths), and each lane loops over many samples.
+NLOS_GROUP_TARGET_LANES = 1 << 10
+#: Upper bound on the float32 values held in a camera's lane histograms (1 GiB).
 MAX_SLOT_FLOATS = 1 << 28
 #: Paths per kernel launch (one progress-bar step).
 PATHS_PER_PASS = 1 << 21
@@ -43,18 +56,34 @@ def is_cuda() -> bool:
     return mi.variant().startswith("cuda_")
 
 
-def choose_streams(n_pixels: int, spp: int, n_bins_ext: int) -> int:
-    """Sample streams ``K`` per pixel (a power of two, 1 <= K <= spp)."""
-    target = TARGET_LANES_CUDA if is_cuda() else TARGET_LANES_LLVM
+def streams_for(n_pixels: int, spp: int, n_bins_ext: int, target_lanes: int, max_floats: int | None) -> int:
+    """Sample streams ``K`` per pixel: the layout policy of every transient integrator.
+
+    ``K`` is the largest power of two with ``K <= spp``, ``n_pixels * K <= target_lanes`` and (unless
+    ``max_floats`` is None) ``n_pixels * K * n_bins_ext <= max_floats`` float32 histogram values; at least 1.
+    It depends only on these numbers (never on the number of threads): same seed, same bytes.
+
+    Raises
+    ------
+    MemoryError
+        ``max_floats`` is given and even ``K = 1`` needs more than ``max_floats`` values.
+    """
     k = 1
-    while k * 2 <= spp and n_pixels * k * 2 <= target and n_pixels * k * 2 * n_bins_ext <= MAX_SLOT_FLOATS:
+    while (k * 2 <= spp and n_pixels * k * 2 <= target_lanes
+           and (max_floats is None or n_pixels * k * 2 * n_bins_ext <= max_floats)):
         k *= 2
-    if n_pixels * n_bins_ext > MAX_SLOT_FLOATS:
+    if max_floats is not None and n_pixels * n_bins_ext > max_floats:
         raise MemoryError(
             f"film of {n_pixels} pixels x {n_bins_ext} bins needs {n_pixels * n_bins_ext * 4 / 2**30:.1f} GiB "
             "of histogram memory; use fewer pixels or bins"
         )
     return k
+
+
+def choose_streams(n_pixels: int, spp: int, n_bins_ext: int) -> int:
+    """Sample streams ``K`` per pixel of a camera render (a power of two, 1 <= K <= spp; see :func:`streams_for`)."""
+    target = CAMERA_TARGET_LANES_CUDA if is_cuda() else CAMERA_TARGET_LANES_LLVM
+    return streams_for(n_pixels, spp, n_bins_ext, target, MAX_SLOT_FLOATS)
 
 
 def seed_rng(seed: int, n_lanes: int):

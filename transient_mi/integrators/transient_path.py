@@ -9,9 +9,12 @@ import numpy as np
 
 from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_streams,
                                              seed_rng, to_mono)
+from transient_mi.integrators._path_options import (check_render_call, read_nlos_options, read_path_params,
+                                                     replicates_for)
 from transient_mi.integrators._replicates import (ReplicateStats, effective_replicates,
                                                   replicate_seed)
-from transient_mi.props import PluginParameterError, get_bool, get_float, get_int
+from transient_mi.integrators.transient_nlos_path import is_nlos_sensor, render_nlos
+from transient_mi.props import PluginParameterError
 
 PLUGIN = ("integrator", "transient_path", "TransientPath")
 
@@ -40,9 +43,11 @@ class TransientPath(mi.CppADIntegrator):
     Infinitely distant emitters (environment, directional) have no time of
     flight: their contributions are dropped and counted.
 
-    With a ``spad_array`` sensor the integrator uses the NLOS estimator of
-    that sensor (laser-spot and hidden-geometry sampling), see
-    :mod:`transient_mi.sensors.spad_array`.
+    With a ``spad_array`` sensor it delegates to the NLOS estimator of
+    ``transient_nlos_path`` (laser-spot and hidden-geometry sampling, see
+    :mod:`transient_mi.integrators.transient_nlos_path`) with these
+    parameters: same seed, same bytes as ``transient_nlos_path``, the NLOS
+    integrator new scenes should name.
 
     .. list-table::
        :header-rows: 1
@@ -91,38 +96,17 @@ class TransientPath(mi.CppADIntegrator):
 
     def __init__(self, props: mi.Properties):
         super().__init__(props)
-        max_depth = get_int(props, self.NAME, "max_depth", -1, min_value=-1)
-        if max_depth == 0:
-            raise PluginParameterError(f"{self.NAME}: max_depth=0 records nothing; use -1 (unlimited) or >= 1")
+        max_depth, self.rr_depth, replicates = read_path_params(props, self.NAME)
         self.max_depth_param = max_depth
         self.max_depth = max_depth if max_depth != -1 else 0xFFFFFFFF
-        self.rr_depth = get_int(props, self.NAME, "rr_depth", 5, min_value=1)
         #: None: the default for the sensor (see :meth:`replicates_for`)
-        self.variance_replicates = (get_int(props, self.NAME, "variance_replicates", None, min_value=1,
-                                            max_value=1024) if "variance_replicates" in props else None)
-        self.nlos_options = self._read_nlos_options(props)
+        self.variance_replicates = replicates
+        #: NLOS only (``rqmc``, ``hidden_geometry_prob``), see :func:`~._path_options.read_nlos_options`
+        self.nlos_options = read_nlos_options(props, self.NAME)
 
     def replicates_for(self, nlos: bool) -> int:
-        """Replicates a render is split into: ``variance_replicates`` if given, else 1 (a single estimate, no
-        variance: the fastest render, as ``mi.render`` and direct calls get). ``transient-mi render`` and
-        everything built on it (demo, studies, datasets) set
-        :data:`~transient_mi.integrators._replicates.DEFAULT_REPLICATES` for NLOS captures, so the captures
-        they write carry their variance (:func:`transient_mi.render_capture.prepare_render`)."""
-        return int(self.variance_replicates) if self.variance_replicates is not None else 1
-
-    def _read_nlos_options(self, props) -> dict:
-        """Extra parameters used with NLOS sensors (``spad_array``).
-
-        ``hidden_geometry_prob``: probability of choosing hidden-geometry
-        (area) sampling over BSDF sampling for the direction leaving the
-        relay-wall patch point (one-sample MIS with the balance heuristic,
-        see :mod:`transient_mi.integrators._nlos`); in [0, 1], default 0.8.
-        """
-        return {
-            "rqmc": get_bool(props, self.NAME, "rqmc", True),
-            "hidden_geometry_prob": get_float(props, self.NAME, "hidden_geometry_prob", 0.8,
-                                              min_value=0.0, max_value=1.0),
-        }
+        """Replicates a render is split into (cameras and NLOS alike, see :func:`~._path_options.replicates_for`)."""
+        return replicates_for(self.variance_replicates)
 
     # ---------------------------------------------------------------- API
 
@@ -167,31 +151,10 @@ class TransientPath(mi.CppADIntegrator):
         -------
         TransientResult
         """
-        film = sensor.film()
-        if not hasattr(film, "is_transient"):
-            raise PluginParameterError(
-                f"{self.NAME}: the sensor's film is {type(film).__name__}; use a transient_film or spad_film"
-            )
-        if not mi.variant().startswith(("llvm_", "cuda_")):
-            raise PluginParameterError(
-                f"{self.NAME}: rendering needs a JIT variant (llvm_* or cuda_*), not {mi.variant()}; "
-                "scalar_* variants load scenes and construct plug-ins for debugging only")
-        if not 0 <= seed < 2**32:
-            raise PluginParameterError(f"{self.NAME}: seed={seed} must be in [0, 2**32)")
-        film.set_result(None)  # release the previous render's histogram before allocating
-        spp = spp or int(sensor.sampler().sample_count())
-        if spp < 1:
-            raise PluginParameterError(f"{self.NAME}: spp={spp} must be >= 1")
-        if replicates is not None and (replicates < 1 or spp % replicates):
-            raise PluginParameterError(f"{self.NAME}: replicates={replicates} must be >= 1 and divide spp={spp}")
-        if hasattr(sensor, "nlos_estimator"):
-            if spots is not None:
-                results = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spots=spots, progress=progress,
-                                                replicate_offset=replicate_offset, replicates=replicates)
-                film.set_result(results[-1])
-                return results
-            result = sensor.nlos_estimator(self, scene, seed=seed, spp=spp, spot=spot, progress=progress,
-                                           replicate_offset=replicate_offset, replicates=replicates)
+        film, spp = check_render_call(self.NAME, sensor, seed, spp, replicates)
+        if is_nlos_sensor(sensor):  # the estimator of transient_nlos_path, with this integrator's parameters
+            return render_nlos(self, scene, sensor, seed=seed, spp=spp, spot=spot, spots=spots, progress=progress,
+                               replicate_offset=replicate_offset, replicates=replicates)
         else:
             if spot not in (None, 0) or spots not in (None, [0]):
                 raise PluginParameterError(f"{self.NAME}: spot={spot} given, but the sensor is a camera")

@@ -30,11 +30,13 @@ class SpadArray(mi.Sensor):
     towards the detector's aperture. The values recorded are the expected
     photons per laser pulse per time bin reaching the pixel (before any
     detector effect); the full radiometric chain and the estimator are
-    documented in :mod:`transient_mi.integrators._nlos`.
+    documented in :mod:`transient_mi.integrators.transient_nlos_path`.
 
     The relay wall is the surface hit by the ray from ``origin`` to
-    ``target``; every other shape is hidden geometry. Render with the
-    ``transient_path`` integrator and exactly one ``pulsed_laser``.
+    ``target``; every other shape is hidden geometry (the scene analysis:
+    :mod:`transient_mi.sensors._nlos_setup`). Render with the
+    ``transient_nlos_path`` integrator (``transient_path`` delegates to it)
+    and exactly one ``pulsed_laser``.
 
     Captures (``capture``):
 
@@ -157,8 +159,8 @@ class SpadArray(mi.Sensor):
     # ------------------------------------------------------------ NLOS API
 
     def nlos_setup(self, scene):
-        """The validated :class:`~transient_mi.integrators._nlos.NLOSSetup` for ``scene`` (cached)."""
-        from transient_mi.integrators._nlos import NLOSSetup
+        """The validated :class:`~transient_mi.sensors._nlos_setup.NLOSSetup` for ``scene`` (cached)."""
+        from transient_mi.sensors._nlos_setup import NLOSSetup
 
         if self._setup is None or self._setup_scene is not scene:
             self._setup = NLOSSetup.build(scene, self)
@@ -177,34 +179,15 @@ class SpadArray(mi.Sensor):
             "laser": s.laser.laser_info(),
         }
 
-    def nlos_estimator(self, integrator, scene, *, seed: int, spp: int, spot: int | None = None, spots=None,
-                       progress=None, replicate_offset: int = 0, replicates: int | None = None):
-        """Render one laser spot (``spot``), a group of spots (``spots``) or the confocal capture.
-
-        Returns a ``TransientResult`` for ``spot``, a list of them for ``spots``.
-        """
-        from transient_mi.integrators._nlos import render_spots
-
-        options = dict(getattr(integrator, "nlos_options", {}) or {})
-        if hasattr(integrator, "replicates_for"):
-            options["variance_replicates"] = integrator.replicates_for(True)
-        options.setdefault("max_depth", getattr(integrator, "max_depth_param", -1))
-        options.setdefault("rr_depth", getattr(integrator, "rr_depth", 5))
-        group = [0 if spot is None else int(spot)] if spots is None else [int(j) for j in spots]
-        res = render_spots(self.nlos_setup(scene), scene, self.film(), options, seed=seed, spp=spp, spots=group,
-                           progress=progress, replicate_offset=replicate_offset,
-                           replicates=replicates)
-        return res if spots is not None else res[0]
-
     def spot_groups(self, scene, spp: int) -> list[list[int]]:
         """The groups of laser spots the render pipeline renders together (fixed for a configuration).
 
         Array captures: consecutive spots in scan order, as many per group as
         the histogram memory budget allows (see
-        :func:`~transient_mi.integrators._nlos.group_layout`); the spots of a
+        :func:`~transient_mi.integrators._nlos_render.group_layout`); the spots of a
         group share the detector-side sub-paths. Confocal: ``[[0]]``.
         """
-        from transient_mi.integrators._nlos import group_layout
+        from transient_mi.integrators._nlos_render import group_layout
 
         s = self.nlos_setup(scene)
         if s.capture == "confocal":

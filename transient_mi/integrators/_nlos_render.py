@@ -1,0 +1,260 @@
+"""Rendering of NLOS laser spots: replicates, spot groups, the group histogram and the closed-form wall return.
+
+:func:`render_spots` is what the ``transient_nlos_path`` integrator (and ``transient_path`` under a
+``spad_array``, which delegates to it) runs for one group of laser spots: it splits the samples into
+independent replicates (:mod:`._replicates`), runs the Dr.Jit kernel (:mod:`._nlos_kernel`) over the lanes
+of :func:`group_layout` into a :class:`GroupHistogram`, adds the wall's first-bounce return in closed form,
+and returns one ``TransientResult`` per spot. The estimator is documented in
+:mod:`transient_mi.integrators.transient_nlos_path`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from transient_mi.integrators._lanes import (NLOS_GROUP_TARGET_LANES, LaneHistogram, LaneLayout, dropped_fraction,
+                                             seed_rng, streams_for)
+from transient_mi.integrators._nlos_kernel import KernelConstants, KernelScene, nlos_pass
+from transient_mi.integrators._replicates import (DEFAULT_REPLICATES, ReplicateStats, effective_replicates,
+                                                  replicate_seed)
+from transient_mi.props import PluginParameterError
+from transient_mi.time_axis import apply_kernel
+
+if TYPE_CHECKING:
+    from transient_mi.sensors._nlos_setup import NLOSSetup
+
+#: Histogram floats held per kernel launch when an array capture renders a group of spots at once.
+GROUP_HIST_FLOATS = 1 << 26
+#: Most laser spots rendered together (sharing the detector-side sub-paths).
+MAX_GROUP = 64
+
+
+def group_layout(n_pixels: int, spp: int, n_bins_ext: int, n_spots: int) -> tuple[int, int]:
+    """``(streams K, spots per group)`` for an NLOS capture; depends only on the configuration.
+
+    ``K`` follows the lane policy of :func:`~._lanes.streams_for` with the target
+    :data:`~._lanes.NLOS_GROUP_TARGET_LANES` (few lanes keep the per-lane histograms, which are zeroed and
+    summed for every launch, small; each lane loops over many samples) and no memory cap on ``K``: the
+    memory is budgeted by the group size instead, as many spots as fit ``GROUP_HIST_FLOATS`` histogram
+    values (at least 1, at most :data:`MAX_GROUP`). Every group shares the detector-side sub-path of each
+    sample (patch point, hidden vertex, further bounces) between its spots.
+    """
+    k = streams_for(n_pixels, spp, n_bins_ext, NLOS_GROUP_TARGET_LANES, None)
+    per_spot = n_pixels * k * n_bins_ext
+    g = max(1, min(MAX_GROUP, n_spots, GROUP_HIST_FLOATS // max(per_spot, 1)))
+    return k, g
+
+
+class GroupHistogram(LaneHistogram):
+    """Lane histograms with one sub-slot per spot of the group (slot = ``lane * G + spot``)."""
+
+    def __init__(self, layout: LaneLayout, axis, pad: int, n_sub: int):
+        super().__init__(layout, axis, pad)
+        self.n_sub = n_sub
+        n = layout.n_lanes * n_sub
+        self.data = dr.zeros(mi.Float, n * self.n_bins_ext)
+        self.lost = dr.zeros(mi.Float, n)
+        self.dropped = dr.zeros(mi.UInt32, n)
+        self.invalid = dr.zeros(mi.UInt32, n)
+        self._nsub = dr.opaque(mi.UInt32, n_sub)
+
+    def record(self, lane, opl_m, value, active, sub=0):
+        slot = mi.UInt32(lane) * self._nsub + mi.UInt32(sub)
+        LaneHistogram.record(self, slot, opl_m, value, active)
+
+    def collect_all(self, taps, scale: float = 1.0):
+        """Yield per spot of the group ``(hist[n_pixels, n_bins] float32, steady[n_pixels], dropped, fraction)``.
+
+        Values are averaged over the samples and multiplied by ``scale``. The
+        ``K`` stream slots of a pixel are summed in a fixed order in one drjit
+        kernel (as :meth:`LaneHistogram._per_pixel`); each spot's histogram is
+        a view into that one buffer.
+        """
+        L = self.layout
+        T = self.n_bins_ext
+        G = self.n_sub
+        f = scale / L.spp
+        if L.streams == 1:
+            out = self.data * f
+        else:
+            idx = dr.arange(mi.UInt32, L.n_pixels * G * T)
+            pixel = idx // (G * T)
+            rest = idx - pixel * (G * T)
+            base = pixel * (L.streams * G * T) + rest
+            out = dr.zeros(mi.Float, L.n_pixels * G * T)
+            for k in range(L.streams):  # unrolled: fixed summation order
+                out += dr.gather(mi.Float, self.data, base + k * (G * T))
+            out *= f
+        dr.eval(out)
+        lost = np.asarray(self.lost).reshape(L.n_pixels, L.streams, G).sum(axis=1, dtype=np.float64) * f
+        dropped = np.asarray(self.dropped).reshape(L.n_pixels, L.streams, G).sum(axis=(0, 1), dtype=np.uint64)
+        self.data = None  # free the lane slots
+        hist = np.asarray(out).reshape(L.n_pixels, G, T)  # zero-copy view
+        del out
+        rows = hist.sum(axis=2, dtype=np.float64)  # [P, G]
+        for g in range(G):
+            h = hist[:, g, :]
+            steady = rows[:, g] + lost[:, g]
+            if len(taps) > 1:
+                h = apply_kernel(h, taps).astype(np.float32)
+                in_hist = float(h.sum(dtype=np.float64))
+            else:
+                in_hist = float(rows[:, g].sum())
+            total = float(steady.sum())
+            frac = dropped_fraction(self, total, in_hist)
+            yield h, steady, int(dropped[g]), frac
+
+
+def render_spots(setup: "NLOSSetup", scene, film, options: dict, *, seed: int, spp: int, spots, progress=None,
+                 replicate_offset: int = 0, replicates: int | None = None):
+    """Render a group of laser spots of an array capture together (or the confocal capture, ``[0]``).
+
+    The spots of a group share every sample's detector-side sub-path
+    (patch point, hidden vertex, further bounces) and differ only in the
+    final connection to their laser spot: each spot's estimate is unbiased,
+    and a group of ``G`` spots costs little more than one. The result of a
+    spot depends on the seed and on the group it was rendered with (the
+    render pipeline always uses the same groups, see
+    :meth:`~transient_mi.sensors.spad_array.SpadArray.spot_groups`).
+
+    Parameters
+    ----------
+    setup : NLOSSetup
+        From :meth:`~transient_mi.sensors._nlos_setup.NLOSSetup.build` for this ``scene``.
+    scene : mitsuba.Scene
+    film : transient_film
+    options : dict
+        ``max_depth`` (segments, -1 unlimited), ``rr_depth``,
+        ``hidden_geometry_prob`` (alpha in [0, 1]), ``variance_replicates``
+        (independent replicates, see :mod:`._replicates`).
+    seed, spp : int
+    spots : sequence of int
+        Laser spot indices (scan order); ``[0]`` for confocal captures.
+    progress : callable, optional
+        ``progress(done_paths, total_paths)``.
+    replicate_offset : int
+        Index of the first replicate (a later batch of a progressive render
+        continues the replicate seeds where the earlier one stopped).
+    replicates : int, optional
+        Replicates of this call (default ``gcd(spp, variance_replicates)``);
+        must divide ``spp``.
+
+    Returns
+    -------
+    list of TransientResult
+        One per spot, histograms ``[height, width, n_bins]`` in photons per
+        pulse per bin, with the variance of every bin estimated from the
+        independent replicates (:mod:`._replicates`).
+    """
+    from transient_mi.films.transient_film import TransientResult
+
+    W, H = setup.width, setup.height
+    spots = [int(j) for j in spots]
+    confocal = setup.capture == "confocal"
+    if confocal and spots != [0]:
+        raise PluginParameterError(f"spad_array: spots={spots}; a confocal capture is one file (spot 0)")
+    for j in spots:
+        if not 0 <= j < setup.n_spots:
+            raise PluginParameterError(f"spad_array: spot={j} out of range [0, {setup.n_spots})")
+    if len(set(spots)) != len(spots) or not spots:
+        raise PluginParameterError(f"spad_array: spots={spots} must be distinct and non-empty")
+    R = replicates or effective_replicates(spp, options.get("variance_replicates", DEFAULT_REPLICATES))
+    n = spp // R
+    P = W * H
+    total = P * spp
+    stats: list = [None] * len(spots)
+    steady = [np.zeros(P) for _ in spots]
+    dropped = [0] * len(spots)
+    frac = [0.0] * len(spots)
+    invalid, negative = 0, 0.0
+    for r in range(R):
+        done = P * n * r
+
+        def rep_progress(d, _t, _done=done):
+            if progress is not None:
+                progress(_done + d, total)
+
+        outs, anomalies = _render_replicate(setup, scene, film, options,
+                                            seed=replicate_seed(seed, replicate_offset + r, R), spp=n, spots=spots,
+                                            progress=rep_progress)
+        invalid += anomalies["invalid"]
+        negative = min(negative, anomalies["negative_fraction"])
+        for g, (h, st, dr_n, fr) in enumerate(outs):
+            if stats[g] is None:
+                stats[g] = ReplicateStats.first(h)
+            else:
+                stats[g].add(h)
+            steady[g] += st
+            dropped[g] += dr_n
+            frac[g] += fr
+        del outs
+    T = film.time_axis().n_bins
+    results = []
+    for g in range(len(spots)):
+        s = stats[g]
+        var = s.variance()
+        tvar = s.total_variance()
+        results.append(TransientResult(
+            histogram=s.mean.reshape(H, W, T),
+            steady=(steady[g] / R).astype(np.float32).reshape(H, W),
+            dropped_contributions=dropped[g],
+            dropped_fraction=frac[g] / R,
+            samples=total,
+            variance=None if var is None else var.reshape(H, W, T),
+            total_variance=None if tvar is None else tvar.reshape(H, W),
+            replicates=R,
+            invalid_contributions=invalid if g == 0 else 0,  # (per group: counted once)
+            negative_fraction=negative,
+        ))
+    return results
+
+
+def _render_replicate(setup: "NLOSSetup", scene, film, options: dict, *, seed: int, spp: int, spots, progress=None):
+    """One replicate of :func:`render_spots`: ``spp`` samples with the streams of ``seed``.
+
+    Returns one ``(hist[n_pixels, n_bins] float32, steady[n_pixels], dropped, fraction)`` per spot, and
+    ``{"invalid": n, "negative_fraction": f}`` (see :class:`~._lanes.LaneHistogram`).
+    """
+    W, H = setup.width, setup.height
+    confocal = setup.capture == "confocal"
+    taps = film.kernel_taps()
+    pad = len(taps) // 2
+    axis = film.time_axis()
+    G = len(spots)
+    K, _ = group_layout(W * H, spp, axis.n_bins + 2 * pad, 1 if confocal else setup.n_spots)
+    layout = LaneLayout(W * H, spp, K)
+    hist = GroupHistogram(layout, axis, pad, G)
+    rng = seed_rng(seed, layout.n_lanes)
+
+    c = KernelConstants.build(setup, options, seed=seed, n_group=G)
+    ks = KernelScene.build(scene, setup, spots)
+
+    total = layout.n_pixels * spp
+    for j0, j1 in layout.passes():
+        rng = nlos_pass(scene, hist, rng, layout, j0, j1, c, ks)
+        hist.evaluate(rng)  # one evaluation of the loop (evaluating rng separately would run it twice)
+        if progress is not None:
+            progress(min(total, layout.n_pixels * min(spp, j1 * K)), total)
+
+    # closed-form first-bounce return of the wall (weighted by spp: collect() divides by it)
+    wr = setup.wall_return
+    all_spots = np.arange(setup.n_spots) if confocal else np.array(spots)
+    sub = np.zeros(len(all_spots), dtype=np.uint32) if confocal else np.arange(G, dtype=np.uint32)
+    pix = wr["pixel"][all_spots]
+    sel = (pix >= 0) & (wr["photons"][all_spots] > 0)
+    if sel.any():
+        ph = wr["photons"][all_spots][sel] / setup.photons_per_pulse  # N is applied below
+        lanes = mi.UInt32((pix[sel] * K).astype(np.uint32))
+        hist.record(lanes, mi.Float(wr["opl_m"][all_spots][sel]), mi.Float(ph * spp), mi.Bool(True),
+                    sub=mi.UInt32(sub[sel]))
+        hist.evaluate()
+
+    out = list(hist.collect_all(taps, scale=setup.photons_per_pulse))
+    anomalies = {"invalid": hist.invalid_count(), "negative_fraction": hist.negative_fraction}
+    return out, anomalies
+
+

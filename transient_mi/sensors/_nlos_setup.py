@@ -1,0 +1,316 @@
+"""The scene analysis of an NLOS capture (:class:`NLOSSetup`): relay wall, laser spots, pixel patches, hidden
+geometry, the closed-form wall return, and the validation of all of it.
+
+Used by the ``spad_array`` sensor (:meth:`~transient_mi.sensors.spad_array.SpadArray.nlos_setup`, which
+caches it per scene) and read by the NLOS estimator (:mod:`transient_mi.integrators.transient_nlos_path`)
+and the capture manifest (:meth:`NLOSSetup.geometry`). The radiometry is documented in
+:mod:`transient_mi.integrators.transient_nlos_path`. Positions in metres, world frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import mitsuba as mi
+import numpy as np
+
+from transient_mi.integrators._lanes import to_mono
+from transient_mi.props import PluginParameterError
+from transient_mi.wall import WallFrame, ray_plane_point
+
+
+def _fmt(p) -> str:
+    return "(" + ", ".join(f"{float(c):.4g}" for c in p) + ")"
+
+
+@dataclass
+class NLOSSetup:
+    """Everything the estimator and the manifest need about one NLOS capture.
+
+    Built (and validated) by :meth:`build`; positions in metres, world frame.
+
+    Attributes
+    ----------
+    capture : {"array", "confocal"}
+    width, height : int
+        SPAD pixels.
+    frame : WallFrame
+        Wall frame centred on the array's ``target``.
+    footprint_m : float
+        Side of a pixel's square wall patch.
+    pitch_m : float
+        Distance between neighbouring patch centres (>= footprint_m).
+    detector, aperture_normal : ndarray (3,)
+        Detector position and the unit normal of its aperture (towards ``target``).
+    aperture_area_m2 : float
+    laser_origin : ndarray (3,)
+    photons_per_pulse : float
+    spot_targets : ndarray (n_spots, 3)
+        Where the laser is aimed (scan grid, or patch centres in confocal mode).
+    spots : ndarray (n_spots, 3)
+        Laser spots ``S`` (first hits of the laser rays).
+    pixel_centers, pixel_normals : ndarray (height, width, 3)
+        Surface point seen at each patch centre and its normal.
+    wall_return : dict of ndarrays
+        Closed-form first-bounce return per spot: ``pixel`` (flat pixel index
+        or -1), ``photons`` (per pulse), ``opl_m``.
+    """
+
+    capture: str
+    width: int
+    height: int
+    frame: WallFrame
+    footprint_m: float
+    pitch_m: float
+    detector: np.ndarray
+    aperture_normal: np.ndarray
+    aperture_area_m2: float
+    aperture_diameter_m: float
+    include_first_last: bool
+    include_wall_return: bool
+    laser: object
+    laser_origin: np.ndarray
+    photons_per_pulse: float
+    spot_targets: np.ndarray
+    spots: np.ndarray
+    spot_grid: tuple
+    pixel_centers: np.ndarray
+    pixel_normals: np.ndarray
+    wall_size_m: tuple
+    relay_wall: object
+    hidden_shapes: list
+    hidden_area_m2: float
+    planar_wall: bool = False
+    pixel_sampling: str = "area"
+    wall_return: dict = field(default_factory=dict)
+
+    @property
+    def n_spots(self) -> int:
+        return len(self.spots)
+
+    @property
+    def n_files(self) -> int:
+        return 1 if self.capture == "confocal" else self.n_spots
+
+    # ---------------------------------------------------------------- build
+
+    @classmethod
+    def build(cls, scene, sensor) -> "NLOSSetup":
+        """Analyse ``scene`` for ``sensor`` (a ``spad_array``) and validate the geometry.
+
+        Raises
+        ------
+        PluginParameterError
+            No or several lasers, a target that hits no surface, patches off
+            the relay wall, laser spots off the wall, occluded spots.
+        """
+        name = sensor.NAME
+        film = sensor.film()
+        W, H = film.width, film.height
+        lasers = [e for e in scene.emitters() if hasattr(e, "is_pulsed_laser")]
+        if len(lasers) != 1:
+            raise PluginParameterError(
+                f"{name}: the scene has {len(lasers)} pulsed_laser emitters; an NLOS capture needs exactly one")
+        laser = lasers[0]
+        frame = sensor.frame
+        D = sensor.origin
+        fp = sensor.pixel_footprint_m
+        pitch = sensor.pixel_pitch_m
+
+        # ---- relay wall: the shape hit at the array's target
+        si_t = _intersect(scene, D[None], (sensor.target - D)[None])
+        if not bool(si_t["valid"][0]):
+            raise PluginParameterError(
+                f"{name}: the ray from origin={_fmt(D)} to target={_fmt(sensor.target)} hits no surface; "
+                "target must be a point on the relay wall")
+        wall = si_t["shape"][0]
+        thick = _thickness_along(wall, frame)
+        if thick > 0.25 * max(_extent_in_frame(wall, frame)):
+            raise PluginParameterError(
+                f"{name}: the relay wall (the shape hit at target={_fmt(sensor.target)}) extends {thick:.3g} m "
+                "along wall_normal: it was probably merged with hidden geometry by Mitsuba's scene optimisation "
+                "(shapes with equivalent BSDFs are merged); load the scene with optimize=False "
+                "(transient_mi.scene_io.load_scene and `transient-mi render` do)")
+
+        # ---- the laser's scan plane must be the wall plane
+        if np.dot(laser.frame.normal, frame.normal) < 1 - 1e-6:
+            raise PluginParameterError(
+                f"pulsed_laser: wall_normal={_fmt(laser.frame.normal)} differs from the spad_array's "
+                f"wall_normal={_fmt(frame.normal)}; they must describe the same relay wall")
+        if frame.height(laser.origin) <= 0:
+            raise PluginParameterError(
+                f"pulsed_laser: origin={_fmt(laser.origin)} is behind the relay wall (its height along "
+                f"wall_normal {_fmt(frame.normal)} is {frame.height(laser.origin):.4g} m); "
+                "the laser must be on the hidden-space side (> 0)")
+
+        # ---- patches must lie on the relay wall: test every patch corner
+        corners = frame.grid_corners(W, H, pitch, shrink=1e-4, cell=fp).reshape(-1, 3)
+        hit = _intersect(scene, np.broadcast_to(D, corners.shape), corners - D)
+        on_wall = hit["valid"] & _same_shape(hit["shape"], wall)
+        if not on_wall.all():
+            bad = int(np.argmin(on_wall)) // 4
+            iy, ix = divmod(bad, W)
+            if hit["valid"][bad * 4: bad * 4 + 4].all():
+                first = bad * 4 + int(np.argmin(on_wall[bad * 4: bad * 4 + 4]))
+                sid = hit["shape"][first].id()
+                raise PluginParameterError(
+                    f"{name}: the wall patch of pixel (x={ix}, y={iy}) is hidden from the detector at "
+                    f"origin={_fmt(D)} by another shape{' (' + repr(sid) + ')' if sid else ''}; "
+                    "move the detector or the occluding object")
+            raise PluginParameterError(
+                f"{name}: the {W} x {H} pixel array with pixel_pitch_m={pitch:g} "
+                f"({(W - 1) * pitch + fp:.4g} m x {(H - 1) * pitch + fp:.4g} m centred on target="
+                f"{_fmt(sensor.target)}) is larger than the relay wall: the patch of pixel (x={ix}, y={iy}) "
+                "extends beyond it; use fewer pixels or a smaller pixel_pitch_m/pixel_footprint_m")
+        centers_plane = frame.grid(W, H, pitch).reshape(-1, 3)
+        hc = _intersect(scene, np.broadcast_to(D, centers_plane.shape), centers_plane - D)
+        pixel_centers = hc["p"].reshape(H, W, 3)
+        pixel_normals = hc["n"].reshape(H, W, 3)
+
+        # ---- laser spots
+        if sensor.capture == "confocal":
+            spot_targets = centers_plane
+            spot_grid = (H, W)
+        else:
+            spot_targets = laser.spot_targets()
+            spot_grid = (laser.spots_y, laser.spots_x)
+        Lo = laser.origin
+        hs = _intersect(scene, np.broadcast_to(Lo, spot_targets.shape), spot_targets - Lo)
+        ok = hs["valid"] & _same_shape(hs["shape"], wall)
+        if not ok.all():
+            j = int(np.argmin(ok))
+            what = "hits nothing" if not hs["valid"][j] else "hits another surface first"
+            where = ("the patch centre of pixel %d" % j if sensor.capture == "confocal" else
+                     f"scan point {j} (spots_x={laser.spots_x}, spots_y={laser.spots_y}, "
+                     f"spot_spacing_m={laser.spot_spacing_m:g} around target={_fmt(laser.target)})")
+            raise PluginParameterError(
+                f"pulsed_laser: laser spot {j} is off the relay wall: the ray from origin={_fmt(Lo)} to "
+                f"{where} at {_fmt(spot_targets[j])} {what}; keep the scan grid on the wall")
+        spots = hs["p"]
+
+        aperture_normal = sensor.target - D
+        aperture_normal = aperture_normal / np.linalg.norm(aperture_normal)
+        wall_size = _extent_in_frame(wall, frame)
+        hidden = [s for s in scene.shapes() if not _is(s, wall)]
+        hidden_area = float(sum(float(s.surface_area()[0]) for s in hidden))
+
+        setup = cls(
+            capture=sensor.capture, width=W, height=H, frame=frame, footprint_m=fp, pitch_m=pitch, detector=D,
+            aperture_normal=aperture_normal,
+            aperture_area_m2=math.pi * (sensor.aperture_diameter_m / 2.0) ** 2,
+            aperture_diameter_m=sensor.aperture_diameter_m,
+            include_first_last=sensor.include_first_last, include_wall_return=sensor.include_wall_return,
+            laser=laser, laser_origin=Lo, photons_per_pulse=laser.photons_per_pulse,
+            spot_targets=np.asarray(spot_targets, dtype=np.float64), spots=spots, spot_grid=spot_grid,
+            pixel_centers=pixel_centers, pixel_normals=pixel_normals, wall_size_m=wall_size,
+            relay_wall=wall, hidden_shapes=hidden, hidden_area_m2=hidden_area,
+            planar_wall=bool(thick <= 1e-6 * max(1.0, max(wall_size))),
+            pixel_sampling=sensor.pixel_sampling,
+        )
+        setup.wall_return = setup._wall_return(scene, hs)
+        return setup
+
+    def _wall_return(self, scene, hs) -> dict:
+        """Closed-form first-bounce return ``L -> S -> D`` for every spot (photons per pulse)."""
+        S = self.spots
+        n = len(S)
+        D = self.detector
+        ix, iy, inside = self.frame.cell_of(ray_plane_point(D, S, self.frame), self.width, self.height,
+                                            self.pitch_m, cell=self.footprint_m)
+        pixel = np.where(inside, iy * self.width + ix, -1)
+        if self.capture == "confocal":  # pixel k is recorded with spot k only
+            pixel = np.where(pixel == np.arange(n), pixel, -1)
+        # f_s(S; w_L, w_SD) cos, evaluated by Mitsuba on the spot's surface interaction
+        Lo = self.laser_origin
+        d = S - Lo
+        ray = mi.Ray3f(mi.Point3f(*[mi.Float(Lo[i] + 0 * d[:, i]) for i in range(3)]),
+                       mi.Vector3f(*[mi.Float(c) for c in (d / np.linalg.norm(d, axis=1, keepdims=True)).T]))
+        si = scene.ray_intersect(ray)
+        toD = D - S
+        dist = np.linalg.norm(toD, axis=1)
+        w = toD / dist[:, None]
+        wo = si.to_local(mi.Vector3f(*[mi.Float(c) for c in w.T]))
+        f = to_mono(si.bsdf().eval(mi.BSDFContext(), si, wo), si.wavelengths)
+        target_d = mi.Point3f(*[mi.Float(np.full(n, D[i])) for i in range(3)])
+        occluded = scene.ray_test(si.spawn_ray_to(target_d))
+        f = np.asarray(f.numpy(), dtype=np.float64)
+        vis = ~np.asarray(occluded.numpy(), dtype=bool)
+        cos_ap = np.clip(-(w @ self.aperture_normal), 0.0, None)
+        photons = self.photons_per_pulse * f * self.aperture_area_m2 * cos_ap / dist ** 2
+        photons = np.where(vis & (pixel >= 0) & self.include_wall_return, photons, 0.0)
+        opl = (np.linalg.norm(d, axis=1) + dist) if self.include_first_last else np.zeros(n)
+        return {"pixel": pixel.astype(np.int64), "photons": photons, "opl_m": opl}
+
+    # ------------------------------------------------------------- manifest
+
+    def geometry(self) -> dict:
+        """The manifest's ``geometry`` entry."""
+        return {
+            "laser_origin": self.laser_origin.tolist(),
+            "detector_origin": self.detector.tolist(),
+            "spots": self.spots.tolist(),
+            "spot_targets": self.spot_targets.tolist(),
+            "spot_grid": list(self.spot_grid),
+            "pixel_centers": self.pixel_centers.tolist(),
+            "pixel_normals": self.pixel_normals.tolist(),
+            "wall_normal": self.frame.normal.tolist(),
+            "wall_frame": self.frame.as_dict(),
+            "wall_size_m": list(self.wall_size_m),
+            "pixel_footprint_m": self.footprint_m,
+            "pixel_pitch_m": self.pitch_m,
+            "aperture_diameter_m": self.aperture_diameter_m,
+            "aperture_normal": self.aperture_normal.tolist(),
+            "include_wall_return": self.include_wall_return,
+            "pixel_sampling": self.pixel_sampling,
+            "relay_wall": self.relay_wall.id(),
+            "hidden_area_m2": self.hidden_area_m2,
+        }
+
+
+# ---------------------------------------------------------------------- helpers
+
+
+def _intersect(scene, origins, directions) -> dict:
+    """Intersect rays (numpy ``[n, 3]``) with the scene; returns numpy fields and shape pointers."""
+    o = np.asarray(origins, dtype=np.float64)
+    d = np.asarray(directions, dtype=np.float64)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    ray = mi.Ray3f(mi.Point3f(*[mi.Float(c) for c in o.T]), mi.Vector3f(*[mi.Float(c) for c in d.T]))
+    si = scene.ray_intersect(ray)
+    valid = np.asarray(si.is_valid().numpy(), dtype=bool)
+    p = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in si.p], axis=1)
+    nrm = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in si.n], axis=1)
+    return {"valid": valid, "p": p, "n": nrm, "t": np.asarray(si.t.numpy(), dtype=np.float64),
+            "shape": si.shape}
+
+
+def _is(a, b) -> bool:
+    try:
+        return a.ptr == b.ptr  # type: ignore[attr-defined]
+    except AttributeError:
+        return a is b
+
+
+def _same_shape(ptrs, shape) -> np.ndarray:
+    eq = ptrs == mi.ShapePtr(shape)
+    return np.asarray(eq.numpy(), dtype=bool)
+
+
+def _bbox_corners(shape) -> np.ndarray:
+    bb = shape.bbox()
+    lo, hi = np.array(list(bb.min), dtype=np.float64), np.array(list(bb.max), dtype=np.float64)
+    return np.array([[(hi if (i >> k) & 1 else lo)[k] for k in range(3)] for i in range(8)])
+
+
+def _thickness_along(shape, frame: WallFrame) -> float:
+    """Extent (metres) of ``shape``'s bounding box along the wall normal."""
+    _, _, h = frame.to_wall(_bbox_corners(shape))
+    return float(h.max() - h.min())
+
+
+def _extent_in_frame(shape, frame: WallFrame) -> tuple[float, float]:
+    """Size (metres) of ``shape``'s bounding box along the wall axes ``ex``, ``ey``."""
+    u, v, _ = frame.to_wall(_bbox_corners(shape))
+    return float(u.max() - u.min()), float(v.max() - v.min())
+
