@@ -9,8 +9,10 @@ import numpy as np
 
 from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_streams,
                                              seed_rng, to_mono)
+from transient_mi.integrators._pixel_filter import PixelFilter
 from transient_mi.integrators._replicates import (ReplicateStats, effective_replicates,
                                                   replicate_seed)
+from transient_mi.integrators._sensor_checks import check_rfilter, check_sampler
 from transient_mi.integrators._time_origin import TimeOrigin
 from transient_mi.props import PluginParameterError, get_bool, get_float, get_int
 
@@ -55,6 +57,22 @@ class TransientPath(mi.CppADIntegrator):
 
     Infinitely distant emitters (environment, directional) have no time of
     flight: their contributions are dropped and counted.
+
+    Sampler and reconstruction filter
+    (:mod:`transient_mi.integrators._sensor_checks`): the integrator draws
+    its own PCG32 streams, one per SIMD lane, and reads the ``<sampler>``'s
+    ``sample_count`` only; the ``independent`` sampler is accepted, every
+    other (``stratified``, ``multijitter``, ``ldsampler``, ``orthogonal``, ...)
+    refused (for variance reduction in NLOS captures see ``rqmc``). Camera
+    sensors honour the film's ``<rfilter>`` by filter importance sampling
+    (:mod:`transient_mi.integrators._pixel_filter`): each sample's offset from
+    its pixel centre is drawn from the filter, separately in x and y, so a
+    pixel converges to the filter-weighted average Mitsuba's films give;
+    ``box``, ``tent``, ``gaussian`` (Mitsuba's default when the film gives
+    none) and any non-negative filter are honoured, filters with negative
+    lobes (``mitchell``, ``catmullrom``, ``lanczos``) refused. ``spad_array``:
+    a pixel is a wall patch integrated uniformly; an explicit ``rfilter``
+    other than ``box`` is refused, the film's default ignored.
 
     With a ``spad_array`` sensor the integrator uses the NLOS estimator of
     that sensor (laser-spot and hidden-geometry sampling), see
@@ -194,6 +212,8 @@ class TransientPath(mi.CppADIntegrator):
                 "scalar_* variants load scenes and construct plug-ins for debugging only")
         if not 0 <= seed < 2**32:
             raise PluginParameterError(f"{self.NAME}: seed={seed} must be in [0, 2**32)")
+        check_sampler(sensor, self.NAME)
+        check_rfilter(sensor, self.NAME)
         film.set_result(None)  # release the previous render's histogram before allocating
         spp = spp or int(sensor.sampler().sample_count())
         if spp < 1:
@@ -274,9 +294,10 @@ class TransientPath(mi.CppADIntegrator):
         hist = LaneHistogram(layout, axis, pad)
         rng = seed_rng(seed, layout.n_lanes)
         origin = TimeOrigin(sensor)
+        pixel_filter = PixelFilter(film.rfilter())
         total = layout.n_pixels * spp
         for j0, j1 in layout.passes():
-            rng = self._camera_pass(scene, sensor, hist, rng, layout, j0, j1, W, H, origin)
+            rng = self._camera_pass(scene, sensor, hist, rng, layout, j0, j1, W, H, origin, pixel_filter)
             hist.evaluate(rng)
             done = min(total, layout.n_pixels * min(spp, j1 * K))
             if progress is not None:
@@ -285,9 +306,10 @@ class TransientPath(mi.CppADIntegrator):
         return out, {"invalid": hist.invalid_count(), "negative_fraction": hist.negative_fraction}
 
     @dr.syntax
-    def _camera_pass(self, scene, sensor, hist, rng, layout, j0, j1, W, H, origin):
+    def _camera_pass(self, scene, sensor, hist, rng, layout, j0, j1, W, H, origin, pixel_filter):
         """Trace the samples ``[j0, j1)`` of every lane. ``origin``: a
-        :class:`~transient_mi.integrators._time_origin.TimeOrigin`."""
+        :class:`~transient_mi.integrators._time_origin.TimeOrigin`; ``pixel_filter``: a
+        :class:`~transient_mi.integrators._pixel_filter.PixelFilter` (image-plane positions)."""
         K = layout.streams
         lane = dr.arange(mi.UInt32, layout.n_lanes)
         pixel = lane // K
@@ -298,9 +320,12 @@ class TransientPath(mi.CppADIntegrator):
         j_end = dr.opaque(mi.UInt32, j1)
         spp = dr.opaque(mi.UInt32, layout.spp)
         inv_size = mi.Vector2f(1.0 / W, 1.0 / H)
+        bx, by = pixel_filter.bounds(px, W), pixel_filter.bounds(py, H)
         needs_aperture = sensor.needs_aperture_sample()
         while (j < j_end) & (k + j * K < spp):
-            pos = mi.Vector2f(px + rng.next_float32(), py + rng.next_float32()) * inv_size
+            x = pixel_filter.sample(px, rng.next_float32(), bx)
+            y = pixel_filter.sample(py, rng.next_float32(), by)
+            pos = mi.Vector2f(x, y) * inv_size
             aperture = mi.Point2f(rng.next_float32(), rng.next_float32()) if needs_aperture else mi.Point2f(0.5)
             wav = rng.next_float32() if mi.is_spectral else mi.Float(0)
             ray, ray_weight = sensor.sample_ray_differential(mi.Float(0), wav, pos, aperture)
