@@ -105,7 +105,8 @@ class TransientFilm(mi.Film):
     when none is given): under a camera sensor the ``transient_path``
     integrator honours it by filter importance sampling (each sample's
     offset from its pixel centre is drawn from the filter, so a pixel
-    converges to the filter-weighted average that Mitsuba's films give, see
+    converges to the filter-weighted average that Mitsuba's films give, at
+    the edges too, with or without ``sample_border``, see
     :mod:`transient_mi.integrators._pixel_filter`); ``box`` is the uniform
     draw in the pixel; filters with negative lobes are refused. Under a
     ``spad_array`` a pixel is a wall patch integrated uniformly: an

@@ -9,7 +9,9 @@ the summed weights: a pixel converges to the filter-weighted average of the imag
 ``[-radius, radius]``). Here every sample is drawn from that normalised weight instead: its offset
 from the pixel centre, in x and in y independently, has density proportional to ``f`` restricted
 to the film (``[-(i + 1/2), W - (i + 1/2)]`` for column ``i``: Mitsuba samples only inside the film,
-so an edge pixel averages over a truncated filter), and it is recorded in its own pixel's histogram.
+so an edge pixel averages over a truncated filter; with the film's ``sample_border`` Mitsuba also
+samples the border the filter reaches, and the whole ``[-radius, radius]`` is used), and it is
+recorded in its own pixel's histogram.
 The expectation is ``I(i)`` exactly; each lane keeps its pixel's histogram (determinism, see
 :mod:`transient_mi.integrators._lanes`). Filter importance sampling needs ``f >= 0``
 (:func:`transient_mi.integrators._sensor_checks.check_rfilter`).
@@ -34,7 +36,9 @@ TABLE_INTERVALS = 4096
 class PixelFilter:
     """Sample image-plane positions (pixel units) from a film's reconstruction filter."""
 
-    def __init__(self, rfilter):
+    def __init__(self, rfilter, sample_border: bool = False):
+        #: sample outside the film too (the film's ``sample_border``): the whole filter at edge pixels
+        self.sample_border = bool(sample_border)
         self.is_box = rfilter is None or (rfilter.class_name() == "BoxFilter"
                                           and float(rfilter.radius()) == 0.5)
         self.dist = None
@@ -51,8 +55,11 @@ class PixelFilter:
         if self.is_box:
             return None
         r = self.radius
-        lo = dr.maximum(-r, -(p + 0.5))
-        hi = dr.minimum(r, n - (p + 0.5))
+        if self.sample_border:
+            lo, hi = dr.full(mi.Float, -r, dr.width(p)), dr.full(mi.Float, r, dr.width(p))
+        else:
+            lo = dr.maximum(-r, -(p + 0.5))
+            hi = dr.minimum(r, n - (p + 0.5))
         c_lo = self.dist.eval_cdf_normalized(lo)
         c_hi = self.dist.eval_cdf_normalized(hi)
         return lo, hi, c_lo, c_hi - c_lo

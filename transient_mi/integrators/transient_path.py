@@ -294,7 +294,7 @@ class TransientPath(mi.CppADIntegrator):
         hist = LaneHistogram(layout, axis, pad)
         rng = seed_rng(seed, layout.n_lanes)
         origin = TimeOrigin(sensor)
-        pixel_filter = PixelFilter(film.rfilter())
+        pixel_filter = PixelFilter(film.rfilter(), film.sample_border())
         total = layout.n_pixels * spp
         for j0, j1 in layout.passes():
             rng = self._camera_pass(scene, sensor, hist, rng, layout, j0, j1, W, H, origin, pixel_filter)
