@@ -7,7 +7,6 @@ See :mod:`transient_mi.integrators._sensor_checks` (what is accepted) and
 from __future__ import annotations
 
 import hashlib
-import math
 
 import numpy as np
 import pytest
@@ -59,7 +58,8 @@ def _cornell_xml(rfilter=None):
     an ``rfilter`` child in its film."""
     text = scene_path("cornell_box.xml").read_text()
     if rfilter is not None:
-        text = text.replace('<film type="transient_film">', f'<film type="transient_film"><rfilter type="{rfilter}"/>', 1)
+        film = '<film type="transient_film">'
+        text = text.replace(film, f'{film}<rfilter type="{rfilter}"/>', 1)
     return mi.load_string(text, width=12, height=10, n_bins=400, max_depth=4, spp=8)
 
 
