@@ -34,7 +34,8 @@ def _scene(kind: str, size: int, bins: int, max_depth: int):
     cb = mi.cornell_box()
     if kind == "transient":
         cb["sensor"]["film"] = {"type": "transient_film", "width": size, "height": size, "n_bins": bins,
-                                "bin_width_ps": 30.0 * 1024 / bins, "t0_ps": 10000.0}
+                                "bin_width_ps": 30.0 * 1024 / bins, "t0_ps": 10000.0,
+                                "rfilter": {"type": "box"}}  # as the hdrfilm below (and as before filters were honoured)
         cb["integrator"] = {"type": "transient_path", "max_depth": max_depth}
     else:
         cb["sensor"]["film"] = {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"},

@@ -180,7 +180,8 @@ def test_time_integrated_cornell_box_equals_mitsuba_path():
     W = H = 32
     depth, spp, seeds = 6, 32, 12
     # Paths up to 6 segments in a 2 m box seen from 3.9 m stay far below 150 ns.
-    tr = _cbox(_film(W, H, 1500, 100.0, 0.0), {"type": "transient_path", "max_depth": depth})
+    tr = _cbox(dict(_film(W, H, 1500, 100.0, 0.0), rfilter={"type": "box"}),  # the same filter as the hdrfilm
+              {"type": "transient_path", "max_depth": depth})
     pt = _cbox({"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"},
                 "pixel_format": "luminance"}, {"type": "path", "max_depth": depth})
     regions = {

@@ -101,8 +101,17 @@ class TransientFilm(mi.Film):
            to the arrival-time variance); contributions up to 5 sigma outside
            the time range still blur into it.
 
-    Pixels use a box reconstruction filter (each sample counts for the pixel
-    it falls in); an ``rfilter`` child is ignored. Contributions arriving
+    Reconstruction filter (``rfilter`` child, Mitsuba's default ``gaussian``
+    when none is given): under a camera sensor the ``transient_path``
+    integrator honours it by filter importance sampling (each sample's
+    offset from its pixel centre is drawn from the filter, so a pixel
+    converges to the filter-weighted average that Mitsuba's films give, at
+    the edges too, with or without ``sample_border``, see
+    :mod:`transient_mi.integrators._pixel_filter`); ``box`` is the uniform
+    draw in the pixel; filters with negative lobes are refused. Under a
+    ``spad_array`` a pixel is a wall patch integrated uniformly: an
+    ``rfilter`` other than ``box`` given explicitly is refused, the default
+    is ignored (:mod:`transient_mi.integrators._sensor_checks`). Contributions arriving
     outside the time range are dropped and counted
     (:attr:`TransientResult.dropped_contributions`).
 
@@ -112,6 +121,8 @@ class TransientFilm(mi.Film):
     NAME = "transient_film"
 
     def __init__(self, props: mi.Properties):
+        #: True when the scene gives an ``rfilter`` child (False: Mitsuba's default filter)
+        self.rfilter_explicit = any(isinstance(obj, mi.ReconstructionFilter) for _, obj in props.objects())
         super().__init__(props)
         name = self.NAME
         self.n_bins = get_int(props, name, "n_bins", 1024, min_value=1, max_value=1 << 20)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import mitsuba as mi
 
 from transient_mi.props import PluginParameterError, get_bool, get_float, get_int
+from transient_mi.integrators._sensor_checks import check_rfilter, check_sampler
 
 #: ``hidden_geometry_prob`` unless the scene gives one.
 DEFAULT_HIDDEN_GEOMETRY_PROB = 0.8
@@ -53,7 +54,8 @@ def check_render_call(plugin: str, sensor, seed: int, spp: int, replicates: int 
 
     ``spp`` 0 takes the sensor's sampler value. Raises :class:`PluginParameterError` for a film that is not
     transient, a non-JIT variant, a seed outside ``[0, 2**32)``, ``spp < 1`` or ``replicates`` that does
-    not divide ``spp``.
+    not divide ``spp``, and for a sampler or reconstruction filter the integrators do not honour
+    (:mod:`transient_mi.integrators._sensor_checks`).
     """
     film = sensor.film()
     if not hasattr(film, "is_transient"):
@@ -65,6 +67,8 @@ def check_render_call(plugin: str, sensor, seed: int, spp: int, replicates: int 
             "scalar_* variants load scenes and construct plug-ins for debugging only")
     if not 0 <= seed < 2**32:
         raise PluginParameterError(f"{plugin}: seed={seed} must be in [0, 2**32)")
+    check_sampler(sensor, plugin)
+    check_rfilter(sensor, plugin)
     film.set_result(None)  # release the previous render's histogram before allocating
     spp = spp or int(sensor.sampler().sample_count())
     if spp < 1:

@@ -123,13 +123,9 @@ import mitsuba as mi
 from transient_mi.integrators._path_options import (check_render_call, read_nlos_options, read_path_params,
                                                      replicates_for)
 from transient_mi.props import PluginParameterError
+from transient_mi.integrators._sensor_checks import is_nlos_sensor
 
 PLUGIN = ("integrator", "transient_nlos_path", "TransientNLOSPath")
-
-
-def is_nlos_sensor(sensor) -> bool:
-    """Whether ``sensor`` records an NLOS capture (a ``spad_array``: it has a scene analysis)."""
-    return hasattr(sensor, "nlos_setup")
 
 
 def sensor_name(sensor) -> str:

@@ -11,9 +11,12 @@ from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_s
                                              seed_rng, to_mono)
 from transient_mi.integrators._path_options import (check_render_call, read_nlos_options, read_path_params,
                                                      replicates_for)
+from transient_mi.integrators._pixel_filter import PixelFilter
 from transient_mi.integrators._replicates import (ReplicateStats, effective_replicates,
                                                   replicate_seed)
-from transient_mi.integrators.transient_nlos_path import is_nlos_sensor, render_nlos
+from transient_mi.integrators._time_origin import TimeOrigin
+from transient_mi.integrators._sensor_checks import is_nlos_sensor
+from transient_mi.integrators.transient_nlos_path import render_nlos
 from transient_mi.props import PluginParameterError
 
 PLUGIN = ("integrator", "transient_path", "TransientPath")
@@ -38,10 +41,41 @@ class TransientPath(mi.CppADIntegrator):
     Summed over time the result equals Mitsuba's ``path`` image.
 
     Time zero is when light leaves the emitter. The first segment is
-    measured from the sensor's position (a camera's centre of projection;
-    for a thin lens this is Fermat-equivalent to the path through the lens).
+    measured from where the light reaches the sensor, per sampled ray
+    (:mod:`transient_mi.integrators._time_origin`; Mitsuba starts camera rays
+    on the near-clip plane, so ``ray.o`` is traced back to the sensor plane):
+
+    * ``perspective``: the centre of projection;
+    * ``orthographic``: the ray's point on the image plane through the
+      sensor's position (every pixel is timed from its own point, so an
+      off-axis pixel is not late);
+    * ``thinlens``: the ray's point on the lens, as mitransient does. The
+      equal-time (Fermat) property of an ideal lens (every path from an
+      in-focus point through the lens to its image takes the same time) is
+      not modelled: paths from one in-focus point at distance ``d`` differ by
+      the lens-point distance, up to ``r^2 / (2 d)`` for an aperture radius
+      ``r`` (1 cm at 1 m: 50 um, 0.17 ps);
+    * ``radiancemeter``, ``irradiancemeter`` and any other sensor: the ray's
+      origin (the meter's point).
+
     Infinitely distant emitters (environment, directional) have no time of
     flight: their contributions are dropped and counted.
+
+    Sampler and reconstruction filter
+    (:mod:`transient_mi.integrators._sensor_checks`): the integrator draws
+    its own PCG32 streams, one per SIMD lane, and reads the ``<sampler>``'s
+    ``sample_count`` only; the ``independent`` sampler is accepted, every
+    other (``stratified``, ``multijitter``, ``ldsampler``, ``orthogonal``, ...)
+    refused (for variance reduction in NLOS captures see ``rqmc``). Camera
+    sensors honour the film's ``<rfilter>`` by filter importance sampling
+    (:mod:`transient_mi.integrators._pixel_filter`): each sample's offset from
+    its pixel centre is drawn from the filter, separately in x and y, so a
+    pixel converges to the filter-weighted average Mitsuba's films give;
+    ``box``, ``tent``, ``gaussian`` (Mitsuba's default when the film gives
+    none) and any non-negative filter are honoured, filters with negative
+    lobes (``mitchell``, ``catmullrom``, ``lanczos``) refused. ``spad_array``:
+    a pixel is a wall patch integrated uniformly; an explicit ``rfilter``
+    other than ``box`` is refused, the film's default ignored.
 
     With a ``spad_array`` sensor it delegates to the NLOS estimator of
     ``transient_nlos_path`` (laser-spot and hidden-geometry sampling, see
@@ -220,10 +254,11 @@ class TransientPath(mi.CppADIntegrator):
         layout = LaneLayout(W * H, spp, K)
         hist = LaneHistogram(layout, axis, pad)
         rng = seed_rng(seed, layout.n_lanes)
-        center = mi.Point3f(sensor.world_transform().translation())
+        origin = TimeOrigin(sensor)
+        pixel_filter = PixelFilter(film.rfilter(), film.sample_border())
         total = layout.n_pixels * spp
         for j0, j1 in layout.passes():
-            rng = self._camera_pass(scene, sensor, hist, rng, layout, j0, j1, W, H, center)
+            rng = self._camera_pass(scene, sensor, hist, rng, layout, j0, j1, W, H, origin, pixel_filter)
             hist.evaluate(rng)
             done = min(total, layout.n_pixels * min(spp, j1 * K))
             if progress is not None:
@@ -232,7 +267,10 @@ class TransientPath(mi.CppADIntegrator):
         return out, {"invalid": hist.invalid_count(), "negative_fraction": hist.negative_fraction}
 
     @dr.syntax
-    def _camera_pass(self, scene, sensor, hist, rng, layout, j0, j1, W, H, center):
+    def _camera_pass(self, scene, sensor, hist, rng, layout, j0, j1, W, H, origin, pixel_filter):
+        """Trace the samples ``[j0, j1)`` of every lane. ``origin``: a
+        :class:`~transient_mi.integrators._time_origin.TimeOrigin`; ``pixel_filter``: a
+        :class:`~transient_mi.integrators._pixel_filter.PixelFilter` (image-plane positions)."""
         K = layout.streams
         lane = dr.arange(mi.UInt32, layout.n_lanes)
         pixel = lane // K
@@ -243,13 +281,17 @@ class TransientPath(mi.CppADIntegrator):
         j_end = dr.opaque(mi.UInt32, j1)
         spp = dr.opaque(mi.UInt32, layout.spp)
         inv_size = mi.Vector2f(1.0 / W, 1.0 / H)
+        bx, by = pixel_filter.bounds(px, W), pixel_filter.bounds(py, H)
         needs_aperture = sensor.needs_aperture_sample()
         while (j < j_end) & (k + j * K < spp):
-            pos = mi.Vector2f(px + rng.next_float32(), py + rng.next_float32()) * inv_size
+            x = pixel_filter.sample(px, rng.next_float32(), bx)
+            y = pixel_filter.sample(py, rng.next_float32(), by)
+            pos = mi.Vector2f(x, y) * inv_size
             aperture = mi.Point2f(rng.next_float32(), rng.next_float32()) if needs_aperture else mi.Point2f(0.5)
             wav = rng.next_float32() if mi.is_spectral else mi.Float(0)
-            ray, ray_weight = sensor.sample_ray(mi.Float(0), wav, pos, aperture)
-            self._trace(scene, rng, hist, lane, ray, ray_weight, center)
+            ray, ray_weight = sensor.sample_ray_differential(mi.Float(0), wav, pos, aperture)
+            ray = mi.Ray3f(ray)
+            self._trace(scene, rng, hist, lane, ray, ray_weight, origin(ray))
             j += 1
         return rng
 
@@ -257,7 +299,8 @@ class TransientPath(mi.CppADIntegrator):
     def _trace(self, scene, rng, hist, lane, ray, throughput, origin):
         """Trace one path per lane and record every contribution at its path length.
 
-        ``origin``: where the first segment's length is measured from.
+        ``origin``: where the first segment's length is measured from (per lane, see
+        :mod:`transient_mi.integrators._time_origin`).
         """
         ctx = mi.BSDFContext()
         wavelengths = ray.wavelengths
