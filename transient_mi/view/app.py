@@ -122,7 +122,7 @@ class Page:
                    "this counts capture's ideal capture (its manifest's source_ideal) is not inside the viewed "
                    "path; view the ideal capture to simulate the detector")
             return _message(f"The detector panel needs an ideal NLOS capture: {why}.", "detector_unavailable")
-        from spad_detector_panel import DetectorPanel
+        from .detector_panel import DetectorPanel
 
         return lambda: DetectorPanel(ideal, self.doc)
 
