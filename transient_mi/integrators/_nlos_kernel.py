@@ -18,6 +18,7 @@ import mitsuba as mi
 import numpy as np
 
 from transient_mi.integrators._lanes import to_mono
+from transient_mi.integrators._optical_path import segment_index
 
 #: Relative tolerance on the hit distance when checking that a hidden-geometry
 #: sample is the first surface along its ray.
@@ -191,12 +192,14 @@ class KernelScene:
 
 @dr.syntax
 def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot, group, wall_ptr, ctx,
-                   visible=None):
+                   visible=None, eta=None):
     """Deterministic connection of vertex ``si`` to the laser spot(s) (next-event estimation).
 
     ``spot``: the lane's own spot ``(si_s, bsdf_s)`` (confocal), else ``group``
     holds the group's spots, connected one after another. ``visible``: the
     visibility when it is already known (confocal patch-centre captures).
+    ``eta``: the relative refractive index the path is in at ``si`` (None: 1,
+    the relay wall's side; see :mod:`transient_mi.integrators._optical_path`).
     """
     bsdf = si.bsdf()
     active_nee = active & (depth + 2 <= c.max_depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
@@ -205,7 +208,7 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
         active_nee &= si.shape != wall_ptr
     if dr.hint(group is None, mode="scalar"):  # the lane's own spot: no loop over a group
         _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, spot[0], spot[1], mi.UInt32(0),
-                     ctx, visible)
+                     ctx, visible, eta)
         return
     b = mi.UInt32(0)
     while active_nee & (b < c.n_group_spots):
@@ -225,17 +228,22 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
             si_s.shape = dr.gather(mi.ShapePtr, group[8], b, g_ok)
             si_s.wavelengths = si.wavelengths
             bsdf_s = dr.gather(mi.BSDFPtr, group[9], b, g_ok)
-        _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, si_s, bsdf_s, b, ctx, visible)
+        _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, si_s, bsdf_s, b, ctx, visible, eta)
         b += 1
 
 
-def _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active, c, si_s, bsdf_s, sub, ctx, visible):
+def _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active, c, si_s, bsdf_s, sub, ctx, visible,
+                 eta=None):
     """Connect vertex ``si`` to the spot ``si_s`` and record the contribution in sub-slot ``sub``."""
     spot_p = si_s.p
     to_s = spot_p - si.p
     dist_s = dr.norm(to_s)
     d_s = to_s / dist_s
-    f_x = bsdf.eval(ctx, si, si.to_local(d_s), active)
+    wo = si.to_local(d_s)
+    f_x = bsdf.eval(ctx, si, wo, active)
+    path_s = dist_s  # optical length of the connection: it runs at c / n (a rough dielectric's transmission changes n)
+    if eta is not None:
+        path_s = segment_index(bsdf, si, wo, eta, active) * dist_s
     i_s = bsdf_s.eval(ctx, si_s, si_s.to_local(-d_s), active)
     val = to_mono(beta * f_x * i_s, si.wavelengths) * (w0 / dr.square(dist_s))
     ok = active & (val > 0) & si_s.is_valid()
@@ -243,7 +251,7 @@ def _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active, c, si_s, bs
         ok &= ~scene.ray_test(si.spawn_ray_to(spot_p), ok)
     else:
         ok &= visible
-    hist.record(lane, opl + dist_s + c.first_last_factor * si_s.t, val, ok, sub=sub)
+    hist.record(lane, opl + path_s + c.first_last_factor * si_s.t, val, ok, sub=sub)
 
 
 def _first_bounce(scene, si, active, u, rng, c, hidden_ptrs, distr, wall_ptr, ctx):
@@ -392,7 +400,7 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
                 si_next = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active_next)
                 beta *= bsdf_w
                 eta *= bs.eta
-                opl = opl + dr.norm(si_next.p - si.p)
+                opl = opl + eta * dr.norm(si_next.p - si.p)  # the segment's medium: relative index eta
                 depth += 1
                 beta_max = dr.max(mi.unpolarized_spectrum(beta))
                 rr_prob = dr.minimum(beta_max * dr.square(eta), 0.95)
@@ -401,7 +409,7 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
                 beta[rr_active] *= dr.rcp(rr_prob)
                 active = active_next & si_next.is_valid() & (~rr_active | rr_continue) & (beta_max > 0)
                 _connect_spots(scene, hist, lane, si_next, beta, w0, opl, depth, active, c, spot, group, wall_ptr,
-                               ctx)
+                               ctx, eta=eta)
                 si = si_next
         j += 1
     return rng

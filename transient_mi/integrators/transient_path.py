@@ -11,6 +11,7 @@ from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_s
                                              seed_rng, to_mono)
 from transient_mi.integrators._path_options import (check_render_call, read_nlos_options, read_path_params,
                                                      replicates_for)
+from transient_mi.integrators._optical_path import segment_index
 from transient_mi.integrators._pixel_filter import PixelFilter
 from transient_mi.integrators._replicates import (ReplicateStats, effective_replicates,
                                                   replicate_seed)
@@ -39,6 +40,13 @@ class TransientPath(mi.CppADIntegrator):
     through every path vertex to the point on the emitter (for next-event
     estimation, the sampled emitter point; for emitter hits, the hit point).
     Summed over time the result equals Mitsuba's ``path`` image.
+
+    Optical path length: every segment adds ``n d``, with ``n`` the relative
+    refractive index of the medium it crosses, tracked through every
+    refraction (``eta``, the product of the sampled ``bs.eta``; a next-event
+    connection through a rough dielectric takes the index of the far side);
+    see :mod:`transient_mi.integrators._optical_path`. The sensor's side
+    counts as index 1.
 
     Time zero is when light leaves the emitter. The first segment is
     measured from where the light reaches the sensor, per sampled ray
@@ -336,7 +344,10 @@ class TransientPath(mi.CppADIntegrator):
             bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
             mis_em = dr.select(ds.delta, 1, mis_weight(ds.pdf, bsdf_pdf))
             Lr = beta * mis_em * bsdf_val * em_weight
-            hist.record(lane, opl + ds.dist, to_mono(Lr, wavelengths), active_em)
+            # the segment to the emitter runs at c / n: n = eta on this side, changed by a rough dielectric's
+            # transmission (see segment_index)
+            n_em = segment_index(bsdf, si, wo, eta, active_em)
+            hist.record(lane, opl + n_em * ds.dist, to_mono(Lr, wavelengths), active_em)
 
             # ---- BSDF sampling
             bs, bsdf_weight = bsdf.sample(ctx, si, rng.next_float32(),
@@ -358,7 +369,8 @@ class TransientPath(mi.CppADIntegrator):
             active = active_next & (~rr_active | rr_continue) & (beta_max != 0)
 
             si_next = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
-            opl = dr.select(si_next.is_valid(), opl + dr.norm(si_next.p - si.p), dr.inf)
+            # optical path: the new segment lies in the medium of relative index eta (1 outside dielectrics)
+            opl = dr.select(si_next.is_valid(), opl + eta * dr.norm(si_next.p - si.p), dr.inf)
             si = si_next
 
     def to_string(self):
