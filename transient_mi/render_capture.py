@@ -205,6 +205,8 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         detector=None,
         render=render_info,
         dropped={"contributions": 0, "fraction": 0.0, "invalid_path_lengths": 0, "negative_fraction": 0.0},
+        # colour or Stokes vectors per bin (camera renders in rgb, spectral, polarized variants); NLOS: one intensity
+        channels=film.channel_names() if layout["capture"] == "camera" and hasattr(film, "channel_names") else None,
     )
     manifest["variance"] = variance_block(integrator, spp, layout["quantity"])
     if noise_target is not None:
@@ -280,7 +282,7 @@ def variance_summary(directory: Path, manifest: dict) -> dict | None:
     for j in range(manifest["n_files"]):
         x = stack.read_spot(directory, j, manifest).astype(np.float64)
         var, tvar = stack.read_variance(directory, j, manifest)
-        tot = x.sum(axis=-1)
+        tot = x.sum(axis=2)  # over time: [H, W] (or [H, W, C] per channel)
         ok = tot > 1e-6 * max(float(tot.max()), 1e-300)
         rel.extend((np.sqrt(tvar[ok].astype(np.float64)) / tot[ok]).tolist())
         sd_sum += float(np.sqrt(var.astype(np.float64)).sum())
@@ -433,7 +435,7 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
         preview_data = (0, stack.read_spot(d, 0, m))
     from .preview import write_preview
 
-    write_preview(d / "preview.png", preview_data[1], m, spot=preview_data[0])
+    write_preview(d / "preview.png", stack.intensity(preview_data[1], m), m, spot=preview_data[0])
     if stack.has_variance(m):
         m["variance"] = dict(m["variance"], summary=variance_summary(d, m))
     if job.noise_target is not None:

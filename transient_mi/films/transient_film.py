@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import mitsuba as mi
 import numpy as np
 
-from transient_mi.props import PluginParameterError, get_float, get_int
+from transient_mi.props import PluginParameterError, get_choice, get_float, get_int
 from transient_mi.time_axis import TimeAxis, gaussian_kernel_taps
 
 PLUGIN = ("film", "transient_film", "TransientFilm")
@@ -19,11 +19,11 @@ class TransientResult:
 
     Attributes
     ----------
-    histogram : ndarray of float32, shape ``(height, width, n_bins)``
+    histogram : ndarray of float32, shape ``(height, width, n_bins)`` or ``(height, width, n_bins, n_channels)``
         Per-pixel histogram over time. Camera renders: radiance integrated
         over each bin (summing the bins gives the steady-state radiance).
         NLOS captures: expected photons per laser pulse per bin.
-    steady : ndarray of float32, shape ``(height, width)``
+    steady : ndarray of float32, shape ``(height, width)`` (``(height, width, n_channels)``)
         Time-integrated value of every contribution, including those
         outside the film's time range.
     dropped_contributions : int
@@ -92,6 +92,15 @@ class TransientFilm(mi.Film):
            (default 0). Bin ``b`` covers
            ``[t0_ps + b bin_width_ps, t0_ps + (b + 1) bin_width_ps)``; an
            arrival exactly on a boundary goes to the later bin.
+       * - ``channels``
+         - string
+         - ``auto`` (default): what the variant carries, per bin --
+           ``R``, ``G``, ``B`` in ``*_rgb`` and ``*_spectral`` variants
+           (linear sRGB, as Mitsuba's films), the Stokes vector ``S0``..``S3``
+           in the sensor's frame in ``*_polarized`` variants (as Mitsuba's
+           ``stokes`` integrator; spectral-polarized: of the luminance);
+           ``mono``: one value per bin (luminance Y, or S0). NLOS sensors
+           (``spad_array``) record one intensity (the detector's).
        * - ``kernel_sigma_ps``
          - float
          - Standard deviation (ps) of an optional Gaussian temporal kernel
@@ -129,6 +138,7 @@ class TransientFilm(mi.Film):
         self.bin_width_ps = get_float(props, name, "bin_width_ps", 10.0, min_value=0.0, min_exclusive=True)
         self.t0_ps = get_float(props, name, "t0_ps", 0.0)
         self.kernel_sigma_ps = get_float(props, name, "kernel_sigma_ps", 0.0, min_value=0.0)
+        self.channels = get_choice(props, name, "channels", "auto", ("auto", "mono"))
         size = self.size()
         self.width, self.height = int(size[0]), int(size[1])
         if self.width < 1 or self.height < 1:
@@ -140,6 +150,14 @@ class TransientFilm(mi.Film):
     def time_axis(self) -> TimeAxis:
         """The film's :class:`~transient_mi.time_axis.TimeAxis`."""
         return TimeAxis(self.t0_ps, self.bin_width_ps, self.n_bins)
+
+    def channel_names(self) -> tuple[str, ...] | None:
+        """Channels recorded per time bin: None (one value) for ``channels="mono"`` or a ``*_mono``
+        variant, else the variant's (``R, G, B`` or ``S0..S3``, see
+        :func:`transient_mi.integrators._lanes.variant_channels`)."""
+        from transient_mi.integrators._lanes import variant_channels
+
+        return None if self.channels == "mono" else variant_channels()
 
     def kernel_taps(self) -> np.ndarray:
         """Taps of the temporal kernel (``[1.0]`` when there is none)."""

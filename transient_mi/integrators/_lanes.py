@@ -261,3 +261,119 @@ class LaneHistogram:
         in_hist = float(hist.sum(dtype=np.float64))
         frac = dropped_fraction(self, total, in_hist)
         return hist, steady.astype(np.float32), dropped, frac
+
+
+# ------------------------------------------------------------------ channels
+
+#: Channels a camera render records per time bin (see :func:`film_channels`).
+RGB_CHANNELS = ("R", "G", "B")
+STOKES_CHANNELS = ("S0", "S1", "S2", "S3")
+
+
+def variant_channels() -> tuple[str, ...] | None:
+    """The channels the active variant records per bin: ``R, G, B`` (``*_rgb`` and ``*_spectral``: linear
+    sRGB, as Mitsuba's films develop spectral renders), ``S0..S3`` (``*_polarized``: the Stokes vector in
+    the sensor's frame, as Mitsuba's ``stokes`` integrator), None for ``*_mono`` (one value)."""
+    if mi.is_polarized:
+        return STOKES_CHANNELS
+    if mi.is_rgb or mi.is_spectral:
+        return RGB_CHANNELS
+    return None
+
+
+def stokes_rotation(sensor, d):
+    """Mueller rotation taking a path's Stokes frame (``stokes_basis(-d)``, Mitsuba's implicit frame for a
+    ray of direction ``d`` arriving at the sensor) to the sensor's frame (its x axis: ``d x up``), as
+    Mitsuba's ``stokes`` integrator does, so S1 > 0 is light polarized along the image's x axis."""
+    up = sensor.world_transform() @ mi.Vector3f(0, 1, 0)  # a vector (a Scalar one would transform as a point)
+    return mi.mueller.rotate_stokes_basis(-d, mi.mueller.stokes_basis(-d), dr.cross(d, up))
+
+
+def channel_values(value, wavelengths, channels, rotation=None):
+    """A path contribution (``mi.Spectrum``) as the recorded values: one ``mi.Float`` (mono, see
+    :func:`to_mono`) or a list of them, one per channel.
+
+    ``rotation`` (polarized variants): from :func:`stokes_rotation` for the path's camera ray. Stokes
+    components of spectral-polarized renders are reduced to their luminance Y, as :func:`to_mono` does.
+    """
+    if channels is None:
+        return to_mono(value, wavelengths)
+    if channels == STOKES_CHANNELS:
+        m = rotation @ value if rotation is not None else value
+        out = []
+        for i in range(4):
+            e = m[i][0]  # column 0: the Stokes vector of unpolarized emission after the path's Mueller matrix
+            out.append(e[0] if mi.is_monochromatic else mi.luminance(e, wavelengths))
+        return out
+    if mi.is_spectral:
+        rgb = mi.spectrum_to_srgb(mi.unpolarized_spectrum(value), wavelengths)
+    else:
+        rgb = mi.unpolarized_spectrum(value)
+    return [rgb[0], rgb[1], rgb[2]]
+
+
+class ChannelHistogram(LaneHistogram):
+    """Lane histograms with one sub-slot per channel (slot = ``lane * C + channel``).
+
+    The dropped and invalid counters count contributions (one per lane, whatever their channels); the
+    lost energy is kept per channel.
+    """
+
+    def __init__(self, layout: LaneLayout, axis: TimeAxis, pad: int, n_channels: int):
+        super().__init__(layout, axis, pad)
+        self.n_channels = n_channels
+        n = layout.n_lanes * n_channels
+        self.data = dr.zeros(mi.Float, n * self.n_bins_ext)
+        self.lost = dr.zeros(mi.Float, n)
+        self._nch = dr.opaque(mi.UInt32, n_channels)
+
+    def record(self, lane, opl_m, values, active):
+        """Add the per-channel ``values`` arriving after ``opl_m`` metres to ``lane``'s slots."""
+        nan_value = mi.Bool(False)
+        nonzero = mi.Bool(False)
+        for v in values:
+            nan_value |= dr.isnan(v)
+            nonzero |= v != 0
+        active = mi.Bool(active) & (nonzero | nan_value)
+        valid, in_range, b_ext, invalid = self.bin_index(opl_m)
+        invalid |= nan_value
+        dr.scatter_reduce(dr.ReduceOp.Add, self.invalid, mi.UInt32(1), lane, active & invalid,
+                          mode=dr.ReduceMode.NoConflicts)
+        active &= ~invalid
+        for ch, v in enumerate(values):
+            slot = mi.UInt32(lane) * self._nch + ch
+            idx = slot * mi.UInt32(self._n_ext) + mi.UInt32(dr.maximum(b_ext, 0))
+            dr.scatter_reduce(dr.ReduceOp.Add, self.data, v, idx, active & valid, mode=dr.ReduceMode.NoConflicts)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.lost, v, slot, active & ~valid, mode=dr.ReduceMode.NoConflicts)
+        dr.scatter_reduce(dr.ReduceOp.Add, self.dropped, mi.UInt32(1), lane, active & ~in_range,
+                          mode=dr.ReduceMode.NoConflicts)
+
+    def collect(self, taps: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, float]:
+        """As :meth:`LaneHistogram.collect`, per channel: ``(hist[n_pixels, n_bins, C] float32,
+        steady[n_pixels, C] float32, dropped_contributions, dropped_fraction)`` (the fraction over all
+        channels together)."""
+        L, T, C = self.layout, self.n_bins_ext, self.n_channels
+        if L.streams == 1:
+            summed = self.data
+        else:
+            idx = dr.arange(mi.UInt32, L.n_pixels * C * T)
+            pixel = idx // (C * T)
+            base = pixel * (L.streams * C * T) + (idx - pixel * (C * T))
+            summed = dr.zeros(mi.Float, L.n_pixels * C * T)
+            for k in range(L.streams):  # unrolled: fixed summation order
+                summed += dr.gather(mi.Float, self.data, base + k * (C * T))
+            dr.eval(summed)
+        lost = np.asarray(self.lost).reshape(L.n_pixels, L.streams, C).sum(axis=1, dtype=np.float64)
+        self.data = None
+        hist = np.asarray(summed).reshape(L.n_pixels * C, T)
+        del summed
+        hist *= np.float32(1.0 / L.spp)
+        steady = hist.sum(axis=1, dtype=np.float64).reshape(L.n_pixels, C) + lost / L.spp
+        if len(taps) > 1:
+            hist = apply_kernel(hist, taps).astype(np.float32)
+        dropped = int(np.asarray(self.dropped).sum(dtype=np.uint64))
+        total = float(steady.sum())
+        in_hist = float(hist.sum(dtype=np.float64))
+        frac = dropped_fraction(self, total, in_hist)
+        hist = np.ascontiguousarray(hist.reshape(L.n_pixels, C, -1).transpose(0, 2, 1))
+        return hist, steady.astype(np.float32), dropped, frac

@@ -7,8 +7,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from transient_mi.integrators._lanes import (LaneHistogram, LaneLayout, choose_streams,
-                                             seed_rng, to_mono)
+from transient_mi.integrators._lanes import (STOKES_CHANNELS, ChannelHistogram, LaneHistogram, LaneLayout,
+                                             channel_values, choose_streams, seed_rng, stokes_rotation)
 from transient_mi.integrators._path_options import (check_render_call, read_nlos_options, read_path_params,
                                                      replicates_for)
 from transient_mi.integrators._optical_path import segment_index
@@ -237,14 +237,15 @@ class TransientPath(mi.CppADIntegrator):
             frac += fr
             del h
         var, tvar = stats.variance(), stats.total_variance()
+        ch = stats.mean.shape[2:]  # (n_channels,) for multi-channel films, else ()
         return TransientResult(
-            histogram=stats.mean.reshape(H, W, axis.n_bins),
-            steady=(steady / R).astype(np.float32).reshape(H, W),
+            histogram=stats.mean.reshape((H, W, axis.n_bins) + ch),
+            steady=(steady / R).astype(np.float32).reshape((H, W) + ch),
             dropped_contributions=dropped,
             dropped_fraction=frac / R,
             samples=total,
-            variance=None if var is None else var.reshape(H, W, axis.n_bins),
-            total_variance=None if tvar is None else tvar.reshape(H, W),
+            variance=None if var is None else var.reshape((H, W, axis.n_bins) + ch),
+            total_variance=None if tvar is None else tvar.reshape((H, W) + ch),
             replicates=R,
             invalid_contributions=invalid,
             negative_fraction=negative,
@@ -258,9 +259,13 @@ class TransientPath(mi.CppADIntegrator):
         taps = film.kernel_taps()
         pad = len(taps) // 2
         axis = film.time_axis()
-        K = choose_streams(W * H, spp, axis.n_bins + 2 * pad)
+        channels = film.channel_names() if hasattr(film, "channel_names") else None
+        n_ch = len(channels) if channels else 1
+        K = choose_streams(W * H, spp, (axis.n_bins + 2 * pad) * n_ch)
         layout = LaneLayout(W * H, spp, K)
-        hist = LaneHistogram(layout, axis, pad)
+        hist = LaneHistogram(layout, axis, pad) if channels is None else ChannelHistogram(layout, axis, pad, n_ch)
+        # what _trace records per contribution (read there: keeps its signature for subclasses)
+        self._channels, self._sensor = channels, sensor
         rng = seed_rng(seed, layout.n_lanes)
         origin = TimeOrigin(sensor)
         pixel_filter = PixelFilter(film.rfilter(), film.sample_border())
@@ -303,6 +308,14 @@ class TransientPath(mi.CppADIntegrator):
             j += 1
         return rng
 
+    def _channel_setup(self, ray):
+        """``(channels, rotation)`` for :func:`~transient_mi.integrators._lanes.channel_values`: the film's
+        channels of this render and, for Stokes vectors, the rotation into the sensor's frame."""
+        channels = getattr(self, "_channels", None)
+        if channels != STOKES_CHANNELS:
+            return channels, None
+        return channels, stokes_rotation(self._sensor, ray.d)
+
     @dr.syntax
     def _trace(self, scene, rng, hist, lane, ray, throughput, origin):
         """Trace one path per lane and record every contribution at its path length.
@@ -322,6 +335,7 @@ class TransientPath(mi.CppADIntegrator):
         prev_bsdf_delta = mi.Bool(True)
         si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
         opl = dr.select(si.is_valid(), dr.norm(si.p - origin), dr.inf)
+        channels, rotation = self._channel_setup(ray)
         max_depth = self.max_depth
         rr_depth = self.rr_depth
 
@@ -330,7 +344,8 @@ class TransientPath(mi.CppADIntegrator):
             ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
             em_pdf = scene.pdf_emitter_direction(prev_si, ds, ~prev_bsdf_delta)
             Le = beta * mis_weight(prev_bsdf_pdf, em_pdf) * ds.emitter.eval(si, prev_bsdf_pdf > 0)
-            hist.record(lane, opl, to_mono(Le, wavelengths), active & (ds.emitter != None))  # noqa: E711
+            hist.record(lane, opl, channel_values(Le, wavelengths, channels, rotation),
+                        active & (ds.emitter != None))  # noqa: E711
 
             active_next = active & si.is_valid() & (depth + 1 < max_depth)
             bsdf = si.bsdf(ray)
@@ -347,7 +362,7 @@ class TransientPath(mi.CppADIntegrator):
             # the segment to the emitter runs at c / n: n = eta on this side, changed by a rough dielectric's
             # transmission (see segment_index)
             n_em = segment_index(bsdf, si, wo, eta, active_em)
-            hist.record(lane, opl + n_em * ds.dist, to_mono(Lr, wavelengths), active_em)
+            hist.record(lane, opl + n_em * ds.dist, channel_values(Lr, wavelengths, channels, rotation), active_em)
 
             # ---- BSDF sampling
             bs, bsdf_weight = bsdf.sample(ctx, si, rng.next_float32(),
