@@ -56,13 +56,15 @@ def _medium(kind, sigma_t=2.0, albedo=0.85):
                             "to_world": T().translate([-0.6, -0.6, -0.6]).scale(1.2)},
                 "phase": {"type": "hg", "g": 0.3}}
     if kind == "rgb":  # spectrally varying extinction (RGB variants: channel sampling)
-        return {"type": "homogeneous", "id": "smoke", "sigma_t": {"type": "rgb", "value": [0.15, 0.45, 1.0]}, "scale": 4.0,
+        return {"type": "homogeneous", "id": "smoke", "scale": 4.0,
+                "sigma_t": {"type": "rgb", "value": [0.15, 0.45, 1.0]},
                 "albedo": {"type": "rgb", "value": [0.9, 0.6, 0.8]}, "phase": {"type": "hg", "g": 0.3}}
     raise ValueError(kind)
 
 
-def _cube_scene(integrator, film, spp, medium="homogeneous"):
-    """A scattering medium inside a null-BSDF cube on a diffuse floor, lit by an area light."""
+def _cube_scene(integrator, film, spp, medium="homogeneous", boundary="null"):
+    """A scattering medium inside a cube (``null`` BSDF, or ``dielectric``) on a diffuse floor, lit by an area
+    light."""
     return mi.load_dict({
         "type": "scene",
         "integrator": integrator,
@@ -70,7 +72,7 @@ def _cube_scene(integrator, film, spp, medium="homogeneous"):
                    "to_world": T().look_at(origin=[0.3, 1.4, 3.0], target=[0, 0, 0], up=[0, 1, 0]),
                    "film": film, "sampler": {"type": "independent", "sample_count": spp}},
         "smoke": _medium(medium),
-        "cube": {"type": "cube", "to_world": T().scale(0.6), "bsdf": {"type": "null"},
+        "cube": {"type": "cube", "to_world": T().scale(0.6), "bsdf": {"type": boundary},
                  "interior": {"type": "ref", "id": "smoke"}},
         "floor": {"type": "rectangle", "to_world": T().translate([0, -0.6, 0]).rotate([1, 0, 0], -90).scale(3.0),
                   "bsdf": {"type": "diffuse", "reflectance": _grey(0.6)}},
@@ -119,9 +121,18 @@ def _heterogeneous_cube_scene(integrator, film, spp):
     return _cube_scene(integrator, film, spp, medium="heterogeneous")
 
 
+def _glass_cube_scene(integrator, film, spp):
+    return _cube_scene(integrator, film, spp, boundary="dielectric")
+
+
+def _fog_hidden_scene(integrator, film, spp):
+    return _fog_scene(dict(integrator, hide_emitters=True), film, spp)
+
+
 @pytest.mark.parametrize("make,max_depth", [(_cube_scene, -1), (_cube_scene, 3), (_heterogeneous_cube_scene, -1),
-                                            (_fog_scene, -1)],
-                         ids=["cube_medium", "cube_medium_depth3", "cube_heterogeneous", "global_fog"])
+                                            (_glass_cube_scene, -1), (_fog_scene, -1), (_fog_hidden_scene, -1)],
+                         ids=["cube_medium", "cube_medium_depth3", "cube_heterogeneous", "glass_cube_medium", "global_fog",
+                              "global_fog_hide_emitters"])
 def test_time_integrated_image_equals_mitsuba_volpath(make, max_depth):
     """Summed over time, every pixel equals Mitsuba's ``volpath`` image (box filter, same scene).
 
@@ -190,7 +201,7 @@ def test_rgb_variant_spectral_extinction_equals_mitsuba_volpath():
     tests = str(Path(__file__).resolve().parent)
     env = dict(os.environ, TRANSIENT_MI_VARIANT="llvm_ad_rgb")
     out = subprocess.run([sys.executable, "-c", _RGB_SCRIPT.format(tests=tests)], env=env, capture_output=True,
-                         text=True, timeout=600)
+                         text=True, timeout=600, check=False)
     assert out.returncode == 0, out.stderr[-2000:]
     line = [x for x in out.stdout.splitlines() if x.startswith("JSON")][-1]
     a, b = (np.asarray(x) for x in json.loads(line[4:]))
@@ -374,3 +385,26 @@ def test_same_seed_same_bytes():
     assert ra.histogram.sum() > 0
     assert ra.histogram.tobytes() == rb.histogram.tobytes()
     assert ra.histogram.tobytes() != rc.histogram.tobytes()
+
+
+# -------------------------------------------------------------- example scene
+
+
+def test_fog_scene_renders_with_the_cli(tmp_path):
+    """``scenes/fog_camera.xml`` renders with ``transient-mi render`` (small -D overrides); a complete capture."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / "fog"
+    env = dict(os.environ, TRANSIENT_MI_PROGRESS="0")
+    r = subprocess.run([sys.executable, "-m", "transient_mi", "render", "scenes/fog_camera.xml", "-o", str(out),
+                        "-D", "width=8", "-D", "height=8", "-D", "spp=4", "-D", "n_bins=200"],
+                       cwd=root, env=env, capture_output=True, text=True, timeout=300, check=False)
+    assert r.returncode == 0, r.stderr[-2000:]
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["status"] == "complete" and m["render"]["integrator"].startswith("TransientVolPath")
+    assert m["dropped"]["invalid_path_lengths"] == 0

@@ -293,7 +293,7 @@ class TransientVolPath(TransientPath):
             m_h.t = end
             m_h.p = ray(end)
             m_h.medium = medium
-            sig_s, sig_n, sig_t = medium.get_scattering_coefficients(m_h, homog)
+            _, _, sig_t = medium.get_scattering_coefficients(m_h, homog)
             tr[homog] *= dr.exp(-end * sig_t)
 
             # heterogeneous: ratio tracking with the majorant of the sampled channel
