@@ -211,7 +211,7 @@ def test_rgb_variant_spectral_extinction_equals_mitsuba_volpath():
 # ------------------------------------------------------------- ballistic peak
 
 
-def _slab_scene(sigma_t, albedo, max_depth, spp, *, medium=True):
+def _slab_scene(sigma_t, albedo, max_depth, spp, *, medium=True, heterogeneous=False):
     """A radiance meter at z = 3 looking down -z through a 1 m null-BSDF cube (z in [-0.5, 0.5]) at an
     area emitter (radiance 2) at z = -1.5 facing it."""
     d = {
@@ -223,16 +223,27 @@ def _slab_scene(sigma_t, albedo, max_depth, spp, *, medium=True):
                  "emitter": {"type": "area", "radiance": _grey(2.0)}},
     }
     if medium:
-        d["cube"] = {"type": "cube", "to_world": T().scale(0.5), "bsdf": {"type": "null"},
-                     "interior": {"type": "homogeneous", "sigma_t": sigma_t, "albedo": albedo}}
+        inner = {"type": "homogeneous", "sigma_t": sigma_t, "albedo": albedo}
+        if heterogeneous:
+            # density 1/2 along the ray; one corner voxel of density 1 raises the majorant to 2x: about half the
+            # tentative collisions on the ray are null events (trilinear interpolation stays 1/2 near the axis)
+            grid = np.full((4, 4, 4, 1), 0.5, dtype=np.float32)
+            grid[0, 0, 0, 0] = 1.0
+            inner = {"type": "heterogeneous", "scale": 2.0 * sigma_t, "albedo": albedo,
+                     "sigma_t": {"type": "gridvolume", "grid": mi.VolumeGrid(grid),
+                                 "to_world": T().translate([-0.5, -0.5, -0.5])}}
+        d["cube"] = {"type": "cube", "to_world": T().scale(0.5), "bsdf": {"type": "null"}, "interior": inner}
     return mi.load_dict(d)
 
 
-@pytest.mark.parametrize("sigma_t,albedo,max_depth", [(1.3, 0.0, -1), (0.7, 0.8, 1)],
-                         ids=["absorbing", "scattering_unscattered_only"])
-def test_ballistic_peak_is_attenuated_by_beer_lambert(sigma_t, albedo, max_depth):
+@pytest.mark.parametrize("sigma_t,albedo,max_depth,het", [(1.3, 0.0, -1, False), (0.7, 0.8, 1, False),
+                                                          (1.3, 0.0, -1, True)],
+                         ids=["absorbing", "scattering_unscattered_only", "heterogeneous_null_events"])
+def test_ballistic_peak_is_attenuated_by_beer_lambert(sigma_t, albedo, max_depth, het):
     """The unscattered arrival: in the bin of the straight path (4.5 m) the radiance meter reads
-    ``L_e exp(-sigma_t d)`` with ``d`` = 1 m of medium, the no-medium reading times Beer-Lambert.
+    ``L_e exp(-sigma_t d)`` with ``d`` = 1 m of medium, the no-medium reading times Beer-Lambert. In the
+    heterogeneous case (density sigma_t along the ray under a majorant of 2 sigma_t) the path is cut into
+    null-scattering segments: their lengths must add up to the straight path (all light in one bin).
 
     Each sample passes the slab (weight ``L_e``) with probability ``p = exp(-sigma_t d)`` (or is absorbed /
     scatters out of the recorded depth: weight 0): the bin's mean over ``N`` samples is a binomial
@@ -244,7 +255,7 @@ def test_ballistic_peak_is_attenuated_by_beer_lambert(sigma_t, albedo, max_depth
     Le, d, L = 2.0, 1.0, 4.5
     ref = _slab_scene(sigma_t, albedo, max_depth, 256, medium=False)
     r0 = ref.integrator().render_transient(ref, ref.sensors()[0], seed=3)
-    scene = _slab_scene(sigma_t, albedo, max_depth, spp)
+    scene = _slab_scene(sigma_t, albedo, max_depth, spp, heterogeneous=het)
     h = np.zeros(r0.histogram.shape[-1])
     for s in range(n_renders):
         h += scene.integrator().render_transient(scene, scene.sensors()[0], seed=3 + s).histogram[0, 0] / n_renders
