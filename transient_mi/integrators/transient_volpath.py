@@ -6,8 +6,10 @@ import drjit as dr
 import mitsuba as mi
 
 from transient_mi.integrators._lanes import to_mono
+from transient_mi.integrators._path_options import read_path_params
+from transient_mi.integrators._sensor_checks import is_nlos_sensor
 from transient_mi.integrators.transient_path import TransientPath, mis_weight
-from transient_mi.props import PluginParameterError, get_bool, get_int
+from transient_mi.props import PluginParameterError, get_bool
 
 PLUGIN = ("integrator", "transient_volpath", "TransientVolPath")
 
@@ -43,7 +45,10 @@ class TransientVolPath(TransientPath):
     ``volpath`` does. Media in Mitsuba 3.9 do not emit light.
 
     Time in media: a path's optical path length is the sum of the lengths of
-    its segments, from the camera ray's origin ``ray.o`` through every real
+    its segments, from the sensor's time origin (as ``transient_path``: where
+    the light reaches the sensor, the centre of projection of a perspective
+    camera; the camera ray, which Mitsuba starts at ``ray.o`` on the near-clip
+    plane, is followed back to it) through every real
     scattering vertex (null-scattering events do not bend the path: their
     segments add up to the distance along the ray) to the emitter: the hit
     point for an emitter hit, the sampled emitter point for next-event
@@ -88,22 +93,17 @@ class TransientVolPath(TransientPath):
 
     def __init__(self, props: mi.Properties):
         mi.CppADIntegrator.__init__(self, props)  # not TransientPath's: it would accept the NLOS options
-        max_depth = get_int(props, self.NAME, "max_depth", -1, min_value=-1)
-        if max_depth == 0:
-            raise PluginParameterError(f"{self.NAME}: max_depth=0 records nothing; use -1 (unlimited) or >= 1")
+        max_depth, self.rr_depth, self.variance_replicates = read_path_params(props, self.NAME)
         self.max_depth_param = max_depth
         self.max_depth = max_depth if max_depth != -1 else 0xFFFFFFFF
-        self.rr_depth = get_int(props, self.NAME, "rr_depth", 5, min_value=1)
         self.hide_emitters = get_bool(props, self.NAME, "hide_emitters", False)
-        self.variance_replicates = (get_int(props, self.NAME, "variance_replicates", None, min_value=1,
-                                            max_value=1024) if "variance_replicates" in props else None)
         self.nlos_options = {}
         self._sensor_medium = None
 
     def render_transient(self, scene, sensor, **kwargs):
         """As :meth:`TransientPath.render_transient`, for camera sensors only; the sensor's medium
         (``sensor.get_medium()``) is the medium the camera rays start in."""
-        if hasattr(sensor, "nlos_estimator"):
+        if is_nlos_sensor(sensor):
             raise PluginParameterError(
                 f"{self.NAME}: sensor {type(sensor).__name__} (spad_array) is not supported: NLOS captures "
                 "through media are out of scope; use a camera sensor (perspective, ...) or transient_path")
@@ -119,7 +119,9 @@ class TransientVolPath(TransientPath):
     def _trace(self, scene, rng, hist, lane, ray, throughput, origin):
         """Trace one volumetric path per lane and record every contribution at its path length.
 
-        ``origin`` is ignored: the first segment is measured from ``ray.o``.
+        ``origin`` (per lane): where the light reaches the sensor (see
+        :mod:`transient_mi.integrators._time_origin`); the first segment is timed from there, through
+        ``ray.o`` (where Mitsuba starts camera rays and the medium free flights) along the ray.
         """
         ctx = mi.BSDFContext()
         phase_ctx = mi.PhaseFunctionContext()
@@ -129,7 +131,7 @@ class TransientVolPath(TransientPath):
         eta = mi.Float(1)
         depth = mi.UInt32(0)
         active = mi.Bool(True)
-        opl = mi.Float(0)  # path length (m) from ray.o to the current vertex
+        opl = dr.norm(ray.o - origin)  # path length (m) from the time origin to the current vertex
         medium = mi.MediumPtr(self._sensor_medium) if self._sensor_medium is not None else dr.zeros(mi.MediumPtr)
         si = dr.zeros(mi.SurfaceInteraction3f)
         needs_intersection = mi.Bool(True)
