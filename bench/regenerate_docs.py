@@ -187,6 +187,20 @@ def integrator_para(R) -> str:
             f"{r['film_bytes'] / 1e6:.0f} MB. {provenance(rec)}\n")
 
 
+def volpath_para(R) -> str:
+    rec = R("volpath")
+    r = rec["result"]
+    st = r["settings"]
+    t, p = r["transient_volpath"], r["volpath"]
+    rounds = ", ".join(f"{100 * x:.0f} %" for x in r["throughput_ratio_per_round"])
+    return (f"\n**Transient vs steady volumetric path tracing** (`python bench/bench_volpath.py`: "
+            f"`scenes/fog_camera.xml`, {st['size']} x {st['size']}, {st['spp']} spp, max depth {st['max_depth']}): "
+            f"`transient_volpath` with a {st['bins']}-bin film renders {100 * r['throughput_ratio']:.0f} % of "
+            f"Mitsuba's `volpath` throughput ({t['paths_per_s'] / 1e6:.2f} vs {p['paths_per_s'] / 1e6:.2f} M paths/s, "
+            f"best round of each, second of two renders timed; per round {rounds}; goal >= "
+            f"{100 * r['goal_ratio']:.0f} %). {provenance(rec)}\n")
+
+
 def cornell_inline(R) -> str:
     rec = R("integrator")
     x = rec["result"].get("readme_example")
@@ -524,6 +538,7 @@ GENERATORS = {
     "detector_inline": (detector_readme_inline, ["detector"], True),
     "cornell_render": (cornell_inline, ["integrator"], True),
     "integrator": (integrator_para, ["integrator"], False),
+    "volpath": (volpath_para, ["volpath"], False),
     "nlos_table": (nlos_readme_table, ["nlos"], False),
     "nlos_docs_table": (nlos_docs_table, ["nlos"], False),
     "nlos_pipeline": (nlos_pipeline_para, ["nlos"], False),
