@@ -5,7 +5,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from transient_mi.integrators._lanes import to_mono
+from transient_mi.integrators._lanes import channel_values
+from transient_mi.integrators._optical_path import segment_index
 from transient_mi.integrators._path_options import read_path_params
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
 from transient_mi.integrators.transient_path import TransientPath, mis_weight
@@ -52,8 +53,10 @@ class TransientVolPath(TransientPath):
     scattering vertex (null-scattering events do not bend the path: their
     segments add up to the distance along the ray) to the emitter: the hit
     point for an emitter hit, the sampled emitter point for next-event
-    estimation. Time is that length over ``c``: Mitsuba media have no
-    refractive index. Shadow rays only weight a contribution (transmittance);
+    estimation. Each segment counts ``n d`` with ``n`` the relative index of
+    the dielectric it is in (tracked through refractions, see
+    :mod:`transient_mi.integrators._optical_path`); Mitsuba media carry no
+    index of their own. Shadow rays only weight a contribution (transmittance);
     their length is the distance to the sampled emitter point.
 
     NLOS captures through media are not supported: a ``spad_array`` sensor is
@@ -131,7 +134,8 @@ class TransientVolPath(TransientPath):
         eta = mi.Float(1)
         depth = mi.UInt32(0)
         active = mi.Bool(True)
-        opl = dr.norm(ray.o - origin)  # path length (m) from the time origin to the current vertex
+        opl = dr.norm(ray.o - origin)  # optical path (m) from the time origin to the current vertex
+        channels, rotation = self._channel_setup(ray)
         medium = mi.MediumPtr(self._sensor_medium) if self._sensor_medium is not None else dr.zeros(mi.MediumPtr)
         si = dr.zeros(mi.SurfaceInteraction3f)
         needs_intersection = mi.Bool(True)
@@ -176,7 +180,7 @@ class TransientVolPath(TransientPath):
             escaped = active_medium & ~mei.is_valid()
             active_medium &= mei.is_valid()
             spectral &= active_medium
-            opl[active_medium] += mei.t
+            opl[active_medium] += eta * mei.t  # a segment in a dielectric of relative index eta takes eta d / c
 
             # null or real scattering: real with probability sigma_t / majorant (in the sampled channel)
             sig_t_c = index_spectrum(mei.sigma_t, channel)
@@ -200,14 +204,14 @@ class TransientVolPath(TransientPath):
 
             # ---- emitter hits (no medium, or the ray left the medium)
             active_surface |= escaped
-            opl[active_surface] += si.t
+            opl[active_surface] += eta * si.t
             emitter = si.emitter(scene)
             active_e = active_surface & (emitter != None) & ~((depth == 0) & hide_emitters)  # noqa: E711
             count_direct = (depth == 0) | specular_chain
             ds_hit = mi.DirectionSample3f(scene, si, last_event)
             em_pdf = scene.pdf_emitter_direction(last_event, ds_hit, active_e & ~count_direct)
             Le = beta * emitter.eval(si, active_e) * dr.select(count_direct, 1, mis_weight(last_pdf, em_pdf))
-            hist.record(lane, opl, to_mono(Le, wavelengths), active_e)
+            hist.record(lane, opl, channel_values(Le, wavelengths, channels, rotation), active_e)
 
             # ---- next-event estimation from the medium vertex or the surface
             active_surface &= si.is_valid()
@@ -220,7 +224,9 @@ class TransientVolPath(TransientPath):
             f_val = dr.select(nee_surface, bsdf_val, ph_val)
             f_pdf = dr.select(ds.delta, 0, dr.select(nee_surface, bsdf_pdf, ph_pdf))
             L_nee = beta * f_val * em_val * mis_weight(ds.pdf, f_pdf)
-            hist.record(lane, opl + ds.dist, to_mono(L_nee, wavelengths), nee_surface | nee_medium)
+            n_nee = dr.select(nee_surface, segment_index(bsdf, si, si.to_local(ds.d), eta, nee_surface), eta)
+            hist.record(lane, opl + n_nee * ds.dist, channel_values(L_nee, wavelengths, channels, rotation),
+                        nee_surface | nee_medium)
 
             # ---- phase-function sampling
             wo, ph_weight, ph_pdf = phase.sample(phase_ctx, mei, rng.next_float32(),
