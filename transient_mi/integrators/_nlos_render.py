@@ -17,7 +17,7 @@ import mitsuba as mi
 import numpy as np
 
 from transient_mi.integrators._lanes import (NLOS_GROUP_TARGET_LANES, LaneHistogram, LaneLayout, dropped_fraction,
-                                             seed_rng, streams_for)
+                                             seed_rng, streams_for, sum_strided)
 from transient_mi.integrators._nlos_kernel import KernelConstants, KernelScene, nlos_pass
 from transient_mi.integrators._replicates import (DEFAULT_REPLICATES, ReplicateStats, effective_replicates,
                                                   replicate_seed)
@@ -53,13 +53,9 @@ class GroupHistogram(LaneHistogram):
     """Lane histograms with one sub-slot per spot of the group (slot = ``lane * G + spot``)."""
 
     def __init__(self, layout: LaneLayout, axis, pad: int, n_sub: int):
-        super().__init__(layout, axis, pad)
-        self.n_sub = n_sub
         n = layout.n_lanes * n_sub
-        self.data = dr.zeros(mi.Float, n * self.n_bins_ext)
-        self.lost = dr.zeros(mi.Float, n)
-        self.dropped = dr.zeros(mi.UInt32, n)
-        self.invalid = dr.zeros(mi.UInt32, n)
+        super().__init__(layout, axis, pad, n_slots=n, n_count_slots=n)
+        self.n_sub = n_sub
         self._nsub = dr.opaque(mi.UInt32, n_sub)
 
     def record(self, lane, opl_m, value, active, sub=0):
@@ -78,20 +74,15 @@ class GroupHistogram(LaneHistogram):
         T = self.n_bins_ext
         G = self.n_sub
         f = scale / L.spp
-        if L.streams == 1:
-            out = self.data * f
-        else:
-            idx = dr.arange(mi.UInt32, L.n_pixels * G * T)
-            pixel = idx // (G * T)
-            rest = idx - pixel * (G * T)
-            base = pixel * (L.streams * G * T) + rest
-            out = dr.zeros(mi.Float, L.n_pixels * G * T)
-            for k in range(L.streams):  # unrolled: fixed summation order
-                out += dr.gather(mi.Float, self.data, base + k * (G * T))
-            out *= f
+        idx = dr.arange(mi.UInt32, L.n_pixels * G * T)
+        pg = idx // T  # (pixel, spot of the group)
+        pixel = pg // G
+        base = (pixel * (L.streams * G) + (pg - pixel * G)) * self.stride + (idx - pg * T)
+        out = sum_strided(self.data, base, G * self.stride, L.streams, L.n_pixels * G * T)
+        out *= f
         dr.eval(out)
-        lost = np.asarray(self.lost).reshape(L.n_pixels, L.streams, G).sum(axis=1, dtype=np.float64) * f
-        dropped = np.asarray(self.dropped).reshape(L.n_pixels, L.streams, G).sum(axis=(0, 1), dtype=np.uint64)
+        lost = self._overflow().reshape(L.n_pixels, L.streams, G).sum(axis=1) * f
+        dropped = self._counters()[:, 0].reshape(L.n_pixels, L.streams, G).sum(axis=(0, 1), dtype=np.uint64)
         self.data = None  # free the lane slots
         hist = np.asarray(out).reshape(L.n_pixels, G, T)  # zero-copy view
         del out
