@@ -245,10 +245,22 @@ class TransientNLOSPath(mi.CppADIntegrator):
 
         The film keeps the full :class:`~transient_mi.films.transient_film.TransientResult`.
         """
+        from transient_mi.integrators._ad import as_int
+
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
-        result = self.render_transient(scene, sensor, seed=int(seed), spp=int(spp), progress=progress)
+        result = self.render_transient(scene, sensor, seed=as_int(seed), spp=as_int(spp), progress=progress)
         return mi.TensorXf(result.histogram)
+
+    def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+        """Not implemented for NLOS captures yet: one clear line (camera views are differentiable with
+        ``transient_path``; see ``docs/differentiable.md``)."""
+        raise PluginParameterError(
+            f"{self.NAME}: differentiable rendering of NLOS captures (spad_array) is not implemented yet; "
+            "camera sensors are differentiable with transient_path (see docs/differentiable.md)")
+
+    def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+        self.render_backward(scene, params, None, sensor, seed, spp)
 
     def render_transient(self, scene, sensor, *, seed: int = 0, spp: int = 0, spot: int | None = None,
                          spots=None, progress=None, replicate_offset: int = 0, replicates: int | None = None):

@@ -157,10 +157,30 @@ class TransientPath(mi.CppADIntegrator):
 
         The film keeps the full :class:`~transient_mi.films.transient_film.TransientResult`.
         """
+        from transient_mi.integrators._ad import as_int
+
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
-        result = self.render_transient(scene, sensor, seed=int(seed), spp=int(spp), progress=progress)
+        result = self.render_transient(scene, sensor, seed=as_int(seed), spp=as_int(spp), progress=progress)
         return mi.TensorXf(result.histogram)
+
+    def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+        """Reverse-mode derivative (what ``dr.backward`` after ``mi.render(scene, params)`` calls): propagate
+        ``grad_in`` (``[height, width, n_bins(, channels)]``) to the scene parameters. Camera sensors;
+        see :mod:`transient_mi.integrators._ad` for what is differentiated."""
+        from transient_mi.integrators._ad import as_int, render_backward
+
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        render_backward(self, scene, params, grad_in, sensor, as_int(seed), as_int(spp))
+
+    def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+        """Forward-mode derivative of the histograms along the parameters' tangents (``dr.forward``)."""
+        from transient_mi.integrators._ad import as_int, render_forward
+
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        return render_forward(self, scene, params, sensor, as_int(seed), as_int(spp))
 
     def render_transient(self, scene, sensor, *, seed: int = 0, spp: int = 0, spot: int | None = None,
                          spots=None, progress=None, replicate_offset: int = 0, replicates: int | None = None):
@@ -280,10 +300,13 @@ class TransientPath(mi.CppADIntegrator):
         return out, {"invalid": hist.invalid_count(), "negative_fraction": hist.negative_fraction}
 
     @dr.syntax
-    def _camera_pass(self, scene, sensor, hist, rng, layout, j0, j1, W, H, origin, pixel_filter):
+    def _camera_pass(self, scene, sensor, hist, rng, layout, j0, j1, W, H, origin, pixel_filter, trace=None):
         """Trace the samples ``[j0, j1)`` of every lane. ``origin``: a
         :class:`~transient_mi.integrators._time_origin.TimeOrigin`; ``pixel_filter``: a
-        :class:`~transient_mi.integrators._pixel_filter.PixelFilter` (image-plane positions)."""
+        :class:`~transient_mi.integrators._pixel_filter.PixelFilter` (image-plane positions);
+        ``trace``: what follows each camera ray (default :meth:`_trace`; the AD passes of
+        :mod:`transient_mi.integrators._ad` pass their own)."""
+        trace = self._trace if trace is None else trace
         K = layout.streams
         lane = dr.arange(mi.UInt32, layout.n_lanes)
         pixel = lane // K
@@ -304,7 +327,7 @@ class TransientPath(mi.CppADIntegrator):
             wav = rng.next_float32() if mi.is_spectral else mi.Float(0)
             ray, ray_weight = sensor.sample_ray_differential(mi.Float(0), wav, pos, aperture)
             ray = mi.Ray3f(ray)
-            self._trace(scene, rng, hist, lane, ray, ray_weight, origin(ray))
+            trace(scene, rng, hist, lane, ray, ray_weight, origin(ray))
             j += 1
         return rng
 
