@@ -281,20 +281,24 @@ class LaneHistogram:
         """
         L = self.layout
         T = self.n_bins_ext
-        summed = self._per_pixel()
         lost = self._overflow().reshape(L.n_pixels, L.streams).sum(axis=1)
-        self.data = None  # free the lane slots before copying out
-        # np.asarray is a writeable zero-copy view of drjit's memory (it keeps
-        # the drjit array alive): scale in place, no second full-size buffer.
-        hist = np.asarray(summed).reshape(L.n_pixels, T)
-        del summed
-        hist *= np.float32(1.0 / L.spp)
-        steady = hist.sum(axis=1, dtype=np.float64) + lost / L.spp
+        if L.streams == 1:
+            # one slot per pixel: its bins are a strided view of the slots (no gather pass over the film)
+            hist = np.asarray(self.data).reshape(L.n_pixels, self.stride)[:, :T]
+        else:
+            # np.asarray is a writeable zero-copy view of drjit's memory (it keeps the drjit array alive)
+            hist = np.asarray(self._per_pixel()).reshape(L.n_pixels, T)
+        self.data = None  # (the view keeps the buffer it needs alive)
+        hist *= np.float32(1.0 / L.spp)  # in place: no second full-size buffer
+        rows = hist.sum(axis=1, dtype=np.float64)
+        steady = rows + lost / L.spp
         if len(taps) > 1:
             hist = apply_kernel(hist, taps).astype(np.float32)
+            in_hist = float(hist.sum(dtype=np.float64))
+        else:
+            in_hist = float(rows.sum())
         dropped = int(self._counters()[:, 0].sum(dtype=np.uint64))
         total = float(steady.sum())
-        in_hist = float(hist.sum(dtype=np.float64))
         frac = dropped_fraction(self, total, in_hist)
         return hist, steady.astype(np.float32), dropped, frac
 
