@@ -187,6 +187,20 @@ def integrator_para(R) -> str:
             f"{r['film_bytes'] / 1e6:.0f} MB. {provenance(rec)}\n")
 
 
+def channels_para(R) -> str:
+    rec = R("channels")
+    r = rec["result"]
+    st = r["settings"]
+    o = r["overhead_over_mono"]
+    return (f"\n**Cost of channels per bin** (`python bench/bench_channels.py`: `scenes/cornell_box.xml`, "
+            f"{st['size']} x {st['size']}, {st['bins']} bins, {st['spp']} spp, max depth {st['max_depth']}, best of "
+            f"{st['rounds']} rounds, second of two renders timed), render time against `llvm_ad_mono` (one value "
+            f"per bin): `llvm_ad_rgb` recording R, G, B per bin {100 * o['rgb']:+.0f} %; the same variant recording "
+            f"one value per bin (`channels=\"mono\"`) {100 * o['rgb_transport_mono_bins']:+.0f} %, so the cost is "
+            f"the per-bin channels (one histogram each), not the colour transport; `llvm_ad_mono_polarized` "
+            f"recording S0..S3 per bin {100 * o['stokes']:+.0f} %. {provenance(rec)}\n")
+
+
 def volpath_para(R) -> str:
     rec = R("volpath")
     r = rec["result"]
@@ -539,6 +553,7 @@ GENERATORS = {
     "cornell_render": (cornell_inline, ["integrator"], True),
     "integrator": (integrator_para, ["integrator"], False),
     "volpath": (volpath_para, ["volpath"], False),
+    "channels": (channels_para, ["channels"], False),
     "nlos_table": (nlos_readme_table, ["nlos"], False),
     "nlos_docs_table": (nlos_docs_table, ["nlos"], False),
     "nlos_pipeline": (nlos_pipeline_para, ["nlos"], False),
