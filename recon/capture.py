@@ -1,5 +1,9 @@
 """Transient NLOS captures: geometry, time axis and (lazily loaded) histograms.
 
+One module on purpose (over 500 lines): the :class:`Capture` type and the checks of every geometry it
+accepts (stack manifests, y-tal files, real captures) belong together; every reconstruction method
+relies on them.
+
 A :class:`Capture` describes one NLOS measurement:
 
 - histograms ``[spot, pixel_y, pixel_x, time]`` (one stored file per laser

@@ -1,5 +1,9 @@
 """EXR histogram stacks: the on-disk contract between rendering, detection and recon.
 
+One module on purpose (over 500 lines): the format's writer and reader -- data, variance, channels,
+manifest -- sit side by side so the contract is stated and checked in one place (shared/DESIGN.md:
+"the stack format is written once").
+
 A capture is a directory::
 
     capture/

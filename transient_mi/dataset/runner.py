@@ -1,5 +1,8 @@
 """Running a dataset on Dask: validation, scheduling, resume, the index.
 
+One module on purpose (over 500 lines): the steps below share the run's state (spec, lock, index,
+resume records) and read in order as one procedure.
+
 :func:`run_dataset` does, in order:
 
 1. read and validate the spec, expand every item (object and detector

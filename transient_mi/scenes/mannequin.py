@@ -1,5 +1,8 @@
 """Procedural mannequin: the hidden object of the paper's NLOS experiment.
 
+One module on purpose (over 500 lines): proportions, poses and the mesh construction share one set of
+body constants; split, the figure's definition would be scattered across files.
+
 A stylised human figure (head, neck, torso, two arms, two legs) built from
 convex hulls of spheres and ellipsoids and unioned with manifold3d into one
 closed, watertight, single-piece triangle mesh. Same parameters, same mesh,
