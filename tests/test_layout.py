@@ -83,3 +83,16 @@ def test_no_two_modules_share_a_name_across_packages():
     }
     clashes = {k: v for k, v in seen.items() if len(v) > 1 and not all("/commands/" in p or p in allowed for p in v[1:])}
     assert not clashes, f"module names used for different jobs: {clashes}"
+
+
+def test_long_modules_say_why():
+    """Small modules with one job each: a module over 500 lines states why in its docstring."""
+    long = {}
+    for package in sorted(PROJECT):
+        for f in (ROOT / package).rglob("*.py"):
+            text = f.read_text()
+            if text.count("\n") > 500:
+                doc = ast.get_docstring(ast.parse(text)) or ""
+                if "over 500 lines" not in doc:
+                    long[str(f.relative_to(ROOT))] = text.count("\n")
+    assert not long, f"modules over 500 lines without a reason in their docstring: {long}"
