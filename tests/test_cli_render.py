@@ -109,12 +109,15 @@ def test_malformed_xml_is_one_line(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
-def test_rgb_variant_renders_luminance_and_is_recorded(tmp_path):
+def test_rgb_variant_renders_rgb_per_bin_and_is_recorded(tmp_path):
     out = tmp_path / "rgb"
     r = cli("render", CBOX, "-o", out, *SMALL, "--variant", "llvm_ad_rgb")
     assert r.returncode == 0, r.stderr
     m, data = stack.read_stack(out)
-    assert m["render"]["variant"] == "llvm_ad_rgb" and data.shape == (1, 12, 16, 200) and data.sum() > 0
+    assert m["render"]["variant"] == "llvm_ad_rgb" and data.shape == (1, 12, 16, 200, 3) and data.sum() > 0
+    assert m["channels"] == ["R", "G", "B"] and m["intensity"] == "luminance"
+    # the preview and any reader of one intensity see the luminance
+    assert stack.intensity(data, m).shape == (1, 12, 16, 200) and (out / "preview.png").is_file()
 
 
 def test_plugins_follow_a_variant_switch():
