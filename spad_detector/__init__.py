@@ -32,6 +32,7 @@ _EXPORTS = {
     "first_photon_probabilities": "pileup", "nonparalyzable_rate": "pileup", "paralyzable_rate": "pileup",
     "pulsed_rate_per_cycle": "pileup",
     "detect_stack": "stream",
+    "ExpectedCounts": "likelihood", "poisson_nll": "likelihood", "poisson_nll_grad": "likelihood",
 }
 
 __all__ = sorted(_EXPORTS)

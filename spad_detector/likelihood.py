@@ -1,0 +1,118 @@
+"""The detector model as a differentiable layer, and the Poisson likelihood of observed counts.
+
+For fitting a scene to a capture by gradients (analysis by synthesis), the detector must turn the
+renderer's ideal histograms into *expected* counts with a derivative, and the counts must be scored.
+numpy with explicit vector-Jacobian products (no autodiff framework: the detector model stays
+Mitsuba- and drjit-free); a renderer's adjoint (``transient_path.render_backward``) takes the result.
+
+Expected counts, per pixel (``ideal[pixel, bin]`` photons per pulse; ``n_pulses`` cycles):
+
+1. triggering events per cycle per slot ``lam = pde x gate x ideal + background`` (dark counts and
+   ambient light; :meth:`~spad_detector.model.DetectorModel.intensity`);
+2. first-photon pile-up (Coates): the detector records at most one event per cycle, the first,
+   ``p_j = exp(-sum_{i<j} lam_i) (1 - exp(-lam_j))``; this is exact when it is ready at each cycle's
+   start (dead time longer than the window, shorter than the rest of the period) and the low-flux
+   limit of every regime;
+3. timing jitter: ``p`` convolved with the jitter's bin kernel;
+4. ``mean = n_pulses x jitter(p)`` over the film's bins.
+
+Vector-Jacobian product (the adjoint of the chain above), for an upstream gradient ``g`` of the mean:
+``g_p = n_pulses x jitter^T(g)`` (correlation with the kernel);
+``g_lam_k = g_p_k S_k e^{-lam_k} - sum_{j>k} g_p_j p_j`` (``S_k = exp(-sum_{i<k} lam_i)``);
+``g_ideal = pde x gate x g_lam`` over the film's bins.
+
+The Poisson negative log-likelihood of counts ``k`` given means ``mu``:
+``NLL = sum (mu - k log mu + log k!)``, gradient ``1 - k / mu``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import gammaln
+
+from .model import DetectorModel, apply_jitter_kernel
+
+
+def _jitter_adjoint(g: np.ndarray, first: int, kernel: np.ndarray) -> np.ndarray:
+    """Adjoint of :func:`~spad_detector.model.apply_jitter_kernel`: ``out[i] = sum_j g[i + first + j] kernel[j]``
+    over the window (signed values: no clipping, unlike the forward, whose inputs are probabilities)."""
+    from scipy.signal import fftconvolve
+
+    T, K = g.shape[-1], len(kernel)
+    full = fftconvolve(g, kernel[None, ::-1], mode="full", axes=-1) if K > 1 else g * kernel[0]
+    if K == 1:
+        out = np.zeros_like(g)
+        s = first
+        if 0 <= s < T:
+            out[:, :T - s] = full[:, s:]
+        elif -T < s < 0:
+            out[:, -s:] = full[:, :T + s]
+        return out
+    idx = np.arange(T) + first + K - 1  # full[n] = sum_j g[n - K + 1 + j] kernel[j]
+    ok = (idx >= 0) & (idx < full.shape[-1])
+    out = np.zeros_like(g)
+    out[:, ok] = full[:, idx[ok]]
+    return out
+
+
+class ExpectedCounts:
+    """``ideal[P, T] -> mean counts[P, T]`` with its vector-Jacobian product.
+
+    Parameters
+    ----------
+    model : DetectorModel
+        From :func:`~spad_detector.model.build_model` for the capture's time axis (gate resolved).
+    n_pulses : int
+        Laser cycles (pulses) per spot.
+    """
+
+    def __init__(self, model: DetectorModel, n_pulses: int):
+        self.model = model
+        self.n_pulses = float(n_pulses)
+
+    def _probabilities(self, ideal: np.ndarray):
+        lam = self.model.intensity(np.asarray(ideal, dtype=np.float64))  # [P, slots]
+        before = np.cumsum(lam, axis=-1) - lam
+        survive = np.exp(-before)  # S_j: no event before slot j
+        p = survive * -np.expm1(-lam)
+        return lam, survive, p
+
+    def __call__(self, ideal: np.ndarray) -> np.ndarray:
+        """Mean counts ``[P, T]`` (float64)."""
+        T = self.model.grid.n_bins
+        _, _, p = self._probabilities(ideal)
+        m = self.model
+        return self.n_pulses * apply_jitter_kernel(p[:, :T], m.kernel_first, m.kernel)
+
+    def vjp(self, ideal: np.ndarray, grad_mean: np.ndarray) -> np.ndarray:
+        """``d<grad_mean, mean(ideal)> / d ideal``, shape ``[P, T]`` (float64)."""
+        m = self.model
+        T = m.grid.n_bins
+        g = np.asarray(grad_mean, dtype=np.float64)
+        g_p = np.zeros((g.shape[0], m.grid.n_slots))
+        g_p[:, :T] = self.n_pulses * _jitter_adjoint(g, m.kernel_first, m.kernel)
+        lam, survive, p = self._probabilities(ideal)
+        gp_p = g_p * p
+        later = np.cumsum(gp_p[:, ::-1], axis=-1)[:, ::-1] - gp_p  # sum_{j > k} g_p_j p_j
+        g_lam = g_p * survive * np.exp(-lam) - later
+        return m.params.pde * m.gate_slots[None, :T] * g_lam[:, :T]
+
+
+def poisson_nll(mean: np.ndarray, counts: np.ndarray) -> float:
+    """``sum(mean - counts log mean + log counts!)``; bins with ``mean = 0`` and ``counts > 0`` give inf."""
+    mu = np.asarray(mean, dtype=np.float64)
+    k = np.asarray(counts, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        term = np.where(k > 0, k * np.log(mu), 0.0)
+    return float(np.sum(mu - term + gammaln(k + 1.0)))
+
+
+def poisson_nll_grad(mean: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """``d NLL / d mean = 1 - counts / mean`` (0 where both are 0)."""
+    mu = np.asarray(mean, dtype=np.float64)
+    k = np.asarray(counts, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(k > 0, 1.0 - k / mu, 1.0)
+
+
+__all__ = ["ExpectedCounts", "poisson_nll", "poisson_nll_grad"]
