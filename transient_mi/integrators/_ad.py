@@ -34,7 +34,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from transient_mi.integrators._lanes import LaneHistogram, LaneLayout, channel_values, choose_streams, seed_rng
+from transient_mi.integrators._lanes import (ChannelHistogram, LaneHistogram, LaneLayout, channel_values,
+                                             choose_streams, seed_rng)
 from transient_mi.integrators._optical_path import segment_index
 from transient_mi.integrators._pixel_filter import PixelFilter
 from transient_mi.integrators._time_origin import TimeOrigin
@@ -42,16 +43,10 @@ from transient_mi.props import PluginParameterError
 
 
 def _mis(pdf_a, pdf_b):
-    a2 = dr.square(pdf_a)
-    return dr.detach(dr.select(pdf_a > 0, a2 / (a2 + dr.square(pdf_b)), 0))
+    """The primal's MIS weight (:func:`~transient_mi.integrators.transient_path.mis_weight`), detached."""
+    from transient_mi.integrators.transient_path import mis_weight
 
-
-def as_int(x) -> int:
-    """A seed or spp given as a Python int or a one-element Dr.Jit array (``mi.render`` passes
-    ``mi.UInt32`` seeds for the differential passes)."""
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    return int(np.asarray(x).ravel()[0])
+    return dr.detach(mis_weight(pdf_a, pdf_b))
 
 
 def _check(integrator, sensor):
@@ -115,7 +110,7 @@ def _channel_ratio(f_att, f_det, ok) -> list:
     return [dr.select(ok & (d[c] > 0), a[c] / dr.select(d[c] > 0, d[c], 1), 1) for c in range(n)]
 
 
-def _setup(integrator, scene, sensor, spp, with_hist: bool):
+def _setup(integrator, scene, sensor, spp):
     film = _check(integrator, sensor)
     W, H = film.width, film.height
     axis = film.time_axis()
@@ -132,11 +127,11 @@ def _setup(integrator, scene, sensor, spp, with_hist: bool):
 
 def render_backward(integrator, scene, params, grad_in, sensor, seed, spp) -> None:
     """Reverse mode: propagate ``grad_in`` (the adjoint of the histogram tensor) to the scene parameters."""
-    film, layout, axis, taps, pad, channels, n_ch = _setup(integrator, scene, sensor, spp, False)
+    film, layout, axis, taps, pad, channels, n_ch = _setup(integrator, scene, sensor, spp)
     delta = _adjoint_ext(grad_in, film, n_ch)
     binner = LaneHistogram(LaneLayout(1, 1, 1), axis, pad)
     adj = _Adjoint(delta, binner, layout.streams)
-    rng = seed_rng(as_int(seed), layout.n_lanes)
+    rng = seed_rng(seed, layout.n_lanes)
     origin, pixel_filter = TimeOrigin(sensor), PixelFilter(film.rfilter(), film.sample_border())
     scale = 1.0 / layout.spp
 
@@ -155,11 +150,9 @@ def render_backward(integrator, scene, params, grad_in, sensor, seed, spp) -> No
 
 def render_forward(integrator, scene, params, sensor, seed, spp) -> mi.TensorXf:
     """Forward mode: the derivative of the histogram tensor along the parameters' tangents."""
-    film, layout, axis, taps, pad, channels, n_ch = _setup(integrator, scene, sensor, spp, True)
-    from transient_mi.integrators._lanes import ChannelHistogram
-
+    film, layout, axis, taps, pad, channels, n_ch = _setup(integrator, scene, sensor, spp)
     hist = LaneHistogram(layout, axis, pad) if channels is None else ChannelHistogram(layout, axis, pad, n_ch)
-    rng = seed_rng(as_int(seed), layout.n_lanes)
+    rng = seed_rng(seed, layout.n_lanes)
     origin, pixel_filter = TimeOrigin(sensor), PixelFilter(film.rfilter(), film.sample_border())
 
     def trace(scene_, rng_, hist_, lane, ray, weight, org):

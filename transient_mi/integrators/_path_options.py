@@ -10,6 +10,7 @@ value and what is allowed.
 from __future__ import annotations
 
 import mitsuba as mi
+import numpy as np
 
 from transient_mi.props import PluginParameterError, get_bool, get_float, get_int
 from transient_mi.integrators._sensor_checks import check_rfilter, check_sampler
@@ -85,3 +86,20 @@ def replicates_for(variance_replicates: int | None) -> int:
     :data:`~transient_mi.integrators._replicates.DEFAULT_REPLICATES` for NLOS captures, so the captures
     they write carry their variance (:func:`transient_mi.render_capture.prepare_render`)."""
     return int(variance_replicates) if variance_replicates is not None else 1
+
+
+def as_int(x) -> int:
+    """A seed or spp given as a Python int or a one-element Dr.Jit array (``mi.render`` passes
+    ``mi.UInt32`` seeds for the differential passes)."""
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    return int(np.asarray(x).ravel()[0])
+
+
+def render_tensor(integrator, scene, sensor, seed, spp, progress):
+    """``Integrator.render`` for both transient integrators: ``render_transient`` on ``sensor`` (an index or a
+    sensor), its histograms as ``mi.TensorXf``; the film keeps the full result."""
+    if isinstance(sensor, int):
+        sensor = scene.sensors()[sensor]
+    result = integrator.render_transient(scene, sensor, seed=as_int(seed), spp=as_int(spp), progress=progress)
+    return mi.TensorXf(result.histogram)

@@ -121,7 +121,7 @@ from __future__ import annotations
 import mitsuba as mi
 
 from transient_mi.integrators._path_options import (check_render_call, read_nlos_options, read_path_params,
-                                                     replicates_for)
+                                                     render_tensor, replicates_for)
 from transient_mi.props import PluginParameterError
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
 
@@ -245,12 +245,7 @@ class TransientNLOSPath(mi.CppADIntegrator):
 
         The film keeps the full :class:`~transient_mi.films.transient_film.TransientResult`.
         """
-        from transient_mi.integrators._ad import as_int
-
-        if isinstance(sensor, int):
-            sensor = scene.sensors()[sensor]
-        result = self.render_transient(scene, sensor, seed=as_int(seed), spp=as_int(spp), progress=progress)
-        return mi.TensorXf(result.histogram)
+        return render_tensor(self, scene, sensor, seed, spp, progress)
 
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
         """Not implemented for NLOS captures yet: one clear line (camera views are differentiable with

@@ -9,8 +9,8 @@ import numpy as np
 
 from transient_mi.integrators._lanes import (STOKES_CHANNELS, ChannelHistogram, LaneHistogram, LaneLayout,
                                              channel_values, choose_streams, seed_rng, stokes_rotation)
-from transient_mi.integrators._path_options import (check_render_call, read_nlos_options, read_path_params,
-                                                     replicates_for)
+from transient_mi.integrators._path_options import (as_int, check_render_call, read_nlos_options, read_path_params,
+                                                     render_tensor, replicates_for)
 from transient_mi.integrators._optical_path import segment_index
 from transient_mi.integrators._pixel_filter import PixelFilter
 from transient_mi.integrators._replicates import (ReplicateStats, effective_replicates,
@@ -157,18 +157,13 @@ class TransientPath(mi.CppADIntegrator):
 
         The film keeps the full :class:`~transient_mi.films.transient_film.TransientResult`.
         """
-        from transient_mi.integrators._ad import as_int
-
-        if isinstance(sensor, int):
-            sensor = scene.sensors()[sensor]
-        result = self.render_transient(scene, sensor, seed=as_int(seed), spp=as_int(spp), progress=progress)
-        return mi.TensorXf(result.histogram)
+        return render_tensor(self, scene, sensor, seed, spp, progress)
 
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
         """Reverse-mode derivative (what ``dr.backward`` after ``mi.render(scene, params)`` calls): propagate
         ``grad_in`` (``[height, width, n_bins(, channels)]``) to the scene parameters. Camera sensors;
         see :mod:`transient_mi.integrators._ad` for what is differentiated."""
-        from transient_mi.integrators._ad import as_int, render_backward
+        from transient_mi.integrators._ad import render_backward
 
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
@@ -176,7 +171,7 @@ class TransientPath(mi.CppADIntegrator):
 
     def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
         """Forward-mode derivative of the histograms along the parameters' tangents (``dr.forward``)."""
-        from transient_mi.integrators._ad import as_int, render_forward
+        from transient_mi.integrators._ad import render_forward
 
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
