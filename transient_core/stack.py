@@ -528,15 +528,19 @@ def spot_is_complete(directory: str | os.PathLike, index: int, manifest: dict) -
     Files appear under their final name only once fully written (atomic
     rename), so a matching header means a complete file. Used by resume.
     """
-    path = spot_path(directory, index)
+    return _matching_header(spot_path(directory, index), manifest, index) is not None
+
+
+def _matching_header(path: Path, manifest: dict, index: int) -> dict | None:
+    """The header of ``path`` if the file exists and matches ``manifest`` (complete: atomic writes), else None."""
     if not path.is_file():
-        return False
+        return None
     try:
         header, _ = _open_exr(path, header_only=True)
         _check_header(path, header, manifest, index)
     except StackError:
-        return False
-    return True
+        return None
+    return header
 
 
 def read_spot(directory: str | os.PathLike, index: int, manifest: dict | None = None) -> np.ndarray:
@@ -694,15 +698,8 @@ def variance_is_complete(directory: str | os.PathLike, index: int, manifest: dic
     """True if the variance file of spot ``index`` exists and matches ``manifest`` (used by resume)."""
     if not has_variance(manifest):
         return True
-    path = _variance_dir(directory, manifest) / spot_filename(index)
-    if not path.is_file():
-        return False
-    try:
-        header, _ = _open_exr(path, header_only=True)
-        _check_header(path, header, manifest, index)
-    except StackError:
-        return False
-    return header.get("tmi_layer") == "variance"
+    header = _matching_header(_variance_dir(directory, manifest) / spot_filename(index), manifest, index)
+    return header is not None and header.get("tmi_layer") == "variance"
 
 
 def read_variance(directory: str | os.PathLike, index: int, manifest: dict | None = None
