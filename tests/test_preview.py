@@ -68,3 +68,27 @@ def test_preview_draws_the_hidden_light_on_linear_axes(tmp_path, monkeypatch):
     plots = [a for a in axes if a.lines]
     assert all(a.get_yscale() == "linear" for a in plots)
     assert any("wall return (own scale)" in a.get_ylabel() for a in plots)
+
+
+def test_camera_preview_of_an_rgb_capture_is_in_colour(tmp_path, monkeypatch):
+    """An R, G, B camera capture's time-integrated image and time slices are drawn in colour: a pixel that is
+    red in the data is red in the picture (its R above its G and B)."""
+    from matplotlib.figure import Figure
+
+    from transient_core import stack
+
+    H, W, T = 6, 8, 20
+    rgb = np.zeros((H, W, T, 3), np.float32)
+    rgb[:, : W // 2, 5:15, 0] = 1.0  # left half red
+    rgb[:, W // 2:, 5:15, 1] = 1.0  # right half green
+    m = stack.new_manifest(kind="ideal", capture="camera", width=W, height=H, n_files=1, t0_ps=0.0,
+                           bin_width_ps=10.0, n_bins=T, quantity="radiance", channels=("R", "G", "B"))
+    figs = []
+    orig = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda self, *a, **k: (figs.append(self), orig(self, *a, **k))[1])
+    write_preview(tmp_path / "preview.png", stack.intensity(rgb, m), m, rgb=rgb)
+    for ax in figs[0].axes[:5]:  # time-integrated image and four slices
+        img = np.asarray(ax.images[0].get_array())
+        assert img.shape == (H, W, 3)
+        left, right = img[H // 2, 1], img[H // 2, W - 2]
+        assert left[0] > 0.5 and left[1] == 0 and right[1] > 0.5 and right[0] == 0

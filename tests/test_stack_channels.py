@@ -14,7 +14,7 @@ def _manifest(channels, kind="ideal", T=5, H=3, W=4, **kw):
                               bin_width_ps=10.0, n_bins=T, quantity="radiance", channels=channels, **kw)
 
 
-@pytest.mark.parametrize("channels", [("R", "G", "B"), ("S0", "S1", "S2", "S3")])
+@pytest.mark.parametrize("channels", [("R", "G", "B"), ("S0", "S1", "S2", "S3"), ("400-500nm", "500-700nm")])
 def test_round_trip_is_bit_exact_with_one_layer_per_bin(tmp_path, channels):
     import OpenEXR
 
@@ -54,11 +54,18 @@ def test_intensity_rules():
     assert np.array_equal(stack.intensity(stokes, _manifest(("S0", "S1", "S2", "S3"))), stokes[..., 0])
     mono = np.ones((1, 1, 2), np.float32)
     assert stack.intensity(mono, _manifest(None)) is mono
+    bands = np.array([[[[1.0, 2.0, 4.0]]]], np.float32)
+    m = _manifest(("400-500nm", "500-600nm", "650-700nm"))
+    assert m["intensity"] == "sum" and stack.intensity(bands, m)[0, 0, 0] == 7.0
 
 
 @pytest.mark.parametrize("channels, kind, match", [
     (("R", "G"), "ideal", "channels="),
     (("X", "Y", "Z"), "ideal", "channels="),
+    (("500-600nm", "400-500nm"), "ideal", "wavelength bands"),  # not increasing
+    (("400-550nm", "500-600nm"), "ideal", "wavelength bands"),  # overlapping
+    (("400.5-500nm",), "ideal", "wavelength bands"),  # a dot would split the EXR layer name
+    (("400-500nm",), "counts", "counts capture has one intensity"),
     (("R", "G", "B"), "counts", "counts capture has one intensity"),
 ])
 def test_bad_channel_sets_are_refused(channels, kind, match):

@@ -20,7 +20,8 @@ as header attributes (prefix ``tmi_``) so one file is self-describing.
 
 Multi-channel captures (colour, Stokes vectors) hold one EXR layer per time
 bin: channels ``tNNNNN.R``, ``tNNNNN.G``, ``tNNNNN.B`` (or ``tNNNNN.S0`` ..
-``tNNNNN.S3``), so a layer-aware viewer shows one time bin as one image. The
+``tNNNNN.S3``; a spectral render's wavelength bands: ``tNNNNN.400-500nm`` ...), so a layer-aware viewer
+shows one time bin as one image. The
 manifest's ``channels`` lists the channel names in order (absent or null:
 mono, channels ``tNNNNN``) and ``intensity`` says how one intensity is formed
 from them (:func:`intensity`), which is what the detector model and the
@@ -59,6 +60,7 @@ import hashlib
 import json
 import math
 import os
+import re
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -78,14 +80,17 @@ __all__ = [
     "config_digest", "spot_path", "write_spot", "read_spot", "spot_is_complete", "missing_spots",
     "iter_spots", "read_stack", "write_stack", "VARIANCE_DIR", "TOTAL_CHANNEL", "has_variance",
     "write_variance", "read_variance", "variance_is_complete", "data_shape", "intensity", "CHANNEL_SETS",
-    "INTENSITY_RULES", "read_intensity",
+    "INTENSITY_RULES", "read_intensity", "band_name", "band_edges_nm", "intensity_rule",
 ]
 
-#: Channel sets a multi-channel capture may hold, and the rule that makes one intensity of them.
+#: Channel sets a multi-channel capture may hold, and the rule that makes one intensity of them. Besides
+#: these, a spectral capture holds wavelength bands (:func:`band_edges_nm`) with the rule ``sum``.
 CHANNEL_SETS = {("R", "G", "B"): "luminance", ("S0", "S1", "S2", "S3"): "S0"}
 #: Intensity rules: ``luminance`` = CIE Y of linear Rec. 709 RGB (Mitsuba's ``luminance``), ``S0`` = the
-#: first Stokes component (total intensity), ``mono`` = the one channel.
-INTENSITY_RULES = ("mono", "luminance", "S0")
+#: first Stokes component (total intensity), ``sum`` = the sum of wavelength bands (the quantity
+#: integrated over the bands' whole range), ``mono`` = the one channel.
+INTENSITY_RULES = ("mono", "luminance", "S0", "sum")
+_BAND = re.compile(r"^(\d+)-(\d+)nm$")
 #: Rec. 709 / sRGB primaries (linear) to CIE Y, as Mitsuba's ``mi.luminance``.
 LUMINANCE_WEIGHTS = (0.212671, 0.715160, 0.072169)
 
@@ -126,6 +131,39 @@ def channel_names(n_bins: int, channels=None) -> list[str]:
     return [f"t{b:0{width}d}.{c}" for b in range(n_bins) for c in channels]
 
 
+def band_name(lo_nm: float, hi_nm: float) -> str:
+    """Channel name of the wavelength band ``[lo_nm, hi_nm)``: ``400-500nm`` (whole nanometres: a dot would
+    split the EXR layer name)."""
+    return f"{int(lo_nm)}-{int(hi_nm)}nm"
+
+
+def band_edges_nm(channels) -> list[tuple[float, float]] | None:
+    """``[(lo_nm, hi_nm), ...]`` when every name in ``channels`` is a wavelength band (``400-500nm``, whole
+    nanometres, lo < hi,
+    bands not overlapping, in increasing order), else None."""
+    if not channels:
+        return None
+    edges = []
+    for c in channels:
+        m = _BAND.match(str(c))
+        if m is None:
+            return None
+        lo, hi = float(m.group(1)), float(m.group(2))
+        if not lo < hi or (edges and lo < edges[-1][1]):
+            return None
+        edges.append((lo, hi))
+    return edges
+
+
+def intensity_rule(channels) -> str | None:
+    """The intensity rule of a channel list (None: not a channel list a capture may hold)."""
+    if not channels:
+        return "mono"
+    if tuple(channels) in CHANNEL_SETS:
+        return CHANNEL_SETS[tuple(channels)]
+    return "sum" if band_edges_nm(channels) is not None else None
+
+
 def data_shape(manifest: dict) -> tuple[int, ...]:
     """Shape of one spot's array: ``(height, width, n_bins)``, plus ``n_channels`` for multi-channel captures."""
     shape = (manifest["height"], manifest["width"], manifest["time"]["n_bins"])
@@ -135,7 +173,8 @@ def data_shape(manifest: dict) -> tuple[int, ...]:
 
 def intensity(data: np.ndarray, manifest: dict) -> np.ndarray:
     """One intensity per bin: ``data`` itself for mono captures, else the manifest's ``intensity`` rule over
-    the last axis (``luminance``: Y of linear Rec. 709 RGB; ``S0``: the Stokes intensity). float32 for
+    the last axis (``luminance``: Y of linear Rec. 709 RGB; ``S0``: the Stokes intensity; ``sum``: the sum
+    of the wavelength bands). float32 for
     ideal captures; counts are never multi-channel (the detector records one intensity)."""
     ch = manifest.get("channels")
     if not ch:
@@ -146,6 +185,8 @@ def intensity(data: np.ndarray, manifest: dict) -> np.ndarray:
         return np.tensordot(data.astype(np.float32, copy=False), w, axes=([-1], [0])).astype(np.float32)
     if rule == "S0":
         return np.ascontiguousarray(data[..., list(ch).index("S0")])
+    if rule == "sum":
+        return data.astype(np.float32, copy=False).sum(axis=-1, dtype=np.float64).astype(np.float32)
     raise StackError(f"intensity rule {rule!r} for channels {ch}: allowed {', '.join(INTENSITY_RULES)}")
 
 
@@ -228,7 +269,7 @@ def new_manifest(
     }
     if channels:
         m["channels"] = [str(c) for c in channels]
-        m["intensity"] = CHANNEL_SETS.get(tuple(m["channels"]))
+        m["intensity"] = intensity_rule(m["channels"])
     m.update(extra)
     return validate_manifest(_jsonable(m), "manifest")
 
@@ -285,11 +326,12 @@ def validate_manifest(m: dict, where: str | os.PathLike = "manifest") -> dict:
         raise bad(f"include_first_last={m.get('include_first_last')!r} must be true or false")
     ch = m.get("channels")
     if ch is not None:
-        if not isinstance(ch, list) or tuple(ch) not in CHANNEL_SETS:
-            raise bad(f"channels={ch!r}, allowed: null (mono) or one of "
-                      + ", ".join(str(list(k)) for k in CHANNEL_SETS))
-        if m.get("intensity") != CHANNEL_SETS[tuple(ch)]:
-            raise bad(f"intensity={m.get('intensity')!r} for channels {ch}, expected {CHANNEL_SETS[tuple(ch)]!r}")
+        if not isinstance(ch, list) or intensity_rule(ch) is None:
+            raise bad(f"channels={ch!r}, allowed: null (mono), one of "
+                      + ", ".join(str(list(k)) for k in CHANNEL_SETS)
+                      + " or increasing, non-overlapping wavelength bands such as ['400-500nm', '500-600nm']")
+        if m.get("intensity") != intensity_rule(ch):
+            raise bad(f"intensity={m.get('intensity')!r} for channels {ch}, expected {intensity_rule(ch)!r}")
         if m["kind"] == "counts":
             raise bad("a counts capture has one intensity per bin: channels must be null")
     if m["capture"] in ("camera", "confocal") and m["n_files"] != 1:

@@ -1,8 +1,8 @@
 """``preview.png``: a picture of a capture a person can look at.
 
 Camera renders: the time-integrated image, four time slices (at the times by
-which 20/40/60/80 % of the light has arrived) and an x-t streak image of the
-middle row. NLOS captures: the time-integrated photons per pixel, the x-t
+which 10/30/50/70 % of the light has arrived) and an x-t streak image of the
+middle row; in colour for R, G, B captures. NLOS captures: the time-integrated photons per pixel, the x-t
 streak image of the middle pixel row and the histogram of the brightest
 pixel, for one laser spot.
 """
@@ -22,6 +22,17 @@ def _tonemap(img: np.ndarray) -> np.ndarray:
     hi = np.percentile(img, 98.0) if img.size else 0.0
     if hi <= 0:
         hi = img.max() if img.max() > 0 else 1.0
+    return np.clip(img / hi, 0, 1) ** (1 / 2.2)
+
+
+def _tonemap_rgb(img: np.ndarray) -> np.ndarray:
+    """``[H, W, 3]`` linear RGB for display: one scale for the three channels (the 98th percentile of the
+    brightest channel), clipped, 1/2.2 gamma."""
+    img = np.clip(np.nan_to_num(img.astype(np.float64)), 0, None)
+    peak = img.max(axis=-1)
+    hi = np.percentile(peak, 98.0) if peak.size else 0.0
+    if hi <= 0:
+        hi = peak.max() if peak.size and peak.max() > 0 else 1.0
     return np.clip(img / hi, 0, 1) ** (1 / 2.2)
 
 
@@ -73,8 +84,12 @@ def wall_return_mask(manifest: dict, spot: int, shape: tuple[int, int, int]) -> 
     return starts[None, None, :] < t_end[..., None]
 
 
-def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int = 0) -> Path:
-    """Write ``preview.png`` for one spot's histograms ``hist[height, width, n_bins]`` (atomically)."""
+def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int = 0,
+                  rgb: np.ndarray | None = None) -> Path:
+    """Write ``preview.png`` for one spot's histograms ``hist[height, width, n_bins]`` (atomically).
+
+    ``rgb``: the same spot as ``[height, width, n_bins, 3]`` linear R, G, B (camera renders of colour
+    captures), for the images in colour; the streak image stays the intensity ``hist``."""
     # The object-oriented API without pyplot: saving needs no backend, and the session's backend
     # (Jupyter's inline one, a GUI) is left alone.
     from matplotlib.figure import Figure
@@ -92,11 +107,17 @@ def write_preview(path: str | Path, hist: np.ndarray, manifest: dict, spot: int 
         bins = slice_bins(hist)
         fig = Figure(figsize=(18, 3.4))
         axes = fig.subplots(1, 6, gridspec_kw={"width_ratios": [1, 1, 1, 1, 1, 1.6]})
-        axes[0].imshow(_tonemap(steady), cmap="gray")
+        if rgb is None:
+            axes[0].imshow(_tonemap(steady), cmap="gray")
+        else:
+            axes[0].imshow(_tonemap_rgb(rgb.sum(axis=2, dtype=np.float64)))
         axes[0].set_title("time-integrated")
         for ax, b in zip(axes[1:5], bins):
             lo, hi = max(0, b - 2), min(n, b + 3)
-            ax.imshow(_tonemap(hist[..., lo:hi].sum(axis=-1, dtype=np.float64)), cmap="inferno")
+            if rgb is None:
+                ax.imshow(_tonemap(hist[..., lo:hi].sum(axis=-1, dtype=np.float64)), cmap="inferno")
+            else:
+                ax.imshow(_tonemap_rgb(rgb[:, :, lo:hi].sum(axis=2, dtype=np.float64)))
             ax.set_title(f"t = {t_ns(b):.2f} ns")
         axes[5].imshow(_tonemap(streak), cmap="inferno", aspect="auto", extent=extent_xt)
         axes[5].set_title(f"x-t streak, row {row}")

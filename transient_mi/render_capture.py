@@ -435,7 +435,8 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
         preview_data = (0, stack.read_spot(d, 0, m))
     from .preview import write_preview
 
-    write_preview(d / "preview.png", stack.intensity(preview_data[1], m), m, spot=preview_data[0])
+    colour = preview_data[1] if m.get("channels") == ["R", "G", "B"] else None
+    write_preview(d / "preview.png", stack.intensity(preview_data[1], m), m, spot=preview_data[0], rgb=colour)
     if stack.has_variance(m):
         m["variance"] = dict(m["variance"], summary=variance_summary(d, m))
     if job.noise_target is not None:

@@ -63,6 +63,37 @@ class TransientResult:
     negative_fraction: float = 0.0
 
 
+#: Wavelength range Mitsuba's spectral variants sample (nm)
+SPECTRAL_RANGE_NM = (360, 830)
+
+
+def _read_bands(props, name: str, channels: str) -> list[int] | None:
+    """The ``spectral_bands_nm`` edges (whole nm, increasing, in :data:`SPECTRAL_RANGE_NM`), or None."""
+    if "spectral_bands_nm" not in props:
+        return None
+    v = props.get("spectral_bands_nm")
+    if isinstance(v, str) and not v.strip():
+        return None  # empty: no bands (lets a scene expose the parameter with an empty default)
+    allowed = (f"allowed: at least two increasing whole-nanometre edges within {SPECTRAL_RANGE_NM[0]}.."
+               f"{SPECTRAL_RANGE_NM[1]}, comma-separated, e.g. \"400, 500, 600, 700\"")
+    if not (mi.is_spectral and not mi.is_polarized):
+        raise PluginParameterError(f"{name}: spectral_bands_nm={v!r} needs a *_spectral variant (the active one is "
+                                   f"{mi.variant()}, which records no wavelengths)")
+    if channels == "mono":
+        raise PluginParameterError(f"{name}: spectral_bands_nm={v!r} with channels='mono': the bands are channels; "
+                                   "leave channels at 'auto'")
+    try:
+        edges = [float(x) for x in str(v).replace(";", ",").split(",")]
+    except ValueError:
+        raise PluginParameterError(f"{name}: spectral_bands_nm={v!r}; {allowed}") from None
+    ok = len(edges) >= 2 and all(e == int(e) for e in edges) and \
+        all(a < b for a, b in zip(edges, edges[1:])) and \
+        SPECTRAL_RANGE_NM[0] <= edges[0] and edges[-1] <= SPECTRAL_RANGE_NM[1]
+    if not ok:
+        raise PluginParameterError(f"{name}: spectral_bands_nm={v!r}; {allowed}")
+    return [int(e) for e in edges]
+
+
 class TransientFilm(mi.Film):
     r"""Transient film (``transient_film``).
 
@@ -101,6 +132,17 @@ class TransientFilm(mi.Film):
            ``stokes`` integrator; spectral-polarized: of the luminance);
            ``mono``: one value per bin (luminance Y, or S0). NLOS sensors
            (``spad_array``) record one intensity (the detector's).
+       * - ``spectral_bands_nm``
+         - string
+         - ``*_spectral`` variants only: band edges in whole nanometres,
+           increasing, within Mitsuba's sampled range 360..830, e.g.
+           ``"400, 500, 600, 700"``. The film then records one channel per
+           band instead of R, G, B, named ``400-500nm``, ``500-600nm``, ...:
+           the radiance integrated over the band, ``int_lo^hi L(lambda)
+           dlambda`` (W m^-2 sr^-1 of the band for a camera). Each sampled
+           wavelength's weight (``1 / pdf``) goes to the band it falls in, so
+           each band is an unbiased estimate. Default: none (R, G, B; an
+           empty string also means none).
        * - ``kernel_sigma_ps``
          - float
          - Standard deviation (ps) of an optional Gaussian temporal kernel
@@ -139,6 +181,7 @@ class TransientFilm(mi.Film):
         self.t0_ps = get_float(props, name, "t0_ps", 0.0)
         self.kernel_sigma_ps = get_float(props, name, "kernel_sigma_ps", 0.0, min_value=0.0)
         self.channels = get_choice(props, name, "channels", "auto", ("auto", "mono"))
+        self.spectral_bands_nm = _read_bands(props, name, self.channels)
         size = self.size()
         self.width, self.height = int(size[0]), int(size[1])
         if self.width < 1 or self.height < 1:
@@ -157,7 +200,14 @@ class TransientFilm(mi.Film):
         :func:`transient_mi.integrators._lanes.variant_channels`)."""
         from transient_mi.integrators._lanes import variant_channels
 
-        return None if self.channels == "mono" else variant_channels()
+        if self.channels == "mono":
+            return None
+        if self.spectral_bands_nm is not None:
+            from transient_core.stack import band_name
+
+            e = self.spectral_bands_nm
+            return tuple(band_name(e[i], e[i + 1]) for i in range(len(e) - 1))
+        return variant_channels()
 
     def kernel_taps(self) -> np.ndarray:
         """Taps of the temporal kernel (``[1.0]`` when there is none)."""

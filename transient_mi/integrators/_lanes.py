@@ -33,6 +33,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_core.stack import band_edges_nm
 from transient_core.units import C_M_PER_PS
 from transient_mi.time_axis import TimeAxis, apply_kernel
 
@@ -344,6 +345,17 @@ def channel_values(value, wavelengths, channels, rotation=None):
         for i in range(4):
             e = m[i][0]  # column 0: the Stokes vector of unpolarized emission after the path's Mueller matrix
             out.append(e[0] if mi.is_monochromatic else mi.luminance(e, wavelengths))
+        return out
+    bands = band_edges_nm(channels)
+    if bands is not None:  # spectral bands: each wavelength's weight (1 / pdf) goes to its band
+        s = mi.unpolarized_spectrum(value)
+        n = len(wavelengths)
+        out = []
+        for lo, hi in bands:
+            acc = mi.Float(0.0)
+            for i in range(n):
+                acc += dr.select((wavelengths[i] >= lo) & (wavelengths[i] < hi), s[i], 0.0)
+            out.append(acc * (1.0 / n))
         return out
     if mi.is_spectral:
         rgb = mi.spectrum_to_srgb(mi.unpolarized_spectrum(value), wavelengths)
