@@ -15,6 +15,12 @@ from transient_mi.props import PluginParameterError, get_bool
 PLUGIN = ("integrator", "transient_volpath", "TransientVolPath")
 
 
+def _has_heterogeneous_medium(scene, sensor_medium) -> bool:
+    """Whether any medium of ``scene`` (inside or outside a shape, or the sensor's) is not homogeneous."""
+    media = [sensor_medium] + [m for sh in scene.shapes() for m in (sh.interior_medium(), sh.exterior_medium())]
+    return any(m is not None and not m.is_homogeneous() for m in media)
+
+
 def index_spectrum(spec, channel):
     """Component ``channel`` of a spectrum (RGB: the sampled colour channel; mono/spectral: the first)."""
     s = mi.unpolarized_spectrum(spec)
@@ -102,6 +108,9 @@ class TransientVolPath(TransientPath):
         self.hide_emitters = get_bool(props, self.NAME, "hide_emitters", False)
         self.nlos_options = {}
         self._sensor_medium = None
+        #: whether the scene has a heterogeneous medium: without one, the kernels leave out null
+        #: scattering and ratio tracking (a static choice, as Mitsuba's prbvolpath makes it)
+        self._heterogeneous = True
 
     def render_transient(self, scene, sensor, **kwargs):
         """As :meth:`TransientPath.render_transient`, for camera sensors only; the sensor's medium
@@ -111,6 +120,7 @@ class TransientVolPath(TransientPath):
                 f"{self.NAME}: sensor {type(sensor).__name__} (spad_array) is not supported: NLOS captures "
                 "through media are out of scope; use a camera sensor (perspective, ...) or transient_path")
         self._sensor_medium = sensor.get_medium()
+        self._heterogeneous = _has_heterogeneous_medium(scene, self._sensor_medium)
         try:
             return super().render_transient(scene, sensor, **kwargs)
         finally:
@@ -149,6 +159,7 @@ class TransientVolPath(TransientPath):
         max_depth = self.max_depth
         rr_depth = self.rr_depth
         hide_emitters = self.hide_emitters
+        heterogeneous = self._heterogeneous
 
         while active:
             # ---- Russian roulette (as volpath)
@@ -182,19 +193,23 @@ class TransientVolPath(TransientPath):
             spectral &= active_medium
             opl[active_medium] += eta * mei.t  # a segment in a dielectric of relative index eta takes eta d / c
 
-            # null or real scattering: real with probability sigma_t / majorant (in the sampled channel)
+            # null or real scattering: real with probability sigma_t / majorant (in the sampled channel);
+            # homogeneous media have no null collisions (majorant = sigma_t)
             sig_t_c = index_spectrum(mei.sigma_t, channel)
             comb_c = index_spectrum(mei.combined_extinction, channel)
-            null_scatter = active_medium & (rng.next_float32() >= sig_t_c / comb_c)
+            null_scatter = mi.Bool(False)
+            if dr.hint(heterogeneous, mode="scalar"):
+                null_scatter = active_medium & (rng.next_float32() >= sig_t_c / comb_c)
+                sig_n_c = index_spectrum(mei.sigma_n, channel)
+                beta[spectral & null_scatter] *= dr.select(sig_n_c > 0, mei.sigma_n * comb_c / sig_n_c, 0)
             real_scatter = active_medium & ~null_scatter
-            sig_n_c = index_spectrum(mei.sigma_n, channel)
-            beta[spectral & null_scatter] *= dr.select(sig_n_c > 0, mei.sigma_n * comb_c / sig_n_c, 0)
             depth[real_scatter] += 1
             last_event[real_scatter] = mei
             active &= depth < max_depth
             real_scatter &= active
-            ray.o[null_scatter] = mei.p
-            si.t[null_scatter] = si.t - mei.t
+            if dr.hint(heterogeneous, mode="scalar"):
+                ray.o[null_scatter] = mei.p
+                si.t[null_scatter] = si.t - mei.t
             beta[spectral & real_scatter] *= dr.select(sig_t_c > 0, mei.sigma_s * comb_c / sig_t_c, 0)
             beta[~spectral & real_scatter] *= mei.sigma_s / mei.sigma_t
             phase = mei.medium.phase_function()
@@ -281,6 +296,7 @@ class TransientVolPath(TransientPath):
         si_s = dr.zeros(mi.SurfaceInteraction3f)
         needs_intersection = mi.Bool(True)
         tr = mi.Spectrum(1)
+        heterogeneous = self._heterogeneous
 
         while active:
             remaining = max_dist - total
@@ -305,20 +321,22 @@ class TransientVolPath(TransientPath):
             tr[homog] *= dr.exp(-end * sig_t)
 
             # heterogeneous: ratio tracking with the majorant of the sampled channel
-            m = medium.sample_interaction(ray, rng.next_float32(), channel, ratio)
-            m.t[ratio & ((si_s.t < m.t) | (m.t > remaining))] = dr.inf
-            t_in = dr.minimum(remaining, dr.minimum(m.t, si_s.t)) - m.mint
-            trm = dr.exp(-t_in * m.combined_extinction)
-            ffp = dr.select(m.is_valid(), trm * m.combined_extinction, trm)
-            ffp_c = index_spectrum(ffp, channel)
-            spectral = ratio & medium.has_spectral_extinction()  # else trm / ffp_c is 1 or 1/majorant
-            tr[spectral] *= dr.select(ffp_c > 0, trm / ffp_c, 0)
-            tr[ratio & ~spectral & m.is_valid()] *= dr.rcp(m.combined_extinction)
-            collided = ratio & m.is_valid()
-            tr[collided] *= m.sigma_n
-            ray.o[collided] = m.p
-            si_s.t[collided] = si_s.t - m.t
-            total[collided] += m.t
+            collided = mi.Bool(False)
+            if dr.hint(heterogeneous, mode="scalar"):
+                m = medium.sample_interaction(ray, rng.next_float32(), channel, ratio)
+                m.t[ratio & ((si_s.t < m.t) | (m.t > remaining))] = dr.inf
+                t_in = dr.minimum(remaining, dr.minimum(m.t, si_s.t)) - m.mint
+                trm = dr.exp(-t_in * m.combined_extinction)
+                ffp = dr.select(m.is_valid(), trm * m.combined_extinction, trm)
+                ffp_c = index_spectrum(ffp, channel)
+                spectral = ratio & medium.has_spectral_extinction()  # else trm / ffp_c is 1 or 1/majorant
+                tr[spectral] *= dr.select(ffp_c > 0, trm / ffp_c, 0)
+                tr[ratio & ~spectral & m.is_valid()] *= dr.rcp(m.combined_extinction)
+                collided = ratio & m.is_valid()
+                tr[collided] *= m.sigma_n
+                ray.o[collided] = m.p
+                si_s.t[collided] = si_s.t - m.t
+                total[collided] += m.t
 
             # reached the next surface (or the end of the segment)
             crossed = (on_surface | (in_medium & ~collided)) & si_s.is_valid() & (si_s.t < remaining)
