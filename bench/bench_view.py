@@ -70,7 +70,9 @@ def make_capture(path: Path, pixels: int, n_bins: int) -> Path:
 
 def start_server(path: Path):
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "transient_mi", "view", str(path), "--no-browser", "--port", "0"],
+    exe = Path(sys.executable).with_name("transient-mi")  # the console script a user runs
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-c", "import sys, transient_cli; sys.exit(transient_cli.main())"]
+    proc = subprocess.Popen(cmd + ["view", str(path), "--no-browser", "--port", "0"],
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=ROOT,
                             env=dict(os.environ, TRANSIENT_MI_PROGRESS="0"))
     line = proc.stdout.readline()

@@ -37,7 +37,7 @@ def tree(tmp_path_factory):
 
 
 def test_discover_finds_captures_recons_and_the_ground_truth(tree):
-    from transient_mi.view.data import discover
+    from transient_view.data import discover
 
     lib = discover(tree)
     assert [lib.label(p) for p in lib.captures] == ["camera", "counts", "ideal"]
@@ -49,7 +49,7 @@ def test_discover_finds_captures_recons_and_the_ground_truth(tree):
 
 
 def test_resolve_refuses_every_way_out_of_the_viewed_path(tree, tmp_path):
-    from transient_mi.view.data import discover
+    from transient_view.data import discover
 
     secret = tmp_path / "secret.txt"
     secret.write_text("not for the viewer")
@@ -69,7 +69,7 @@ def test_resolve_refuses_every_way_out_of_the_viewed_path(tree, tmp_path):
 def test_a_single_file_root_allows_only_itself(tree, tmp_path):
     from recon import load_capture, write_ytal
 
-    from transient_mi.view.data import discover
+    from transient_view.data import discover
 
     h5 = write_ytal(load_capture(tree / "ideal"), tmp_path / "c.h5")
     (tmp_path / "other.txt").write_text("x")
@@ -106,8 +106,8 @@ def test_detector_panel_counts_equal_transient_mi_detect(tree, tmp_path):
     from transient_core.stack import read_spot
 
     from spad_detector import DetectorParams, detect_stack
-    from transient_mi.view.data import CaptureData
-    from transient_mi.view.detector_panel import simulate_counts
+    from transient_view.data import CaptureData
+    from transient_view.detector_panel import simulate_counts
 
     params = DetectorParams(pde=0.5, jitter_ps=60.0, dead_time_ns=5.0, gate_open_ps=2500.0, gate_close_ps=5000.0)
     out = detect_stack(tree / "ideal", tmp_path / "c", params, pulses=200_000, seed=0, engine="analytic",
@@ -123,8 +123,8 @@ def test_detector_panel_auto_gate_matches_detect_per_spot_gates(tree, tmp_path):
     from transient_core.stack import read_manifest
 
     from spad_detector import DetectorParams, detect_stack
-    from transient_mi.view.data import CaptureData
-    from transient_mi.view.detector_panel import simulate_counts
+    from transient_view.data import CaptureData
+    from transient_view.detector_panel import simulate_counts
 
     params = DetectorParams(auto_gate=True, auto_gate_depth_min_m=0.2)
     out = detect_stack(tree / "ideal", tmp_path / "g", params, pulses=1000, engine="analytic", progress=False)
@@ -135,7 +135,7 @@ def test_detector_panel_auto_gate_matches_detect_per_spot_gates(tree, tmp_path):
 
 
 def test_counts_capture_finds_its_ideal_capture_for_the_detector_panel(tree):
-    from transient_mi.view.data import CaptureData, discover
+    from transient_view.data import CaptureData, discover
 
     lib = discover(tree)
     ideal = CaptureData(tree / "counts").ideal_source(lib)
@@ -144,7 +144,7 @@ def test_counts_capture_finds_its_ideal_capture_for_the_detector_panel(tree):
 
 
 def test_projection_of_the_3d_view():
-    from transient_mi.view.recon_panel import project_points
+    from transient_view.recon_panel import project_points
 
     rng = np.random.default_rng(0)
     p = rng.normal(size=(50, 3))
@@ -161,8 +161,8 @@ def test_every_panel_builds_headless_for_each_item(tree):
     """The page for every item of the tree, built in a Bokeh document without a browser."""
     from bokeh.document import Document
 
-    from transient_mi.view.app import Page
-    from transient_mi.view.data import discover
+    from transient_view.app import Page
+    from transient_view.data import discover
 
     lib = discover(tree)
     page = Page(lib, Document())
@@ -183,7 +183,7 @@ def test_every_panel_builds_headless_for_each_item(tree):
 def test_gif_has_one_frame_per_bin_with_the_expected_size(tmp_path):
     from PIL import Image
 
-    from transient_mi.view.video import BANNER_PX, write_video
+    from transient_view.video import BANNER_PX, write_video
 
     cap = ideal_capture(tmp_path / "c", pixels=8, spots=1, n_bins=40)
     info = write_video(cap, tmp_path / "v.gif", stride=3, first_bin=1, scale=5)
@@ -198,7 +198,7 @@ def test_gif_has_one_frame_per_bin_with_the_expected_size(tmp_path):
 
 def test_mp4_has_the_expected_frames_and_size(tmp_path):
     imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg", reason="imageio-ffmpeg is in the view extra")
-    from transient_mi.view.video import write_video
+    from transient_view.video import write_video
 
     cap = ideal_capture(tmp_path / "c", pixels=8, spots=1, n_bins=30)
     info = write_video(cap, tmp_path / "v.mp4", fps=10)
@@ -229,7 +229,7 @@ def test_video_command_and_its_errors(tmp_path, monkeypatch):
 def test_mp4_without_imageio_ffmpeg_is_refused_clearly(tmp_path, monkeypatch):
     from transient_core.errors import UserInputError
 
-    from transient_mi.view.video import write_video
+    from transient_view.video import write_video
 
     cap = ideal_capture(tmp_path / "c", pixels=4, spots=1, n_bins=12)
     monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)
@@ -514,7 +514,7 @@ def test_viewer_works_on_every_embedded_scene(browser, scene_captures):
 
 def test_viewer_works_on_the_demo_output(browser, tmp_path):
     from transient_mi.demo import DemoSettings, run_demo
-    from transient_mi.view.data import discover
+    from transient_view.data import discover
 
     s = DemoSettings(arrays=(4, 8), spp=8, bin_width_ps=16.0, n_bins=720, voxels=(16, 16, 8))
     out = run_demo(tmp_path / "demo", settings=s, progress=False, log=lambda *a: None)

@@ -3,7 +3,7 @@
 Security: it binds to ``127.0.0.1`` unless told otherwise, accepts page connections
 (websockets) only from the address it serves (from any origin when bound to a network address
 with ``--host``, which the command warns about), and serves files only from the
-viewed path under ``/files/`` (:meth:`~transient_mi.view.data.Library.resolve`
+viewed path under ``/files/`` (:meth:`~transient_view.data.Library.resolve`
 refuses ``..``, absolute names and symbolic links that leave it, with 403). Nothing
 is ever written.
 """

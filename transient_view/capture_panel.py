@@ -19,7 +19,7 @@ PLAY_PERIOD_MS = 120
 
 
 class CapturePanel:
-    """Bokeh layout and callbacks for one :class:`~transient_mi.view.data.CaptureData`."""
+    """Bokeh layout and callbacks for one :class:`~transient_view.data.CaptureData`."""
 
     def __init__(self, data: CaptureData, doc):
         from bokeh.events import Tap
