@@ -7,8 +7,9 @@ import mitsuba as mi
 
 from transient_mi.integrators._lanes import channel_values
 from transient_mi.integrators._optical_path import segment_index
-from transient_mi.integrators._path_options import read_path_params
+from transient_mi.integrators._path_options import check_render_call, read_nlos_options, read_path_params
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
+from transient_mi.integrators.transient_nlos_path import render_nlos
 from transient_mi.integrators.transient_path import TransientPath, mis_weight
 from transient_mi.props import PluginParameterError, get_bool
 
@@ -100,16 +101,20 @@ class TransientVolPath(TransientPath):
         self.max_depth_param = max_depth
         self.max_depth = max_depth if max_depth != -1 else 0xFFFFFFFF
         self.hide_emitters = get_bool(props, self.NAME, "hide_emitters", False)
-        self.nlos_options = {}
+        #: NLOS only (``rqmc``, ``hidden_geometry_prob``), as ``transient_nlos_path``
+        self.nlos_options = read_nlos_options(props, self.NAME)
         self._sensor_medium = None
 
     def render_transient(self, scene, sensor, **kwargs):
-        """As :meth:`TransientPath.render_transient`, for camera sensors only; the sensor's medium
-        (``sensor.get_medium()``) is the medium the camera rays start in."""
+        """As :meth:`TransientPath.render_transient`; the sensor's medium (``sensor.get_medium()``) is the
+        medium the camera rays start in. A ``spad_array`` sensor renders the NLOS capture through its medium
+        (:mod:`transient_mi.integrators._nlos_medium`; without one, ``transient_nlos_path``'s bytes)."""
         if is_nlos_sensor(sensor):
-            raise PluginParameterError(
-                f"{self.NAME}: sensor {type(sensor).__name__} (spad_array) is not supported: NLOS captures "
-                "through media are out of scope; use a camera sensor (perspective, ...) or transient_path")
+            _, spp = check_render_call(self.NAME, sensor, kwargs.get("seed", 0), kwargs.get("spp", 0),
+                                       kwargs.get("replicates"))
+            kwargs["spp"] = spp
+            kwargs.setdefault("seed", 0)
+            return render_nlos(self, scene, sensor, media=True, **kwargs)
         self._sensor_medium = sensor.get_medium()
         try:
             return super().render_transient(scene, sensor, **kwargs)
