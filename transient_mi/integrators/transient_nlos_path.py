@@ -112,6 +112,11 @@ The *relay wall* is the shape hit by the ray from the detector to the
 array's ``target``; *hidden geometry* is every other shape. Other emitters
 of the scene are ignored: only the laser lights an NLOS capture.
 
+Fog: a ``spad_array`` with a sensor medium is refused here (and by
+``transient_path``) in one line; ``transient_volpath`` renders it, with this
+estimator extended to a homogeneous medium (free flights, medium vertices,
+connections to the laser beam: :mod:`transient_mi.integrators._nlos_medium`).
+
 Histograms are accumulated per SIMD lane (:mod:`._lanes`): same seed, same
 bytes.
 """

@@ -60,8 +60,18 @@ class TransientVolPath(TransientPath):
     index of their own. Shadow rays only weight a contribution (transmittance);
     their length is the distance to the sampled emitter point.
 
-    NLOS captures through media are not supported: a ``spad_array`` sensor is
-    refused (use ``transient_path``).
+    NLOS captures: under a ``spad_array`` it renders the capture with the NLOS
+    estimator of ``transient_nlos_path`` (laser-spot connections, hidden-geometry
+    MIS at the wall point, randomised QMC, spot groups; same parameters).
+    Without a sensor medium that is ``transient_nlos_path`` itself (same seed,
+    same bytes); with a ``homogeneous`` sensor medium (``<ref id="fog"/>``
+    nested in the ``spad_array``: the fog fills the scene) it renders through
+    the fog: free flights on every traced segment, phase sampling, and
+    next-event estimation from every vertex to the laser spot and to the laser
+    *beam* (whose single backscatter into the pixels is the main fog return),
+    every segment attenuated (estimator: :mod:`transient_mi.integrators._nlos_medium`;
+    ``scenes/fog_nlos.xml``). Refused in one line for NLOS: heterogeneous
+    media, media inside shapes, ``include_first_last=false``.
 
     .. list-table::
        :header-rows: 1
@@ -75,7 +85,9 @@ class TransientVolPath(TransientPath):
            directly visible emitters, 2 = direct illumination (single
            scattering in media), 3 = one more bounce ...; medium scattering
            events count as bounces, null-scattering events and ``null``-BSDF
-           boundaries do not; -1 = unlimited (default).
+           boundaries do not; -1 = unlimited (default). NLOS captures:
+           segments from the detector to the laser, medium vertices
+           included (``D - fog - beam - L`` is 3).
        * - ``rr_depth``
          - integer
          - Depth after which Russian roulette starts (``depth > rr_depth``,
@@ -88,6 +100,14 @@ class TransientVolPath(TransientPath):
          - integer
          - Independent replicates each render is split into, in [1, 1024]
            (default 1: no variance); see ``transient_path``.
+       * - ``rqmc``
+         - boolean
+         - NLOS only: randomised quasi-Monte Carlo for the patch point and
+           the first bounce (default true), as ``transient_nlos_path``.
+       * - ``hidden_geometry_prob``
+         - float
+         - NLOS only: probability of hidden-geometry sampling at the wall
+           point, in [0, 1] (default 0.8), as ``transient_nlos_path``.
 
     Determinism: same seed, same bytes (per-lane histograms, see
     :mod:`transient_mi.integrators._lanes`).
@@ -338,6 +358,8 @@ class TransientVolPath(TransientPath):
         return em_val * tr, ds
 
     def to_string(self):
+        o = self.nlos_options
         return (f"TransientVolPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}, "
                 f"hide_emitters={str(self.hide_emitters).lower()}, "
-                f"variance_replicates={self.variance_replicates or 'default'}]")
+                f"variance_replicates={self.variance_replicates or 'default'}, "
+                f"hidden_geometry_prob={o['hidden_geometry_prob']:g}, rqmc={str(o['rqmc']).lower()}]")
