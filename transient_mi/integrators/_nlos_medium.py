@@ -79,6 +79,7 @@ import numpy as np
 
 from transient_mi.integrators._lanes import to_mono
 from transient_mi.integrators._nlos_kernel import QMC_DIMS, _first_bounce, _of, _sensor_weight, kronecker_generators
+from transient_mi.integrators._optical_path import segment_index
 from transient_mi.props import PluginParameterError
 
 #: Salt of the medium's PCG32 streams (decorrelates them from the surface streams of the same seed).
@@ -190,8 +191,11 @@ def _vertex_f(si, bsdf, med, xm, wim, d, active, ctx, mc):
 
 
 def _connect_one(scene, hist, lane, si, bsdf, med, xm, wim, beta, w0, opl, active, c, mc, si_s, bsdf_s, sub,
-                 u_beam, wall_ptr, ctx):
-    """Connect the vertex to the spot ``si_s`` (a) and to its laser beam (b); record in sub-slot ``sub``."""
+                 u_beam, wall_ptr, ctx, eta=None):
+    """Connect the vertex to the spot ``si_s`` (a) and to its laser beam (b); record in sub-slot ``sub``.
+
+    ``eta``: the relative index the path is in (None: 1), as :func:`~._nlos_kernel._connect_one` (a
+    connection transmitting through a rough dielectric runs at its far side's index)."""
     x = dr.select(med, xm, si.p)
     # ---- (a) the laser spot
     spot_p = si_s.p
@@ -202,11 +206,14 @@ def _connect_one(scene, hist, lane, si, bsdf, med, xm, wim, beta, w0, opl, activ
     i_s = bsdf_s.eval(ctx, si_s, si_s.to_local(-d_s), active)
     tr = dr.exp(-mc.sigma_t * (dist_s + si_s.t))
     val = to_mono(beta * f_x * i_s, si.wavelengths) * (w0 * tr / dr.square(dist_s))
+    path_s = dist_s
+    if eta is not None:
+        path_s = dr.select(med, eta, segment_index(bsdf, si, si.to_local(d_s), eta, active & ~med)) * dist_s
     ok = active & (val > 0) & si_s.is_valid()
     if c.planar_wall:  # a wall point and a spot on the same plane: cos(theta_S) = 0 exactly
         ok &= med | (si.shape != wall_ptr)
     ok &= ~scene.ray_test(_shadow_ray(si, med, xm, spot_p), ok)
-    hist.record(lane, opl + dist_s + si_s.t, val, ok, sub=sub)
+    hist.record(lane, opl + path_s + si_s.t, val, ok, sub=sub)
 
     # ---- (b) the beam L -> S: equiangular sampling of the beam point B
     ell = si_s.t
@@ -229,18 +236,22 @@ def _connect_one(scene, hist, lane, si, bsdf, med, xm, wim, beta, w0, opl, activ
         (w0 * dr.exp(-mc.sigma_t * (s + r)) * inv)
     ok_b = active & si_s.is_valid() & (h > BEAM_LINE_EPS_M) & (val_b > 0) & dr.isfinite(val_b)
     ok_b &= ~scene.ray_test(_shadow_ray(si, med, xm, b), ok_b)
-    hist.record(lane, opl + r + s, val_b, ok_b, sub=sub)
+    path_b = r
+    if eta is not None:
+        path_b = dr.select(med, eta, segment_index(bsdf, si, si.to_local(d_b), eta, active & ~med)) * r
+    hist.record(lane, opl + path_b + s, val_b, ok_b, sub=sub)
 
 
 @dr.syntax
 def _connect(scene, hist, lane, si, med, xm, wim, beta, w0, opl, depth, active, c, mc, spot, group, wall_ptr,
-             rng_m, ctx):
-    """Next-event estimation from the vertex to the laser spot(s) and beam(s) of the lane (see module)."""
+             rng_m, ctx, eta=None):
+    """Next-event estimation from the vertex to the laser spot(s) and beam(s) of the lane (see module);
+    ``eta`` as :func:`_connect_one`."""
     bsdf = si.bsdf()
     active_nee = active & (depth + 2 <= c.max_depth) & (med | mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth))
     if dr.hint(group is None, mode="scalar"):
         _connect_one(scene, hist, lane, si, bsdf, med, xm, wim, beta, w0, opl, active_nee, c, mc, spot[0],
-                     spot[1], mi.UInt32(0), rng_m.next_float32(), wall_ptr, ctx)
+                     spot[1], mi.UInt32(0), rng_m.next_float32(), wall_ptr, ctx, eta)
         return
     b = mi.UInt32(0)
     while active_nee & (b < c.n_group_spots):
@@ -258,7 +269,7 @@ def _connect(scene, hist, lane, si, med, xm, wim, beta, w0, opl, depth, active, 
         si_s.wavelengths = si.wavelengths
         bsdf_s = dr.gather(mi.BSDFPtr, group[9], b, g_ok)
         _connect_one(scene, hist, lane, si, bsdf, med, xm, wim, beta, w0, opl, active_nee, c, mc, si_s, bsdf_s,
-                     b, rng_m.next_float32(), wall_ptr, ctx)
+                     b, rng_m.next_float32(), wall_ptr, ctx, eta)
         b += 1
 
 
@@ -417,6 +428,6 @@ def nlos_medium_pass(scene, hist, rng, layout, j0, j1, c, ks, mc: MediumConstant
                 med = med_n
                 si = si_next
                 _connect(scene, hist, lane, si, med, xm, wim, beta, w0, opl, depth, active, c, mc, spot, group,
-                         wall_ptr, rng_m, ctx)
+                         wall_ptr, rng_m, ctx, eta=eta)
         j += 1
     return rng
