@@ -253,7 +253,8 @@ def single_scattering_wall_terms(pixel_center, footprint, sigma_t, sigma_s, g, w
     M = D + t[:, None] * w
     rs = np.linalg.norm(M, axis=1)
     d_ms = -M / rs[:, None]
-    f1 = sigma_s * np.exp(-sigma_t * t) * hg(d_ms @ (-w), g) * fw * (M @ nz) / rs *         np.exp(-sigma_t * (rs + ell)) / rs ** 2
+    f1 = sigma_s * np.exp(-sigma_t * t) * hg(d_ms @ (-w), g) * fw * (M @ nz) / rs * \
+        np.exp(-sigma_t * (rs + ell)) / rs ** 2
     out = _binned_1d(t, f1, t + rs + ell, edges_m)
     # the wall point c lit by the beam
     s = np.linspace(0.0, ell, n)

@@ -16,7 +16,6 @@ import mitsuba as mi
 
 from stats_helpers import ALPHA, mean_se, t_bound, welch_df, z_bound
 from transient_core.units import C_M_PER_PS
-from transient_mi.props import PluginParameterError
 
 T = mi.ScalarTransform4f
 

@@ -11,7 +11,7 @@ from transient_mi.integrators._path_options import check_render_call, read_nlos_
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
 from transient_mi.integrators.transient_nlos_path import render_nlos
 from transient_mi.integrators.transient_path import TransientPath, mis_weight
-from transient_mi.props import PluginParameterError, get_bool
+from transient_mi.props import get_bool
 
 PLUGIN = ("integrator", "transient_volpath", "TransientVolPath")
 
