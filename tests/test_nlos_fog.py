@@ -348,6 +348,46 @@ def test_include_first_last_false_is_refused():
     _one_line(e, "include_first_last=false", "include_first_last=true")
 
 
+_RGB_SCRIPT = """
+import sys
+sys.path.insert(0, {tests!r})
+import numpy as np
+import test_nlos_fog as T
+from transient_mi.props import PluginParameterError
+assert T.mi.variant() == "llvm_ad_rgb"
+kw = dict(spots=(2, 1), spacing=0.1, max_depth=4, n_bins=600, bin_width_ps=25.0)
+fog = T.render(T.fog_scene(sigma_t=1e-9, albedo=0.5, **kw), seed=5, spp=64).histogram
+clear = T.render(T.fog_scene(fog=False, integrator="transient_nlos_path", **kw), seed=5, spp=64).histogram
+assert clear.sum() > 0
+np.testing.assert_allclose(fog, clear, rtol=1e-5, atol=1e-8 * float(clear.max()))
+load = T.mi.load_dict
+def rgb_extinction(d, **k):
+    d["sensor"]["fog"]["sigma_t"] = {{"type": "rgb", "value": [0.1, 0.2, 0.3]}}
+    return load(d, **k)
+T.mi.load_dict = rgb_extinction
+try:
+    T.render(T.fog_scene(n_bins=16), seed=0, spp=4)
+    raise SystemExit("colour-dependent extinction was not refused")
+except PluginParameterError as e:
+    assert "varying with colour" in str(e) and "\\n" not in str(e), str(e)
+print("OK")
+"""
+
+
+def test_rgb_variant_vanishing_fog_and_colour_dependent_extinction():
+    """RGB variant (subprocess, TRANSIENT_MI_VARIANT=llvm_ad_rgb): the vanishing-fog identity holds, and an
+    extinction that varies with colour is refused in one line (deterministic)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ, TRANSIENT_MI_VARIANT="llvm_ad_rgb")
+    out = subprocess.run([sys.executable, "-c", _RGB_SCRIPT.format(tests=str(Path(__file__).resolve().parent))],
+                         env=env, capture_output=True, text=True, timeout=600, check=False)
+    assert out.returncode == 0 and out.stdout.strip().endswith("OK"), out.stderr[-2000:]
+
+
 # ------------------------------------------------------------------ the example scene
 
 
