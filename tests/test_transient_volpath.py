@@ -16,7 +16,6 @@ import mitsuba as mi
 
 from stats_helpers import ALPHA, mean_se, t_bound, welch_df, z_bound
 from transient_core.units import C_M_PER_PS
-from transient_mi.props import PluginParameterError
 
 T = mi.ScalarTransform4f
 
@@ -412,15 +411,16 @@ def test_bad_parameters_raise_one_line(key, value, words):
     assert "transient_volpath" in msg and words in msg
 
 
-def test_spad_array_sensor_is_refused_with_one_line():
-    from nlos_helpers import nlos_scene
+def test_spad_array_sensor_without_medium_renders_the_nlos_capture():
+    """Under a spad_array without a sensor medium transient_volpath runs the NLOS estimator: the bytes of
+    transient_nlos_path (NLOS captures in fog: tests/test_nlos_fog.py)."""
+    from nlos_helpers import nlos_scene, square
 
-    scene = nlos_scene(width=2, height=2, n_bins=16)
-    integ = mi.load_dict({"type": "transient_volpath"})
-    with pytest.raises(PluginParameterError) as e:
-        integ.render_transient(scene, scene.sensors()[0], seed=0, spp=4)
-    msg = str(e.value)
-    assert "\n" not in msg and "spad_array" in msg and "transient_path" in msg
+    scene = nlos_scene(width=2, height=2, n_bins=1100, hidden=[square((0.0, 0.0, 0.4), 0.2, 0.7)])
+    ref = scene.integrator().render_transient(scene, scene.sensors()[0], seed=0, spp=4).histogram
+    integ = mi.load_dict({"type": "transient_volpath", "max_depth": 4})
+    out = integ.render_transient(scene, scene.sensors()[0], seed=0, spp=4).histogram
+    assert ref.sum() > 0 and out.tobytes() == ref.tobytes()
 
 
 # -------------------------------------------------------------- determinism

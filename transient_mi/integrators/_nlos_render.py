@@ -121,7 +121,9 @@ def render_spots(setup: "NLOSSetup", scene, film, options: dict, *, seed: int, s
     options : dict
         ``max_depth`` (segments, -1 unlimited), ``rr_depth``,
         ``hidden_geometry_prob`` (alpha in [0, 1]), ``variance_replicates``
-        (independent replicates, see :mod:`._replicates`).
+        (independent replicates, see :mod:`._replicates`), ``medium`` (an
+        :class:`~._nlos_medium.NLOSMedium` to render through, or None: the
+        surface kernel).
     seed, spp : int
     spots : sequence of int
         Laser spot indices (scan order); ``[0]`` for confocal captures.
@@ -223,16 +225,23 @@ def _render_replicate(setup: "NLOSSetup", scene, film, options: dict, *, seed: i
 
     c = KernelConstants.build(setup, options, seed=seed, n_group=G)
     ks = KernelScene.build(scene, setup, spots)
+    fog = options.get("medium")  # NLOSMedium (transient_volpath with a sensor medium) or None
+    if fog is not None:
+        from transient_mi.integrators._nlos_medium import MediumConstants, nlos_medium_pass
+        mc = MediumConstants.build(fog)
 
     total = layout.n_pixels * spp
     for j0, j1 in layout.passes():
-        rng = nlos_pass(scene, hist, rng, layout, j0, j1, c, ks)
+        if fog is None:
+            rng = nlos_pass(scene, hist, rng, layout, j0, j1, c, ks)
+        else:
+            rng = nlos_medium_pass(scene, hist, rng, layout, j0, j1, c, ks, mc)
         hist.evaluate(rng)  # one evaluation of the loop (evaluating rng separately would run it twice)
         if progress is not None:
             progress(min(total, layout.n_pixels * min(spp, j1 * K)), total)
 
     # closed-form first-bounce return of the wall (weighted by spp: collect() divides by it)
-    wr = setup.wall_return
+    wr = setup.wall_return if fog is None else fog.wall_return(setup)
     all_spots = np.arange(setup.n_spots) if confocal else np.array(spots)
     sub = np.zeros(len(all_spots), dtype=np.uint32) if confocal else np.arange(G, dtype=np.uint32)
     pix = wr["pixel"][all_spots]

@@ -112,6 +112,11 @@ The *relay wall* is the shape hit by the ray from the detector to the
 array's ``target``; *hidden geometry* is every other shape. Other emitters
 of the scene are ignored: only the laser lights an NLOS capture.
 
+Fog: a ``spad_array`` with a sensor medium is refused here (and by
+``transient_path``) in one line; ``transient_volpath`` renders it, with this
+estimator extended to a homogeneous medium (free flights, medium vertices,
+connections to the laser beam: :mod:`transient_mi.integrators._nlos_medium`).
+
 Histograms are accumulated per SIMD lane (:mod:`._lanes`): same seed, same
 bytes.
 """
@@ -136,14 +141,15 @@ def sensor_name(sensor) -> str:
 
 
 def render_nlos(integrator, scene, sensor, *, seed: int, spp: int, spot: int | None = None, spots=None,
-                progress=None, replicate_offset: int = 0, replicates: int | None = None):
+                progress=None, replicate_offset: int = 0, replicates: int | None = None, media: bool = False):
     """Render an NLOS capture's laser spot, spot group or confocal capture with ``integrator``'s parameters.
 
     The render call of ``transient_nlos_path`` and of ``transient_path`` under a ``spad_array`` (checked
     already by :func:`~._path_options.check_render_call`). ``integrator`` provides ``max_depth_param``,
     ``rr_depth``, ``nlos_options`` (``rqmc``, ``hidden_geometry_prob``; read at every call) and
     ``replicates_for``. Returns one ``TransientResult`` for ``spot`` (default 0), a list for ``spots``; the
-    film keeps the (last) result.
+    film keeps the (last) result. ``media``: the caller renders through the sensor's medium
+    (``transient_volpath``, :mod:`~._nlos_medium`); otherwise a sensor medium is refused in one line.
     """
     from transient_mi.integrators._nlos_render import render_spots
 
@@ -153,7 +159,16 @@ def render_nlos(integrator, scene, sensor, *, seed: int, spp: int, spot: int | N
     options.setdefault("rr_depth", integrator.rr_depth)
     group = [0 if spot is None else int(spot)] if spots is None else [int(j) for j in spots]
     film = sensor.film()
-    results = render_spots(sensor.nlos_setup(scene), scene, film, options, seed=seed, spp=spp, spots=group,
+    medium = sensor.get_medium()
+    if medium is not None and not media:
+        raise PluginParameterError(
+            f"{integrator.NAME}: the sensor {sensor_name(sensor)} sits in the medium "
+            f"{medium.id() or type(medium).__name__!r}; NLOS captures through a medium: use transient_volpath")
+    setup = sensor.nlos_setup(scene)
+    if medium is not None:
+        from transient_mi.integrators._nlos_medium import NLOSMedium
+        options["medium"] = NLOSMedium.from_sensor(scene, sensor, setup, integrator.NAME)
+    results = render_spots(setup, scene, film, options, seed=seed, spp=spp, spots=group,
                            progress=progress, replicate_offset=replicate_offset, replicates=replicates)
     film.set_result(results[-1])
     return results if spots is not None else results[0]

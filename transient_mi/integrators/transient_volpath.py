@@ -7,10 +7,11 @@ import mitsuba as mi
 
 from transient_mi.integrators._lanes import channel_values
 from transient_mi.integrators._optical_path import segment_index
-from transient_mi.integrators._path_options import read_path_params
+from transient_mi.integrators._path_options import check_render_call, read_nlos_options, read_path_params
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
+from transient_mi.integrators.transient_nlos_path import render_nlos
 from transient_mi.integrators.transient_path import TransientPath, mis_weight
-from transient_mi.props import PluginParameterError, get_bool
+from transient_mi.props import get_bool
 
 PLUGIN = ("integrator", "transient_volpath", "TransientVolPath")
 
@@ -65,8 +66,18 @@ class TransientVolPath(TransientPath):
     index of their own. Shadow rays only weight a contribution (transmittance);
     their length is the distance to the sampled emitter point.
 
-    NLOS captures through media are not supported: a ``spad_array`` sensor is
-    refused (use ``transient_path``).
+    NLOS captures: under a ``spad_array`` it renders the capture with the NLOS
+    estimator of ``transient_nlos_path`` (laser-spot connections, hidden-geometry
+    MIS at the wall point, randomised QMC, spot groups; same parameters).
+    Without a sensor medium that is ``transient_nlos_path`` itself (same seed,
+    same bytes); with a ``homogeneous`` sensor medium (``<ref id="fog"/>``
+    nested in the ``spad_array``: the fog fills the scene) it renders through
+    the fog: free flights on every traced segment, phase sampling, and
+    next-event estimation from every vertex to the laser spot and to the laser
+    *beam* (whose single backscatter into the pixels is the main fog return),
+    every segment attenuated (estimator: :mod:`transient_mi.integrators._nlos_medium`;
+    ``scenes/fog_nlos.xml``). Refused in one line for NLOS: heterogeneous
+    media, media inside shapes, ``include_first_last=false``.
 
     .. list-table::
        :header-rows: 1
@@ -80,7 +91,9 @@ class TransientVolPath(TransientPath):
            directly visible emitters, 2 = direct illumination (single
            scattering in media), 3 = one more bounce ...; medium scattering
            events count as bounces, null-scattering events and ``null``-BSDF
-           boundaries do not; -1 = unlimited (default).
+           boundaries do not; -1 = unlimited (default). NLOS captures:
+           segments from the detector to the laser, medium vertices
+           included (``D - fog - beam - L`` is 3).
        * - ``rr_depth``
          - integer
          - Depth after which Russian roulette starts (``depth > rr_depth``,
@@ -93,6 +106,14 @@ class TransientVolPath(TransientPath):
          - integer
          - Independent replicates each render is split into, in [1, 1024]
            (default 1: no variance); see ``transient_path``.
+       * - ``rqmc``
+         - boolean
+         - NLOS only: randomised quasi-Monte Carlo for the patch point and
+           the first bounce (default true), as ``transient_nlos_path``.
+       * - ``hidden_geometry_prob``
+         - float
+         - NLOS only: probability of hidden-geometry sampling at the wall
+           point, in [0, 1] (default 0.8), as ``transient_nlos_path``.
 
     Determinism: same seed, same bytes (per-lane histograms, see
     :mod:`transient_mi.integrators._lanes`).
@@ -106,19 +127,23 @@ class TransientVolPath(TransientPath):
         self.max_depth_param = max_depth
         self.max_depth = max_depth if max_depth != -1 else 0xFFFFFFFF
         self.hide_emitters = get_bool(props, self.NAME, "hide_emitters", False)
-        self.nlos_options = {}
+        #: NLOS only (``rqmc``, ``hidden_geometry_prob``), as ``transient_nlos_path``
+        self.nlos_options = read_nlos_options(props, self.NAME)
         self._sensor_medium = None
         #: whether the scene has a heterogeneous medium: without one, the kernels leave out null
         #: scattering and ratio tracking (a static choice, as Mitsuba's prbvolpath makes it)
         self._heterogeneous = True
 
     def render_transient(self, scene, sensor, **kwargs):
-        """As :meth:`TransientPath.render_transient`, for camera sensors only; the sensor's medium
-        (``sensor.get_medium()``) is the medium the camera rays start in."""
+        """As :meth:`TransientPath.render_transient`; the sensor's medium (``sensor.get_medium()``) is the
+        medium the camera rays start in. A ``spad_array`` sensor renders the NLOS capture through its medium
+        (:mod:`transient_mi.integrators._nlos_medium`; without one, ``transient_nlos_path``'s bytes)."""
         if is_nlos_sensor(sensor):
-            raise PluginParameterError(
-                f"{self.NAME}: sensor {type(sensor).__name__} (spad_array) is not supported: NLOS captures "
-                "through media are out of scope; use a camera sensor (perspective, ...) or transient_path")
+            _, spp = check_render_call(self.NAME, sensor, kwargs.get("seed", 0), kwargs.get("spp", 0),
+                                       kwargs.get("replicates"))
+            kwargs["spp"] = spp
+            kwargs.setdefault("seed", 0)
+            return render_nlos(self, scene, sensor, media=True, **kwargs)
         self._sensor_medium = sensor.get_medium()
         self._heterogeneous = _has_heterogeneous_medium(scene, self._sensor_medium)
         try:
@@ -351,6 +376,8 @@ class TransientVolPath(TransientPath):
         return em_val * tr, ds
 
     def to_string(self):
+        o = self.nlos_options
         return (f"TransientVolPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}, "
                 f"hide_emitters={str(self.hide_emitters).lower()}, "
-                f"variance_replicates={self.variance_replicates or 'default'}]")
+                f"variance_replicates={self.variance_replicates or 'default'}, "
+                f"hidden_geometry_prob={o['hidden_geometry_prob']:g}, rqmc={str(o['rqmc']).lower()}]")

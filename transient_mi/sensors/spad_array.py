@@ -36,7 +36,9 @@ class SpadArray(mi.Sensor):
     ``target``; every other shape is hidden geometry (the scene analysis:
     :mod:`transient_mi.sensors._nlos_setup`). Render with the
     ``transient_nlos_path`` integrator (``transient_path`` delegates to it)
-    and exactly one ``pulsed_laser``.
+    and exactly one ``pulsed_laser``. A ``homogeneous`` medium nested in the
+    sensor (``<ref id="fog"/>``) is fog filling the scene: render with
+    ``transient_volpath`` (see :mod:`transient_mi.integrators._nlos_medium`).
 
     Captures (``capture``):
 
