@@ -90,5 +90,22 @@ def make_server(lib: Library, host: str = "127.0.0.1", port: int = 5006):
     server = Server({"/": app}, address=host, port=port, allow_websocket_origin=sorted(set(origins)),
                     extra_patterns=[(r"/files/(.*)", _file_handler(lib))], num_procs=1,
                     check_unused_sessions_milliseconds=2000, unused_session_lifetime_milliseconds=5000)
+    _serve_only_the_bokehjs_we_use(server)
     server.start()
     return server
+
+
+#: BokehJS bundles the page loads. A Bokeh server page loads every bundle by default because it cannot
+#: know the document in advance; the viewer draws no LaTeX (``bokeh-mathjax``, 1.8 MB) and no WebGL
+#: (``bokeh-gl``), so the first page leaves them out (tables stay: the reconstruction tab's metrics).
+BOKEHJS_COMPONENTS = ["bokeh", "bokeh-widgets", "bokeh-tables"]
+
+
+def _serve_only_the_bokehjs_we_use(server) -> None:
+    tornado_app = server._tornado
+    default = tornado_app.resources
+
+    def resources(absolute_url=None):
+        return default(absolute_url).clone(components=list(BOKEHJS_COMPONENTS))
+
+    tornado_app.resources = resources
