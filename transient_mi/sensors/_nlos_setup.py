@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 import numpy as np
 
+from transient_mi.integrators import _device_legs as legs
 from transient_mi.integrators._lanes import to_mono
 from transient_mi.props import PluginParameterError
 from transient_mi.wall import WallFrame, ray_plane_point
@@ -83,6 +84,11 @@ class NLOSSetup:
     hidden_area_m2: float
     planar_wall: bool = False
     pixel_sampling: str = "area"
+    #: the scene has windows (delta-transmissive shapes, see :mod:`transient_mi.integrators._device_legs`):
+    #: the device legs are traced through them
+    windows: bool = False
+    #: some non-wall shape has no smooth BSDF component (a window, a mirror): it is not hidden geometry
+    hidden_excludes: bool = False
     wall_return: dict = field(default_factory=dict)
 
     @property
@@ -119,7 +125,8 @@ class NLOSSetup:
         pitch = sensor.pixel_pitch_m
 
         # ---- relay wall: the shape hit at the array's target
-        si_t = _intersect(scene, D[None], (sensor.target - D)[None])
+        windows = bool(legs.window_shapes(scene))  # device legs then run through them (_device_legs)
+        si_t = _intersect(scene, D[None], (sensor.target - D)[None], windows)
         if not bool(si_t["valid"][0]):
             raise PluginParameterError(
                 f"{name}: the ray from origin={_fmt(D)} to target={_fmt(sensor.target)} hits no surface; "
@@ -146,7 +153,7 @@ class NLOSSetup:
 
         # ---- patches must lie on the relay wall: test every patch corner
         corners = frame.grid_corners(W, H, pitch, shrink=1e-4, cell=fp).reshape(-1, 3)
-        hit = _intersect(scene, np.broadcast_to(D, corners.shape), corners - D)
+        hit = _intersect(scene, np.broadcast_to(D, corners.shape), corners - D, windows)
         on_wall = hit["valid"] & _same_shape(hit["shape"], wall)
         if not on_wall.all():
             bad = int(np.argmin(on_wall)) // 4
@@ -164,7 +171,7 @@ class NLOSSetup:
                 f"{_fmt(sensor.target)}) is larger than the relay wall: the patch of pixel (x={ix}, y={iy}) "
                 "extends beyond it; use fewer pixels or a smaller pixel_pitch_m/pixel_footprint_m")
         centers_plane = frame.grid(W, H, pitch).reshape(-1, 3)
-        hc = _intersect(scene, np.broadcast_to(D, centers_plane.shape), centers_plane - D)
+        hc = _intersect(scene, np.broadcast_to(D, centers_plane.shape), centers_plane - D, windows)
         pixel_centers = hc["p"].reshape(H, W, 3)
         pixel_normals = hc["n"].reshape(H, W, 3)
 
@@ -176,7 +183,7 @@ class NLOSSetup:
             spot_targets = laser.spot_targets()
             spot_grid = (laser.spots_y, laser.spots_x)
         Lo = laser.origin
-        hs = _intersect(scene, np.broadcast_to(Lo, spot_targets.shape), spot_targets - Lo)
+        hs = _intersect(scene, np.broadcast_to(Lo, spot_targets.shape), spot_targets - Lo, windows)
         ok = hs["valid"] & _same_shape(hs["shape"], wall)
         if not ok.all():
             j = int(np.argmin(ok))
@@ -192,7 +199,11 @@ class NLOSSetup:
         aperture_normal = sensor.target - D
         aperture_normal = aperture_normal / np.linalg.norm(aperture_normal)
         wall_size = _extent_in_frame(wall, frame)
-        hidden = [s for s in scene.shapes() if not _is(s, wall)]
+        # hidden geometry: every other shape that a spot connection can reach (a smooth BSDF component);
+        # a shape with only delta lobes (a window, a mirror) contributes nothing to a connection, so
+        # sampling points on it would only waste samples
+        others = [s for s in scene.shapes() if not _is(s, wall)]
+        hidden = [s for s in others if legs.has_smooth_component(s.bsdf())]
         hidden_area = float(sum(float(s.surface_area()[0]) for s in hidden))
 
         setup = cls(
@@ -206,13 +217,15 @@ class NLOSSetup:
             pixel_centers=pixel_centers, pixel_normals=pixel_normals, wall_size_m=wall_size,
             relay_wall=wall, hidden_shapes=hidden, hidden_area_m2=hidden_area,
             planar_wall=bool(thick <= 1e-6 * max(1.0, max(wall_size))),
-            pixel_sampling=sensor.pixel_sampling,
+            pixel_sampling=sensor.pixel_sampling, windows=windows, hidden_excludes=len(hidden) < len(others),
         )
         setup.wall_return = setup._wall_return(scene, hs)
         return setup
 
     def _wall_return(self, scene, hs) -> dict:
         """Closed-form first-bounce return ``L -> S -> D`` for every spot (photons per pulse)."""
+        if self.windows:
+            return self._wall_return_windows(scene, hs)
         S = self.spots
         n = len(S)
         D = self.detector
@@ -240,6 +253,42 @@ class NLOSSetup:
         photons = self.photons_per_pulse * f * self.aperture_area_m2 * cos_ap / dist ** 2
         photons = np.where(vis & (pixel >= 0) & self.include_wall_return, photons, 0.0)
         opl = (np.linalg.norm(d, axis=1) + dist) if self.include_first_last else np.zeros(n)
+        return {"pixel": pixel.astype(np.int64), "photons": photons, "opl_m": opl}
+
+    def _wall_return_windows(self, scene, hs) -> dict:
+        """:meth:`_wall_return` through windows: the legs ``L -> S`` and ``S -> D`` refract at every window.
+
+        The detector direction that sees ``S`` is found by :func:`~transient_mi.integrators._device_legs.
+        aim_through_windows`; the pixel is the one whose cone of directions holds it; the photons are
+        ``N T_L T_D f_s cos(theta_S) A_ap cos(theta_ap) / (cos(theta_S) J)`` with ``J = dA_S / dOmega_D``
+        of the detector leg (:func:`~transient_mi.integrators._device_legs.leg_jacobian`); the path length
+        is the legs' optical lengths.
+        """
+        S = self.spots
+        n = len(S)
+        D = self.detector
+        w, residual = legs.aim_through_windows(scene, D, S)
+        ix, iy, inside = self.frame.cell_of(ray_plane_point(D, D + w, self.frame), self.width, self.height,
+                                            self.pitch_m, cell=self.footprint_m)
+        pixel = np.where(inside, iy * self.width + ix, -1)
+        if self.capture == "confocal":
+            pixel = np.where(pixel == np.arange(n), pixel, -1)
+        det = legs.trace_legs_np(scene, np.broadcast_to(D, w.shape), w)
+        si = hs["si"]
+        out_w = -np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in det["si"].to_world(det["si"].wi)],
+                          axis=1)  # leaving S along the detector leg's last segment (towards the window)
+        wo = si.to_local(mi.Vector3f(*[mi.Float(c) for c in out_w.T]))
+        f_cos = np.asarray(to_mono(si.bsdf().eval(mi.BSDFContext(), si, wo), si.wavelengths).numpy(),
+                           dtype=np.float64)
+        cos_s = np.abs(np.sum(out_w * hs["n"], axis=1))
+        J = legs.leg_jacobian(scene, D, w)
+        vis = det["valid"] & _same_shape(det["shape"], self.relay_wall) & (residual <= 1e-5) & (J > 0)
+        cos_ap = np.clip(w @ self.aperture_normal, 0.0, None)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            photons = (self.photons_per_pulse * hs["throughput"] * det["throughput"] * f_cos * self.aperture_area_m2
+                       * cos_ap / (cos_s * J))
+        photons = np.where(vis & (pixel >= 0) & (cos_s > 0) & self.include_wall_return, photons, 0.0)
+        opl = (hs["opl_m"] + det["opl_m"]) if self.include_first_last else np.zeros(n)
         return {"pixel": pixel.astype(np.int64), "photons": photons, "opl_m": opl}
 
     # ------------------------------------------------------------- manifest
@@ -271,8 +320,14 @@ class NLOSSetup:
 # ---------------------------------------------------------------------- helpers
 
 
-def _intersect(scene, origins, directions) -> dict:
-    """Intersect rays (numpy ``[n, 3]``) with the scene; returns numpy fields and shape pointers."""
+def _intersect(scene, origins, directions, windows: bool = False) -> dict:
+    """Intersect rays (numpy ``[n, 3]``) with the scene; returns numpy fields and shape pointers.
+
+    ``windows``: follow the rays through the scene's windows (device legs,
+    :func:`~transient_mi.integrators._device_legs.trace_legs_np`; adds ``throughput``, ``opl_m``, ``si``).
+    """
+    if windows:
+        return legs.trace_legs_np(scene, origins, directions)
     o = np.asarray(origins, dtype=np.float64)
     d = np.asarray(directions, dtype=np.float64)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
