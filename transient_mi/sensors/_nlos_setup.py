@@ -275,8 +275,9 @@ class NLOSSetup:
             pixel = np.where(pixel == np.arange(n), pixel, -1)
         det = legs.trace_legs_np(scene, np.broadcast_to(D, w.shape), w)
         si = hs["si"]
-        out_w = -np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in det["si"].to_world(det["si"].wi)],
-                          axis=1)  # leaving S along the detector leg's last segment (towards the window)
+        # leaving S along the detector leg's last segment (towards the window): its ``wi``
+        out_w = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in det["si"].to_world(det["si"].wi)],
+                         axis=1)
         wo = si.to_local(mi.Vector3f(*[mi.Float(c) for c in out_w.T]))
         f_cos = np.asarray(to_mono(si.bsdf().eval(mi.BSDFContext(), si, wo), si.wavelengths).numpy(),
                            dtype=np.float64)
