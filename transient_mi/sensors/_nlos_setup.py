@@ -89,6 +89,10 @@ class NLOSSetup:
     windows: bool = False
     #: some non-wall shape has no smooth BSDF component (a window, a mirror): it is not hidden geometry
     hidden_excludes: bool = False
+    #: with windows: optical path lengths (m) of the laser legs ``L -> S`` (n_spots,) and of the detector
+    #: legs ``D -> patch centre`` (height, width), recorded in the manifest for reconstruction
+    spot_leg_opl_m: np.ndarray | None = None
+    pixel_leg_opl_m: np.ndarray | None = None
     wall_return: dict = field(default_factory=dict)
 
     @property
@@ -218,6 +222,8 @@ class NLOSSetup:
             relay_wall=wall, hidden_shapes=hidden, hidden_area_m2=hidden_area,
             planar_wall=bool(thick <= 1e-6 * max(1.0, max(wall_size))),
             pixel_sampling=sensor.pixel_sampling, windows=windows, hidden_excludes=len(hidden) < len(others),
+            spot_leg_opl_m=hs["opl_m"] if windows else None,
+            pixel_leg_opl_m=hc["opl_m"].reshape(H, W) if windows else None,
         )
         setup.wall_return = setup._wall_return(scene, hs)
         return setup
@@ -315,6 +321,10 @@ class NLOSSetup:
             "pixel_sampling": self.pixel_sampling,
             "relay_wall": self.relay_wall.id(),
             "hidden_area_m2": self.hidden_area_m2,
+            # through windows: the legs' optical path lengths (the first/last segments a reconstruction
+            # subtracts; without windows they are the distances to laser_origin / detector_origin)
+            **({"spot_leg_opl_m": self.spot_leg_opl_m.tolist(), "pixel_leg_opl_m": self.pixel_leg_opl_m.tolist()}
+               if self.windows else {}),
         }
 
 
