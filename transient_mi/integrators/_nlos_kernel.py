@@ -120,6 +120,11 @@ class KernelConstants:
     #: some non-wall shape is not hidden geometry (no smooth BSDF component): the MIS weight at the patch
     #: point checks the BSDF of the vertex it reached
     hidden_excludes: bool = False
+    #: the laser beam diverges: every spot connection samples a beam direction (:func:`_beam_spot`)
+    divergent: bool = False
+    #: standard deviation of each tangent-plane component of the beam direction, rad (``pulsed_laser``'s
+    #: ``beam_sigma_rad``; used when ``divergent``)
+    beam_sigma: object = None
 
     @classmethod
     def build(cls, setup, options: dict, *, seed: int, n_group: int) -> "KernelConstants":
@@ -131,6 +136,7 @@ class KernelConstants:
         max_depth = options.get("max_depth", -1)
         alpha = float(options.get("hidden_geometry_prob", 0.8)) if setup.hidden_shapes else 0.0
         center = setup.pixel_sampling == "center"
+        divergent = setup.laser.divergence_mrad > 0
         return cls(
             detector=_opt(setup.detector), patch_origin=_opt(c00), pitch_x=_ovec(fr.ex * setup.pitch_m),
             pitch_y=_ovec(fr.ey * setup.pitch_m), footprint_x=_ovec(fr.ex * setup.footprint_m),
@@ -147,11 +153,13 @@ class KernelConstants:
             patch_center_only=center,
             max_depth_static=UNLIMITED_DEPTH if max_depth == -1 else int(max_depth),
             confocal=confocal,
-            spot_is_wall_point=confocal and center and not setup.windows,
+            spot_is_wall_point=confocal and center and not setup.windows and not divergent,
             n_group_spots=dr.opaque(mi.UInt32, n_group),
             rqmc=bool(options.get("rqmc", True)),
             windows=setup.windows,
             hidden_excludes=setup.hidden_excludes,
+            divergent=divergent,
+            beam_sigma=_of(setup.laser.beam_sigma_rad),
         )
 
 
@@ -164,7 +172,8 @@ class KernelScene:
     BSDF evaluation at each laser spot of the group needs (surface-interaction fields, shape and BSDF
     pointers), None in confocal captures (each lane traces its own spot). In scenes with windows the
     laser legs are traced through them: the ``t`` entry then holds the leg's optical path length and an
-    11th entry its transmittance.
+    11th entry its transmittance. With a divergent beam ``group`` holds only the beam axes (unit vectors
+    from the laser towards the spot targets): each connection samples its own spot.
     """
 
     hidden_ptrs: object
@@ -191,6 +200,10 @@ class KernelScene:
             Lo = setup.laser_origin
             d = tg - Lo
             d = d / np.linalg.norm(d, axis=1, keepdims=True)
+            if setup.laser.divergence_mrad > 0:
+                axes = mi.Vector3f(*[mi.Float(d[:, i]) for i in range(3)])
+                dr.eval(axes)
+                return cls(hidden_ptrs, distr, wall_ptr, (axes,))
             ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.full(len(tg), Lo[i])) for i in range(3)]),
                            mi.Vector3f(*[mi.Float(d[:, i]) for i in range(3)]))
             if setup.windows:
@@ -209,14 +222,15 @@ class KernelScene:
 
 @dr.syntax
 def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot, group, wall_ptr, ctx,
-                   visible=None, eta=None):
+                   visible=None, eta=None, rng=None):
     """Deterministic connection of vertex ``si`` to the laser spot(s) (next-event estimation).
 
     ``spot``: the lane's own spot ``(si_s, bsdf_s)`` (confocal), else ``group``
     holds the group's spots, connected one after another. ``visible``: the
     visibility when it is already known (confocal patch-centre captures).
     ``eta``: the relative refractive index the path is in at ``si`` (None: 1,
-    the relay wall's side; see :mod:`transient_mi.integrators._optical_path`).
+    the relay wall's side; see :mod:`transient_mi.integrators._optical_path`). ``rng``: the PCG32 streams
+    a divergent beam samples its directions from (``spot`` is then ``(axis,)`` and ``group`` ``(axes,)``).
     """
     bsdf = si.bsdf()
     active_nee = active & (depth + 2 <= c.max_depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
@@ -224,13 +238,23 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
         # spot and vertex on the same plane: cos(theta_S) = 0 exactly, nothing to connect
         active_nee &= si.shape != wall_ptr
     if dr.hint(group is None, mode="scalar"):  # the lane's own spot: no loop over a group
+        if dr.hint(c.divergent, mode="scalar"):
+            si_s, bsdf_s, thr_s = _beam_spot(scene, c, spot[0], rng, active_nee, si.wavelengths)
+            _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, si_s, bsdf_s, mi.UInt32(0),
+                         ctx, visible, eta, thr_s)
+            return
         _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, spot[0], spot[1], mi.UInt32(0),
                      ctx, visible, eta, spot[2] if c.windows else None)
         return
     b = mi.UInt32(0)
     while active_nee & (b < c.n_group_spots):
+        thr_s = None
         if dr.hint(group is None, mode="scalar"):
             si_s, bsdf_s = spot
+        elif dr.hint(c.divergent, mode="scalar"):
+            axis = dr.gather(mi.Vector3f, group[0], b, active_nee & (b < c.n_group_spots))
+            si_s, bsdf_s, thr_s = _beam_spot(scene, c, axis, rng, active_nee & (b < c.n_group_spots),
+                                             si.wavelengths)
         else:
             g_ok = active_nee & (b < c.n_group_spots)
             si_s = dr.zeros(mi.SurfaceInteraction3f)
@@ -245,12 +269,29 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
             si_s.shape = dr.gather(mi.ShapePtr, group[8], b, g_ok)
             si_s.wavelengths = si.wavelengths
             bsdf_s = dr.gather(mi.BSDFPtr, group[9], b, g_ok)
-        thr_s = None
-        if dr.hint(c.windows, mode="scalar"):
+        if dr.hint(c.windows and not c.divergent, mode="scalar"):
             thr_s = dr.gather(mi.Float, group[10], b, active_nee & (b < c.n_group_spots))
         _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, si_s, bsdf_s, b, ctx, visible, eta,
                      thr_s)
         b += 1
+
+
+def _beam_spot(scene, c, axis, rng, active, wavelengths):
+    """A laser spot of the divergent beam around ``axis``: ``(si_s, bsdf_s, transmittance)``.
+
+    The direction ``normalize(axis + sigma (x e1 + y e2))`` with ``x, y`` standard normal (from two PCG32
+    numbers, :func:`mitsuba.warp.square_to_std_normal`) has the beam's angular profile (``pulsed_laser``
+    ``divergence_mrad``), so the spot it hits is distributed like the beam's photons: using it for the
+    connection is an unbiased estimate of the footprint's light. The leg is traced through windows;
+    ``si_s.t`` holds its optical path length.
+    """
+    g = mi.warp.square_to_std_normal(mi.Point2f(rng.next_float32(), rng.next_float32()))
+    frame = mi.Frame3f(axis)
+    d = dr.normalize(axis + c.beam_sigma * (g.x * frame.s + g.y * frame.t))
+    si_s, thr_s, opl_s = trace_leg(scene, c.laser_origin, d, active)
+    si_s.t = opl_s
+    si_s.wavelengths = wavelengths
+    return si_s, si_s.bsdf(), thr_s
 
 
 def _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active, c, si_s, bsdf_s, sub, ctx, visible,
@@ -349,7 +390,9 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
     spot = None
     if dr.hint(c.confocal, mode="scalar"):
         laser_ray = mi.Ray3f(c.laser_origin, dr.normalize(centre - c.laser_origin))
-        if dr.hint(c.windows, mode="scalar"):
+        if dr.hint(c.divergent, mode="scalar"):  # every connection samples its spot around the axis
+            spot = (laser_ray.d,)
+        elif dr.hint(c.windows, mode="scalar"):
             si_s, thr_s, opl_s = trace_leg(scene, laser_ray.o, laser_ray.d)
             si_s.t = opl_s  # what the record adds for the laser leg
             spot = (si_s, si_s.bsdf(), thr_s)
@@ -415,7 +458,8 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
                 opl = c.first_last_factor * si.t
         active = si.is_valid()
         beta = mi.Spectrum(1.0)
-        _connect_spots(scene, hist, lane, si, beta, w0, opl, mi.Int32(1), active, c, spot, group, wall_ptr, ctx)
+        _connect_spots(scene, hist, lane, si, beta, w0, opl, mi.Int32(1), active, c, spot, group, wall_ptr, ctx,
+                       rng=rng)
 
         # ---- vertex 2 by one-sample MIS, then its spot connection (three-bounce light)
         active &= 5 <= c.max_depth + 1  # i.e. max_depth >= 4
@@ -426,10 +470,10 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
         if dr.hint(c.spot_is_wall_point, mode="scalar"):
             # the segment vertex 2 -> spot is the segment just traced from the spot: visible
             _connect_spots(scene, hist, lane, si2, beta, w0, opl, mi.Int32(2), active, c, spot, group, wall_ptr,
-                           ctx, visible=mi.Bool(True))
+                           ctx, visible=mi.Bool(True), rng=rng)
         else:
             _connect_spots(scene, hist, lane, si2, beta, w0, opl, mi.Int32(2), active, c, spot, group, wall_ptr,
-                           ctx)
+                           ctx, rng=rng)
 
         # ---- further vertices: BSDF sampling, spot connections, Russian roulette
         if dr.hint(deeper, mode="scalar"):
@@ -453,7 +497,7 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
                 beta[rr_active] *= dr.rcp(rr_prob)
                 active = active_next & si_next.is_valid() & (~rr_active | rr_continue) & (beta_max > 0)
                 _connect_spots(scene, hist, lane, si_next, beta, w0, opl, depth, active, c, spot, group, wall_ptr,
-                               ctx, eta=eta)
+                               ctx, eta=eta, rng=rng)
                 si = si_next
         j += 1
     return rng
