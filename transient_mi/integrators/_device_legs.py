@@ -1,5 +1,6 @@
 r"""Device legs of an NLOS capture through windows: the detector ray ``D -> wall`` and the laser ray
-``L -> spot`` followed through delta-transmissive interfaces.
+``L -> spot`` followed through delta-transmissive interfaces (and the spots of a divergent laser beam,
+:func:`beam_spot`).
 
 A *window* is a shape whose BSDF has no smooth component but transmits (``dielectric``,
 ``thindielectric``) or is a ``null`` boundary: a glass pane between the device (laser, SPAD array) and
@@ -136,6 +137,24 @@ def trace_leg(scene, origin, direction, active=True):
         on_w = _on_window(si, on_w & transmitted)
     thr = dr.select(_on_window(si, active) | ~si.is_valid(), 0.0, thr)
     return si, thr, opl
+
+
+def beam_spot(scene, laser_origin, sigma, axis, rng, active, wavelengths):
+    """A laser spot of a divergent beam around ``axis``: ``(si_s, bsdf_s, transmittance)``.
+
+    The direction ``normalize(axis + sigma (x e1 + y e2))`` with ``x, y`` standard normal (from two PCG32
+    numbers of ``rng``, :func:`mitsuba.warp.square_to_std_normal`; ``sigma`` in rad) has the beam's angular
+    profile (``pulsed_laser`` ``divergence_mrad``), so the spot it hits is distributed like the beam's
+    photons: using it for a spot connection is an unbiased estimate of the whole footprint's light. The
+    leg is traced through windows (:func:`trace_leg`); ``si_s.t`` holds its optical path length.
+    """
+    g = mi.warp.square_to_std_normal(mi.Point2f(rng.next_float32(), rng.next_float32()))
+    frame = mi.Frame3f(axis)
+    d = dr.normalize(axis + sigma * (g.x * frame.s + g.y * frame.t))
+    si_s, thr_s, opl_s = trace_leg(scene, laser_origin, d, active)
+    si_s.t = opl_s
+    si_s.wavelengths = wavelengths
+    return si_s, si_s.bsdf(), thr_s
 
 
 def leg_jacobian(scene, origin, direction, eps: float = JACOBIAN_EPS_RAD):

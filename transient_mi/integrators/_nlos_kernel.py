@@ -17,7 +17,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from transient_mi.integrators._device_legs import trace_leg
+from transient_mi.integrators._device_legs import beam_spot, trace_leg
 from transient_mi.integrators._lanes import to_mono
 from transient_mi.integrators._optical_path import segment_index
 
@@ -120,7 +120,8 @@ class KernelConstants:
     #: some non-wall shape is not hidden geometry (no smooth BSDF component): the MIS weight at the patch
     #: point checks the BSDF of the vertex it reached
     hidden_excludes: bool = False
-    #: the laser beam diverges: every spot connection samples a beam direction (:func:`_beam_spot`)
+    #: the laser beam diverges: every spot connection samples a beam direction
+    #: (:func:`~transient_mi.integrators._device_legs.beam_spot`)
     divergent: bool = False
     #: standard deviation of each tangent-plane component of the beam direction, rad (``pulsed_laser``'s
     #: ``beam_sigma_rad``; used when ``divergent``)
@@ -239,7 +240,8 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
         active_nee &= si.shape != wall_ptr
     if dr.hint(group is None, mode="scalar"):  # the lane's own spot: no loop over a group
         if dr.hint(c.divergent, mode="scalar"):
-            si_s, bsdf_s, thr_s = _beam_spot(scene, c, spot[0], rng, active_nee, si.wavelengths)
+            si_s, bsdf_s, thr_s = beam_spot(scene, c.laser_origin, c.beam_sigma, spot[0], rng, active_nee,
+                                              si.wavelengths)
             _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, si_s, bsdf_s, mi.UInt32(0),
                          ctx, visible, eta, thr_s)
             return
@@ -253,8 +255,8 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
             si_s, bsdf_s = spot
         elif dr.hint(c.divergent, mode="scalar"):
             axis = dr.gather(mi.Vector3f, group[0], b, active_nee & (b < c.n_group_spots))
-            si_s, bsdf_s, thr_s = _beam_spot(scene, c, axis, rng, active_nee & (b < c.n_group_spots),
-                                             si.wavelengths)
+            si_s, bsdf_s, thr_s = beam_spot(scene, c.laser_origin, c.beam_sigma, axis, rng,
+                                            active_nee & (b < c.n_group_spots), si.wavelengths)
         else:
             g_ok = active_nee & (b < c.n_group_spots)
             si_s = dr.zeros(mi.SurfaceInteraction3f)
@@ -274,24 +276,6 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
         _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, si_s, bsdf_s, b, ctx, visible, eta,
                      thr_s)
         b += 1
-
-
-def _beam_spot(scene, c, axis, rng, active, wavelengths):
-    """A laser spot of the divergent beam around ``axis``: ``(si_s, bsdf_s, transmittance)``.
-
-    The direction ``normalize(axis + sigma (x e1 + y e2))`` with ``x, y`` standard normal (from two PCG32
-    numbers, :func:`mitsuba.warp.square_to_std_normal`) has the beam's angular profile (``pulsed_laser``
-    ``divergence_mrad``), so the spot it hits is distributed like the beam's photons: using it for the
-    connection is an unbiased estimate of the footprint's light. The leg is traced through windows;
-    ``si_s.t`` holds its optical path length.
-    """
-    g = mi.warp.square_to_std_normal(mi.Point2f(rng.next_float32(), rng.next_float32()))
-    frame = mi.Frame3f(axis)
-    d = dr.normalize(axis + c.beam_sigma * (g.x * frame.s + g.y * frame.t))
-    si_s, thr_s, opl_s = trace_leg(scene, c.laser_origin, d, active)
-    si_s.t = opl_s
-    si_s.wavelengths = wavelengths
-    return si_s, si_s.bsdf(), thr_s
 
 
 def _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active, c, si_s, bsdf_s, sub, ctx, visible,
