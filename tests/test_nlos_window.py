@@ -299,6 +299,22 @@ def test_glass_window_scene_renders_reconstructs_and_its_window_is_not_ground_tr
     assert np.all(np.linalg.norm(spots - targets, axis=1) > 2e-3)
     first = np.linalg.norm(spots - np.array(geo["laser_origin"]), axis=1)
     assert np.all(np.array(geo["spot_leg_opl_m"]) > first + 3e-3)  # n d / cos(theta_t) > the air path
+    # recon subtracts the legs' optical path lengths (not the straight distances) from every bin
+    from recon.capture import load_capture
+
+    cap = load_capture(out)
+    legs = np.array(geo["spot_leg_opl_m"])[1] + np.array(geo["pixel_leg_opl_m"])
+    assert np.allclose(cap.path_offsets_m(1), legs, rtol=0, atol=1e-12)
+    straight = first[1] + np.linalg.norm(np.array(geo["pixel_centers"]) - np.array(geo["detector_origin"]), axis=-1)
+    assert np.all(legs - straight > 6e-3)  # both legs cross the pane: ~4 mm of extra optical path each
+    # the preview's wall-return mask (legs' optical paths) covers the wall return's bin
+    from transient_core.stack import read_stack
+    from transient_mi.preview import wall_return_mask
+
+    _, data = read_stack(out)
+    mask = wall_return_mask(m, 1, data[1].shape)
+    iy, ix, ib = np.unravel_index(int(np.argmax(data[1])), data[1].shape)
+    assert mask[iy, ix, ib]
     r = subprocess.run([sys.executable, "-m", "transient_mi", "recon", str(out), "-o", str(tmp_path / "rec"),
                         "--method", "bp", "--voxels", "8"], cwd=root, env=env, capture_output=True, text=True,
                        timeout=300, check=False)
