@@ -2,7 +2,8 @@
 """Benchmark: what colour and polarization per time bin cost over one value per bin.
 
 The same camera render (``scenes/cornell_box.xml``, ``transient_path``) in ``llvm_ad_mono`` (one value
-per bin), ``llvm_ad_rgb`` (R, G, B per bin), ``llvm_ad_mono_polarized`` (Stokes S0..S3 per bin) and,
+per bin), ``llvm_ad_rgb`` (R, G, B per bin), ``llvm_ad_mono_polarized`` (Stokes S0..S3 per bin),
+``llvm_ad_spectral`` (R, G, B per bin, and six 50 nm wavelength bands per bin) and,
 for reference, ``llvm_ad_rgb`` with ``channels=mono`` (the rgb variant's transport, one value per bin):
 the variant's own transport cost and the per-bin channels' cost can be told apart. Each variant runs in
 its own process (one Mitsuba variant per process); in each, every round renders twice with the same
@@ -28,7 +29,10 @@ import _record  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = [("mono", "llvm_ad_mono", "auto"), ("rgb", "llvm_ad_rgb", "auto"),
-           ("rgb_transport_mono_bins", "llvm_ad_rgb", "mono"), ("stokes", "llvm_ad_mono_polarized", "auto")]
+           ("rgb_transport_mono_bins", "llvm_ad_rgb", "mono"), ("stokes", "llvm_ad_mono_polarized", "auto"),
+           ("spectral_rgb", "llvm_ad_spectral", "auto"), ("spectral_bands", "llvm_ad_spectral", "bands")]
+#: the wavelength bands of the ``spectral_bands`` configuration (film parameter ``spectral_bands_nm``)
+BANDS_NM = "400, 450, 500, 550, 600, 650, 700"
 
 
 def _worker(variant: str, channels: str, size: int, bins: int, spp: int, rounds: int) -> dict:
@@ -36,10 +40,11 @@ def _worker(variant: str, channels: str, size: int, bins: int, spp: int, rounds:
     import transient_mi  # noqa: F401
     import mitsuba as mi
 
+    bands = BANDS_NM if channels == "bands" else ""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), width=str(size), height=str(size),
-                         n_bins=str(bins), t0_ps="10000", bin_width_ps="60", max_depth="6")
+                         n_bins=str(bins), t0_ps="10000", bin_width_ps="60", max_depth="6", spectral_bands_nm=bands)
     film = scene.sensors()[0].film()
-    film.channels = channels
+    film.channels = "auto" if channels == "bands" else channels
     best = None
     for r in range(rounds):
         for k in range(2):

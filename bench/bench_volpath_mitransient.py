@@ -13,8 +13,9 @@ rather than global fog.
 
 Each renderer runs in its own process (ours: this venv; mitransient: its own venv, as
 ``bench/bench_nlos.py`` makes it), with the same policy: for each of ``--spp-lo`` and ``--spp-hi``
-one untimed render compiles the kernels, then renders are timed (best of ``--repeats``), then ``--replicates``
-independent renders at ``--spp-hi`` (seeds 1..R) give the mean and its standard error. Peak memory is
+one untimed render compiles the kernels, then ``--repeats`` renders are timed; ``--rounds`` rounds alternate the two renderers' processes (load on
+a shared machine then hurts both alike) and the best time of each is kept. In the first round,
+``--replicates`` independent renders at ``--spp-hi`` (seeds 1..R) give the mean and its standard error. Peak memory is
 each worker's own ``VmHWM`` (the peer's process alone).
 
 * **Cross-check (means within Monte Carlo error):** the replicate means of the two renderers are
@@ -29,7 +30,7 @@ each worker's own ``VmHWM`` (the peer's process alone).
 
 Usage::
 
-    python bench/bench_volpath_mitransient.py --save      # 64x64, 400 bins of 50 ps
+    python bench/bench_volpath_mitransient.py --save      # 128x128, 400 bins of 50 ps, 32 and 128 spp
     python bench/bench_volpath_mitransient.py --small     # a quick check of the plumbing
 """
 
@@ -124,20 +125,33 @@ def worker(cfg_path: str) -> None:
             render(spp, 2000 + r)
             ts.append(time.perf_counter() - t)
         timings[str(spp)] = ts
-    reps = np.stack([render(cfg["spp_hi"], 1 + r) for r in range(cfg["replicates"])]).astype(np.float64)
-    np.save(cfg["out_npy"], reps.astype(np.float32))
+    if cfg["replicates"]:
+        reps = np.stack([render(cfg["spp_hi"], 1 + r) for r in range(cfg["replicates"])])
+        np.save(cfg["out_npy"], reps.astype(np.float32))
+    else:
+        reps = np.zeros((0,))
     Path(cfg["result"]).write_text(json.dumps({"timings_s": timings, "peak_rss_mb": _vmhwm_mb(),
                                                "shape": list(reps.shape)}))
 
 
-def _run_side(side: str, cfg: dict, tmp: Path, python: str, env: dict) -> tuple[dict, np.ndarray]:
+def _run_side(side: str, cfg: dict, tmp: Path, python: str, env: dict) -> tuple[dict, np.ndarray | None]:
     c = dict(cfg, side=side, result=str(tmp / f"{side}.json"), out_npy=str(tmp / f"{side}.npy"))
     (tmp / f"{side}_cfg.json").write_text(json.dumps(c))
     r = subprocess.run([python, str(Path(__file__).resolve()), "--worker", str(tmp / f"{side}_cfg.json")],
                        capture_output=True, text=True, env=env)
     if r.returncode != 0:
         raise RuntimeError(f"{side} worker failed:\n{r.stderr[-4000:]}")
-    return json.loads(Path(c["result"]).read_text()), np.load(c["out_npy"]).astype(np.float64)
+    reps = np.load(c["out_npy"]).astype(np.float64) if cfg["replicates"] else None
+    return json.loads(Path(c["result"]).read_text()), reps
+
+
+def _merge_timings(infos: list[dict]) -> dict:
+    """Every round's timings together (the analysis takes the best), peak RSS the largest."""
+    out = {"timings_s": {}, "peak_rss_mb": max(i["peak_rss_mb"] for i in infos)}
+    for i in infos:
+        for spp, ts in i["timings_s"].items():
+            out["timings_s"].setdefault(spp, []).extend(ts)
+    return out
 
 
 def _efficiency(info: dict, reps: np.ndarray, spp_lo: int, spp_hi: int) -> dict:
@@ -184,13 +198,14 @@ def _cross_check(ours: np.ndarray, mt: np.ndarray, group: int) -> dict:
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--worker", help=argparse.SUPPRESS)
-    ap.add_argument("--size", type=int, default=64)
+    ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--bins", type=int, default=400)
     ap.add_argument("--bin-width-ps", type=float, default=50.0)
-    ap.add_argument("--spp-lo", type=int, default=16)
-    ap.add_argument("--spp-hi", type=int, default=64)
+    ap.add_argument("--spp-lo", type=int, default=32)
+    ap.add_argument("--spp-hi", type=int, default=128)
     ap.add_argument("--replicates", type=int, default=8)
-    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--repeats", type=int, default=2, help="timed renders per sample count and round")
+    ap.add_argument("--rounds", type=int, default=3, help="alternating rounds of the two renderers' processes")
     ap.add_argument("--group", type=int, default=20, help="bins per group of the profile cross-check")
     ap.add_argument("--small", action="store_true")
     ap.add_argument("--mitransient", choices=("auto", "install"), default="auto")
@@ -203,7 +218,7 @@ def main(argv=None) -> dict:
         worker(a.worker)
         return {}
     if a.small:
-        a.size, a.spp_lo, a.spp_hi, a.replicates, a.repeats = 16, 4, 8, 4, 1
+        a.size, a.spp_lo, a.spp_hi, a.replicates, a.repeats, a.rounds = 16, 4, 8, 4, 1, 1
     import bench_nlos
 
     py = bench_nlos.mitransient_python(a.mitransient)
@@ -212,10 +227,21 @@ def main(argv=None) -> dict:
     load_start = list(os.getloadavg())
     cfg = {"size": a.size, "n_bins": a.bins, "bin_width_ps": a.bin_width_ps, "t0_ps": 5.0 / C_M_PER_PS,
            "spp_lo": a.spp_lo, "spp_hi": a.spp_hi, "replicates": a.replicates, "repeats": a.repeats}
+    ours_env, mt_env = dict(os.environ, PYTHONPATH=str(ROOT)), bench_nlos._mt_env()
+    infos = {"ours": [], "mitransient": []}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        ours_info, ours = _run_side("ours", cfg, tmp, sys.executable, dict(os.environ, PYTHONPATH=str(ROOT)))
-        mt_info, mt = _run_side("mitransient", cfg, tmp, str(py), bench_nlos._mt_env())
+        # rounds alternate the two renderers (load on a shared machine then hurts both alike); the first
+        # round also renders the replicates
+        for rnd in range(a.rounds):
+            c = cfg if rnd == 0 else dict(cfg, replicates=0)
+            info, reps = _run_side("ours", c, tmp, sys.executable, ours_env)
+            infos["ours"].append(info)
+            ours = reps if rnd == 0 else ours
+            info, reps = _run_side("mitransient", c, tmp, str(py), mt_env)
+            infos["mitransient"].append(info)
+            mt = reps if rnd == 0 else mt
+    ours_info, mt_info = _merge_timings(infos["ours"]), _merge_timings(infos["mitransient"])
     eff = {"transient-mi": _efficiency(ours_info, ours, a.spp_lo, a.spp_hi),
            "mitransient": _efficiency(mt_info, mt, a.spp_lo, a.spp_hi)}
     speed = {str(e): eff["mitransient"]["time_to_relative_error_s"][str(e)] /
@@ -224,9 +250,11 @@ def main(argv=None) -> dict:
         "scene": "camera outside a null cube of homogeneous HG medium (sigma_t 2/m, albedo 0.8, g 0.5) on a "
                  "diffuse floor, area light above; unlimited depth, rr_depth 5, box filter",
         "size": a.size, "n_bins": a.bins, "bin_width_ps": a.bin_width_ps, "t0_ps": cfg["t0_ps"],
-        "spp_lo": a.spp_lo, "spp_hi": a.spp_hi, "replicates": a.replicates,
-        "policy": "each renderer in its own process; one untimed render compiles, then best of --repeats; "
-                  "peak RSS of each worker process alone",
+        "spp_lo": a.spp_lo, "spp_hi": a.spp_hi, "replicates": a.replicates, "rounds": a.rounds,
+        "repeats": a.repeats,
+        "policy": "each renderer in its own process, --rounds rounds alternating the two; per sample count one "
+                  "untimed render compiles, then the best of all timed renders; peak RSS of each worker process "
+                  "alone",
         "efficiency": eff, "speedup_at_equal_error": speed,
         "cross_check": _cross_check(ours, mt, a.group),
     }

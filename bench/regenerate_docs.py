@@ -198,7 +198,11 @@ def channels_para(R) -> str:
             f"per bin): `llvm_ad_rgb` recording R, G, B per bin {100 * o['rgb']:+.0f} %; the same variant recording "
             f"one value per bin (`channels=\"mono\"`) {100 * o['rgb_transport_mono_bins']:+.0f} %, so the cost is "
             f"the per-bin channels (one histogram each), not the colour transport; `llvm_ad_mono_polarized` "
-            f"recording S0..S3 per bin {100 * o['stokes']:+.0f} %. {provenance(rec)}\n")
+            f"recording S0..S3 per bin {100 * o['stokes']:+.0f} %"
+            + (f"; `llvm_ad_spectral` recording R, G, B per bin {100 * o['spectral_rgb']:+.0f} % and six 50 nm "
+               f"wavelength bands per bin (`spectral_bands_nm`) {100 * o['spectral_bands']:+.0f} %"
+               if "spectral_bands" in o else "")
+            + f". {provenance(rec)}\n")
 
 
 def volpath_para(R) -> str:

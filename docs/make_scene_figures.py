@@ -5,7 +5,10 @@ Usage::
     python docs/make_scene_figures.py [--only NAME ...] [--keep DIR]
 
 Each entry renders one embedded scene with ``transient-mi render`` (seeded, so the same bytes every
-time) and copies the capture's ``preview.png`` to ``docs/img/NAME.png``:
+time). The colour Cornell box is the capture's own ``preview.png``; each NLOS scene is rendered twice,
+with its effect and without it (``-D`` values below), and drawn as the pixel-summed histogram of
+laser spot 0 for both (log scale) beside the time-integrated image with the effect (wall return
+excluded), into ``docs/img/NAME.png``:
 
 =====================  ===============================================================================
 ``cornell_box_rgb``    ``scenes/cornell_box.xml`` in ``llvm_ad_rgb``: R, G, B per time bin
@@ -23,13 +26,20 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 
 #: name -> (scene, extra arguments of ``transient-mi render``)
 FIGURES = {
     "cornell_box_rgb": ("scenes/cornell_box.xml", ["--variant", "llvm_ad_rgb", "--spp", "256", "--seed", "1"]),
-    "glass_window_nlos": ("scenes/glass_window_nlos.xml", ["--seed", "1"]),
-    "fog_nlos": ("scenes/fog_nlos.xml", ["--seed", "1"]),
+    "glass_window_nlos": ("scenes/glass_window_nlos.xml", ["--seed", "1", "-D", "spots_x=1", "-D", "spots_y=1"]),
+    "fog_nlos": ("scenes/fog_nlos.xml", ["--seed", "1", "-D", "spots_x=1", "-D", "spots_y=1"]),
+}
+#: NLOS figures: (label with the effect, label without, -D arguments that remove the effect)
+COMPARE = {
+    "glass_window_nlos": ("through the glass window", "no window", ["-D", "window_thickness_m=0"]),
+    "fog_nlos": ("in fog (sigma_t 0.2 /m, albedo 0.9)", "clear air", ["-D", "sigma_t=1e-9"]),
 }
 
 
@@ -39,14 +49,57 @@ def cli() -> list[str]:
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "transient_mi.cli"]
 
 
-def render_figure(name: str, work: Path) -> Path:
-    scene, extra = FIGURES[name]
-    out = work / name
+def _render(scene: str, out: Path, extra: list[str]) -> Path:
     cmd = cli() + ["render", str(ROOT / scene), "-o", str(out)] + extra
     print("$", " ".join(cmd), flush=True)
     subprocess.run(cmd, check=True, cwd=ROOT)
+    return out
+
+
+def compare_figure(dest: Path, with_effect: Path, without: Path, labels: tuple[str, str], title: str) -> None:
+    """Pixel-summed histogram of spot 0 with and without the effect (log scale), and the image with it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    sys.path.insert(0, str(ROOT))
+    from transient_core import stack
+    from transient_mi.preview import wall_return_mask
+
+    fig = Figure(figsize=(13, 3.8))
+    ax_img, ax = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 2.6]})
+    for d, label, colour in ((with_effect, labels[0], "C3"), (without, labels[1], "C0")):
+        m = stack.read_manifest(d)
+        h = stack.intensity(stack.read_spot(d, 0, m), m).astype(np.float64)
+        t = m["time"]
+        t_ns = (t["t0_ps"] + (np.arange(t["n_bins"]) + 0.5) * t["bin_width_ps"]) / 1000.0
+        ax.semilogy(t_ns, np.maximum(h.sum(axis=(0, 1)), 1e-30), color=colour, lw=0.9, label=label)
+        if d == with_effect:
+            hidden = np.where(wall_return_mask(m, 0, h.shape), 0.0, h).sum(axis=-1)
+            im = ax_img.imshow(hidden, origin="lower", cmap="viridis")
+            fig.colorbar(im, ax=ax_img, fraction=0.046)
+            ax_img.set_title(f"photons/pulse, {labels[0]}\n(wall return excluded)", fontsize=9)
+            top = h.sum(axis=(0, 1)).max()
+    ax.set_ylim(top * 1e-7, top * 3)
+    ax.set_xlabel("time since the pulse left the laser (ns)")
+    ax.set_ylabel("photons per pulse per bin,\nsummed over pixels")
+    ax.set_title(title, fontsize=10)
+    ax.legend(loc="upper right", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(dest, dpi=90)
+
+
+def render_figure(name: str, work: Path) -> Path:
+    scene, extra = FIGURES[name]
     dest = ROOT / "docs" / "img" / f"{name}.png"
-    shutil.copyfile(out / "preview.png", dest)
+    out = _render(scene, work / name, extra)
+    if name not in COMPARE:
+        shutil.copyfile(out / "preview.png", dest)
+    else:
+        lab_with, lab_without, remove = COMPARE[name]
+        ref = _render(scene, work / f"{name}_without", extra + remove)
+        compare_figure(dest, out, ref, (lab_with, lab_without), f"{scene}: laser spot 0, every pixel")
     print("wrote", dest.relative_to(ROOT), flush=True)
     return dest
 

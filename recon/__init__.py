@@ -23,7 +23,7 @@ Public API (imported lazily, so ``import recon`` stays cheap)::
 
 from __future__ import annotations
 
-import importlib
+from transient_core.lazy_exports import lazy_exports
 
 __version__ = "0.1.0"
 
@@ -46,14 +46,6 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS) + ["__version__"]
 
 
-def __getattr__(name: str):
-    mod = _EXPORTS.get(name)
-    if mod is None:
-        raise AttributeError(f"module 'recon' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{mod}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return __all__
+# Public names load their module on first use, so the import is cheap and a user of one part does not
+# pay for the others (numba kernels, scipy).
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())

@@ -18,7 +18,7 @@ nonparalyzable_rate, paralyzable_rate, pulsed_rate_per_cycle, first_photon_proba
 
 from __future__ import annotations
 
-import importlib
+from transient_core.lazy_exports import lazy_exports
 
 _EXPORTS = {
     "coates_correction": "coates", "coates_std": "coates",
@@ -38,16 +38,6 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str):
-    """Public names load their module on first use, so ``import spad_detector`` is cheap and a user of one
-    part (say the Coates correction) does not pay for numba kernels they never call."""
-    mod = _EXPORTS.get(name)
-    if mod is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{mod}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_EXPORTS))
+# Public names load their module on first use, so the import is cheap and a user of one part does not
+# pay for the others (numba kernels, scipy).
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())

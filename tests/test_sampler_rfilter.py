@@ -180,3 +180,14 @@ def test_filtered_camera_render_equals_mitsuba_path_with_the_same_filter(rfilter
     chi2 = float(np.sum(z ** 2))
     bound = chi2_bounds(W * H, 2 * ALPHA)[1]  # upper 1 - ALPHA quantile
     assert chi2 < bound, f"sum of squared z over {W * H} pixels: {chi2:.1f}, bound {bound:.1f}"
+
+
+@pytest.mark.parametrize("crop", [{"crop_offset_x": 2, "crop_width": 4}, {"crop_height": 3}])
+def test_film_crop_windows_are_refused_in_one_line(crop):
+    """A crop window would be silently ignored (the film renders every pixel): refused when the scene loads."""
+    from transient_mi.scene_io import mitsuba_error_message
+
+    with pytest.raises(Exception) as e:
+        mi.load_dict(dict({"type": "transient_film", "width": 8, "height": 6}, **crop))
+    msg = mitsuba_error_message(e.value)
+    assert "\n" not in msg and msg.startswith("transient_film: crop_offset_x=") and "not supported" in msg, msg

@@ -186,6 +186,12 @@ class TransientFilm(mi.Film):
         self.width, self.height = int(size[0]), int(size[1])
         if self.width < 1 or self.height < 1:
             raise PluginParameterError(f"{name}: width={self.width}, height={self.height} must be >= 1")
+        crop, off = self.crop_size(), self.crop_offset()
+        if (int(crop[0]), int(crop[1]), int(off[0]), int(off[1])) != (self.width, self.height, 0, 0):
+            raise PluginParameterError(
+                f"{name}: crop_offset_x={int(off[0])}, crop_offset_y={int(off[1])}, crop_width={int(crop[0])}, "
+                f"crop_height={int(crop[1])}: crop windows are not supported (the film renders every pixel); "
+                "allowed: no crop_* parameters (render a smaller width/height instead)")
         self.result: TransientResult | None = None
 
     # ------------------------------------------------------------------ queries
