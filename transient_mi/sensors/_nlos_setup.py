@@ -25,6 +25,8 @@ from transient_mi.wall import WallFrame, ray_plane_point
 #: Beam directions per axis of the footprint quadrature of a divergent laser (``BEAM_NODES_PER_AXIS^2`` per
 #: spot, see :func:`beam_nodes`).
 BEAM_NODES_PER_AXIS = 64
+#: Spots whose footprint quadrature is evaluated together (bounds the memory: 256 x 4096 legs, ~0.5 GB).
+FOOTPRINT_SPOTS_PER_CHUNK = 256
 
 
 def beam_nodes(k: int = BEAM_NODES_PER_AXIS) -> np.ndarray:
@@ -263,24 +265,31 @@ class NLOSSetup:
         """
         n = self.n_spots
         if self.laser.divergence_mrad > 0:
-            dirs = self.beam_directions()  # [n, M, 3]
-            M = dirs.shape[1]
-            Lo = self.laser_origin
-            sub = legs.trace_legs_np(scene, np.broadcast_to(Lo, (n * M, 3)), dirs.reshape(-1, 3))
-            spot_of = np.repeat(np.arange(n), M)
-            wr = (self._wall_return_windows if self.windows else self._wall_return_points)(scene, sub, spot_of)
-            on_wall = sub["valid"] & _same_shape(sub["shape"], self.relay_wall) & (sub["throughput"] > 0)
-            wr["photons"] = np.where(on_wall, wr["photons"] / M, 0.0)
-            return {k: v.reshape(n, M) for k, v in wr.items()}
+            parts = [self._footprint_return(scene, j0, min(n, j0 + FOOTPRINT_SPOTS_PER_CHUNK))
+                     for j0 in range(0, n, FOOTPRINT_SPOTS_PER_CHUNK)]
+            return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         return (self._wall_return_windows if self.windows else self._wall_return_points)(scene, hs, np.arange(n))
 
-    def beam_directions(self) -> np.ndarray:
-        """The divergent beam's quadrature directions ``[n_spots, M, 3]`` (unit vectors from the laser).
+    def _footprint_return(self, scene, j0: int, j1: int) -> dict:
+        """The divergent beam's wall return of spots ``[j0, j1)``: arrays ``[j1 - j0, M]``."""
+        dirs = self.beam_directions(j0, j1)  # [n, M, 3]
+        n, M = dirs.shape[:2]
+        Lo = self.laser_origin
+        sub = legs.trace_legs_np(scene, np.broadcast_to(Lo, (n * M, 3)), dirs.reshape(-1, 3))
+        spot_of = np.repeat(np.arange(j0, j1), M)
+        wr = (self._wall_return_windows if self.windows else self._wall_return_points)(scene, sub, spot_of)
+        on_wall = sub["valid"] & _same_shape(sub["shape"], self.relay_wall) & (sub["throughput"] > 0)
+        wr["photons"] = np.where(on_wall, wr["photons"] / M, 0.0)
+        return {k: v.reshape(n, M) for k, v in wr.items()}
+
+    def beam_directions(self, j0: int = 0, j1: int | None = None) -> np.ndarray:
+        """The divergent beam's quadrature directions ``[n, M, 3]`` of spots ``[j0, j1)`` (default all; unit
+        vectors from the laser).
 
         ``normalize(a + sigma (x_i e1 + x_j e2))`` over the product grid of :func:`beam_nodes`, with ``a``
         the axis towards each spot target and ``sigma`` the laser's ``beam_sigma_rad``.
         """
-        a = self.spot_targets - self.laser_origin
+        a = self.spot_targets[j0:j1] - self.laser_origin
         a = a / np.linalg.norm(a, axis=1, keepdims=True)
         e1, e2 = _perpendicular_frame(a)
         x = beam_nodes()
