@@ -224,12 +224,22 @@ class Capture:
 
         ``|laser - S_j| + |P_k - detector|`` when the capture includes them,
         zeros otherwise. Subtracting it from a bin's path length leaves the
-        three-bounce part ``|S_j - o| + |o - P_k|``.
+        three-bounce part ``|S_j - o| + |o - P_k|``. Captures rendered through a window record the legs'
+        optical path lengths (manifest ``geometry.spot_leg_opl_m`` and ``pixel_leg_opl_m``: refraction
+        and the slower light in glass, see docs/glass.md); they are used instead when present.
         """
         if not self.include_first_last:
             return np.zeros((self.height, self.width))
-        last = np.linalg.norm(self.pixel_centers - self.detector_origin, axis=-1)
-        first = np.linalg.norm(self.spot_positions(j) - self.laser_origin, axis=-1)
+        geo = self.manifest.get("geometry") or {}
+        if geo.get("pixel_leg_opl_m") is not None:
+            last = np.asarray(geo["pixel_leg_opl_m"], dtype=np.float64).reshape(self.height, self.width)
+        else:
+            last = np.linalg.norm(self.pixel_centers - self.detector_origin, axis=-1)
+        if geo.get("spot_leg_opl_m") is not None:
+            legs = np.asarray(geo["spot_leg_opl_m"], dtype=np.float64)
+            first = legs.reshape(self.height, self.width) if self.mode == "confocal" else legs[j]
+        else:
+            first = np.linalg.norm(self.spot_positions(j) - self.laser_origin, axis=-1)
         return first + last
 
     def pixel_pitch_m(self) -> tuple[float, float]:

@@ -37,8 +37,11 @@ def nlos_scene(*, width=4, height=4, footprint=0.05, capture="array", spots=(1, 
                laser_target=(0.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), include_first_last=True,
                include_wall_return=True, max_depth=4, n_bins=256, bin_width_ps=10.0, t0_ps=0.0,
                hidden=None, laser=LASER, detector=DETECTOR, spp=64, hidden_geometry_prob=None, pitch=None,
-               integrator="transient_nlos_path"):
-    """Load an NLOS scene: 1 m x 1 m relay wall at z = 0 plus ``hidden`` shapes (dicts)."""
+               integrator="transient_nlos_path", laser_extra=None):
+    """Load an NLOS scene: 1 m x 1 m relay wall at z = 0 plus ``hidden`` shapes (dicts).
+
+    ``laser_extra``: further ``pulsed_laser`` parameters (e.g. ``{"divergence_mrad": 20.0}``).
+    """
     import mitsuba as mi
 
     integ = {"type": integrator, "max_depth": max_depth}
@@ -49,7 +52,8 @@ def nlos_scene(*, width=4, height=4, footprint=0.05, capture="array", spots=(1, 
         "integrator": integ,
         "laser": {"type": "pulsed_laser", "origin": mi.ScalarPoint3f(*laser),
                   "target": mi.ScalarPoint3f(*laser_target), "spots_x": spots[0], "spots_y": spots[1],
-                  "spot_spacing_m": spacing, "pulse_energy_j": PULSE_ENERGY_J, "wavelength_nm": WAVELENGTH_NM},
+                  "spot_spacing_m": spacing, "pulse_energy_j": PULSE_ENERGY_J, "wavelength_nm": WAVELENGTH_NM,
+                  **(laser_extra or {})},
         "sensor": {"type": "spad_array", "origin": mi.ScalarPoint3f(*detector),
                    "target": mi.ScalarPoint3f(*target), "pixel_footprint_m": footprint,
                    **({} if pitch is None else {"pixel_pitch_m": pitch}),

@@ -25,7 +25,7 @@ def fog_scene(*, integrator="transient_volpath", sigma_t=0.2, albedo=0.8, g=0.3,
               width=3, height=3, footprint=0.06, spots=(1, 1), spacing=0.0, max_depth=4, n_bins=200,
               bin_width_ps=50.0, t0_ps=0.0, hidden=(HIDDEN,), wall_albedo=0.8, include_wall_return=True,
               include_first_last=True, pixel_sampling="area", fog=True, shape_medium=False, spp=64,
-              capture="array"):
+              capture="array", laser_extra=None):
     """An NLOS scene (1 m wall at z = 0, laser and detector as ``nlos_helpers``) in fog (the sensor's medium)."""
     integ = {"type": integrator, "max_depth": max_depth}
     sensor = {"type": "spad_array", "origin": mi.ScalarPoint3f(*DETECTOR), "target": mi.ScalarPoint3f(0, 0, 0),
@@ -47,7 +47,7 @@ def fog_scene(*, integrator="transient_volpath", sigma_t=0.2, albedo=0.8, g=0.3,
         "type": "scene", "integrator": integ,
         "laser": {"type": "pulsed_laser", "origin": mi.ScalarPoint3f(*LASER), "target": mi.ScalarPoint3f(0, 0, 0),
                   "spots_x": spots[0], "spots_y": spots[1], "spot_spacing_m": spacing,
-                  "pulse_energy_j": PULSE_ENERGY_J, "wavelength_nm": WAVELENGTH_NM},
+                  "pulse_energy_j": PULSE_ENERGY_J, "wavelength_nm": WAVELENGTH_NM, **(laser_extra or {})},
         "sensor": sensor,
         "relay_wall": {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale([0.5, 0.5, 1.0]),
                        "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [wall_albedo] * 3}}},
@@ -339,6 +339,19 @@ def test_media_inside_shapes_are_refused():
     with pytest.raises(PluginParameterError) as e:
         render(scene, seed=0, spp=4)
     _one_line(e, "transient_volpath", "target", "media inside shapes")
+
+
+def test_windows_and_a_divergent_beam_are_refused_in_fog():
+    from test_nlos_window import slab
+
+    scene = fog_scene(hidden=(HIDDEN, slab(0.01)), n_bins=16)
+    with pytest.raises(PluginParameterError) as e:
+        render(scene, seed=0, spp=4)
+    _one_line(e, "transient_volpath", "window", "transient_nlos_path")
+    scene = fog_scene(laser_extra={"divergence_mrad": 5.0}, n_bins=16)
+    with pytest.raises(PluginParameterError) as e:
+        render(scene, seed=0, spp=4)
+    _one_line(e, "pulsed_laser: divergence_mrad=5", "collimated")
 
 
 def test_include_first_last_false_is_refused():

@@ -482,6 +482,7 @@ def scene_captures(tmp_path_factory):
         "cornell_box": {"width": "8", "height": "6", "n_bins": "60"},
         "fog_camera": {"width": "8", "height": "6", "n_bins": "60"},
         "nlos_letter": nlos, "nlos_point_targets": nlos, "nlos_tilted_plane": nlos, "fog_nlos": nlos,
+        "glass_window_nlos": nlos,
         "paper_mannequin": {"array": "4", "spots": "1", "n_bins": "1500", "bin_width_ps": "8"},
     }
     assert sorted(settings) == sorted(p.stem for p in (REPO / "scenes").glob("*.xml"))

@@ -58,7 +58,8 @@ def wall_return_mask(manifest: dict, spot: int, shape: tuple[int, int, int]) -> 
     For pixel patch centre ``P`` and laser spot ``S`` the earliest light that
     reaches a hidden point travels ``|L - S| + |S - P| + |P - D|`` (laser
     ``L``, detector ``D``; without them when the capture excludes the first
-    and last segments); the wall return arrives no later than that plus the
+    and last segments; through windows the first and last legs' optical path
+    lengths from the manifest); the wall return arrives no later than that plus the
     patch and spot size. Bins starting before that time plus a margin of one
     pixel footprint (times sqrt 2) and two bins are marked. Hidden-scene light
     arrives at least ``2 z / c`` later, so only objects within about a pixel
@@ -74,7 +75,11 @@ def wall_return_mask(manifest: dict, spot: int, shape: tuple[int, int, int]) -> 
     S = np.asarray(g["spots"], np.float64).reshape(-1, 3)
     S = S[spot] if manifest["capture"] != "confocal" else S.reshape(H, W, 3)
     path = np.linalg.norm(P - S, axis=-1)
-    if manifest.get("include_first_last"):
+    if manifest.get("include_first_last") and g.get("spot_leg_opl_m") is not None:  # legs through windows
+        legs = np.asarray(g["spot_leg_opl_m"], np.float64)
+        legs = legs[spot] if manifest["capture"] != "confocal" else legs.reshape(H, W)
+        path = path + legs + np.asarray(g["pixel_leg_opl_m"], np.float64).reshape(H, W)
+    elif manifest.get("include_first_last"):
         L, D = np.asarray(g["laser_origin"], np.float64), np.asarray(g["detector_origin"], np.float64)
         path = path + np.linalg.norm(S - L, axis=-1) + np.linalg.norm(P - D, axis=-1)
     t = manifest["time"]

@@ -4,7 +4,10 @@ Loads the scene with Mitsuba (``-D`` values applied) and collects every shape
 that reaches into the hidden space z > 0 (the relay wall lies in z = 0 and is
 left out): triangle meshes as they are (PLY/OBJ files, the procedural
 ``mannequin``, and Mitsuba's ``rectangle``), ``disk`` shapes as 64-gons and
-``sphere`` shapes as icospheres, all in the world frame, metres.
+``sphere`` shapes as icospheres, all in the world frame, metres. Windows
+(shapes with a purely delta-transmissive or ``null`` BSDF, e.g. a glass pane
+between the device and the wall, see docs/glass.md) are not hidden geometry
+and are left out too.
 """
 
 from __future__ import annotations
@@ -64,6 +67,7 @@ def shape_triangles(shape) -> tuple[np.ndarray, np.ndarray]:
 
 def hidden_mesh(scene_file, defines: dict | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """``(vertices [V, 3], faces [F, 3], shape ids)`` of every shape of the scene in z > 0 (metres)."""
+    from .integrators._device_legs import is_window_bsdf
     from .scene_io import load_scene
 
     scene = load_scene(Path(scene_file), defines)
@@ -71,6 +75,8 @@ def hidden_mesh(scene_file, defines: dict | None = None) -> tuple[np.ndarray, np
     for shape in scene.shapes():
         if float(shape.bbox().max[2]) <= WALL_PLANE_TOL_M:
             continue  # the relay wall (z = 0) and anything behind it
+        if is_window_bsdf(shape.bsdf()):
+            continue  # a window the device looks through, not part of the hidden scene
         v, f = shape_triangles(shape)
         verts.append(v)
         faces.append(f + n)

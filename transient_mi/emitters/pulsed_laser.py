@@ -20,6 +20,9 @@ PLUGIN = ("emitter", "pulsed_laser", "PulsedLaser")
 DEFAULT_REPETITION_RATE_HZ = 50e6
 DEFAULT_AVERAGE_POWER_W = 0.1
 DEFAULT_WAVELENGTH_NM = 1550.0
+#: Largest accepted beam divergence (1/e^2 half-angle), mrad: the Gaussian profile is defined in the
+#: tangent plane of the beam axis, a small-angle description.
+MAX_DIVERGENCE_MRAD = 100.0
 
 
 class PulsedLaser(mi.Emitter):
@@ -43,6 +46,20 @@ class PulsedLaser(mi.Emitter):
     Photons per pulse: ``N = pulse_energy_j / (h c / wavelength)``, with
     ``pulse_energy_j = average_power_w / repetition_rate_hz`` when the
     average power is given instead.
+
+    Beam divergence (``divergence_mrad`` = ``theta_0`` > 0): the photons leave
+    ``origin`` in the directions ``normalize(a + x e_1 + y e_2)``, with ``a`` the
+    beam axis (towards the scan point), ``e_1, e_2`` orthonormal and
+    perpendicular to it, and ``x, y`` independent normal variables of standard
+    deviation ``sigma = theta_0 / 2`` (rad): a Gaussian angular profile
+    ``I(theta) ~ exp(-2 theta^2 / theta_0^2)`` (small angles), ``theta_0``
+    its 1/e^2 half-angle. The spot is then a footprint of 1/e^2 radius about
+    ``|S - origin| tan(theta_0)`` (stretched by ``1 / cos`` of the incidence
+    angle along the plane of incidence). The NLOS estimator samples a beam
+    direction for every spot connection (unbiased) and integrates the
+    wall's own return over the footprint with a fixed quadrature (see
+    :mod:`transient_mi.integrators.transient_nlos_path`). 0 (default) is
+    the collimated beam: every photon at the one spot ``S``.
 
     .. list-table::
        :header-rows: 1
@@ -87,6 +104,10 @@ class PulsedLaser(mi.Emitter):
        * - ``wavelength_nm``
          - float
          - Vacuum wavelength, nm, > 0 (default 1550).
+       * - ``divergence_mrad``
+         - float
+         - Beam divergence: 1/e^2 half-angle ``theta_0`` of the Gaussian
+           angular profile, mrad, in [0, 100] (default 0: collimated).
     """
 
     NAME = "pulsed_laser"
@@ -138,6 +159,14 @@ class PulsedLaser(mi.Emitter):
             self.pulse_energy_j = p / self.repetition_rate_hz
         self.average_power_w = self.pulse_energy_j * self.repetition_rate_hz
         self.photons_per_pulse = self.pulse_energy_j / photon_energy_j(self.wavelength_nm)
+        self.divergence_mrad = get_float(props, name, "divergence_mrad", 0.0, min_value=0.0,
+                                         max_value=MAX_DIVERGENCE_MRAD)
+
+    @property
+    def beam_sigma_rad(self) -> float:
+        """Standard deviation (rad) of each tangent-plane component of the beam direction:
+        ``divergence_mrad / 2 * 1e-3``."""
+        return 0.5e-3 * self.divergence_mrad
 
     # ------------------------------------------------------------ queries
 
@@ -166,6 +195,7 @@ class PulsedLaser(mi.Emitter):
             "spots_x": self.spots_x,
             "spots_y": self.spots_y,
             "spot_spacing_m": self.spot_spacing_m,
+            **({"divergence_mrad": self.divergence_mrad} if self.divergence_mrad > 0 else {}),
         }
 
     # ---------------------------- Mitsuba interface: nothing to hit or sample

@@ -17,6 +17,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi.integrators._device_legs import beam_spot, trace_leg
 from transient_mi.integrators._lanes import to_mono
 from transient_mi.integrators._optical_path import segment_index
 
@@ -113,6 +114,18 @@ class KernelConstants:
     n_group_spots: "mi.UInt32"
     #: randomised QMC for the patch point and the first bounce (else PCG32 only)
     rqmc: bool = True
+    #: the scene has windows: the detector and laser legs are traced through them
+    #: (:func:`~transient_mi.integrators._device_legs.trace_leg`)
+    windows: bool = False
+    #: some non-wall shape is not hidden geometry (no smooth BSDF component): the MIS weight at the patch
+    #: point checks the BSDF of the vertex it reached
+    hidden_excludes: bool = False
+    #: the laser beam diverges: every spot connection samples a beam direction
+    #: (:func:`~transient_mi.integrators._device_legs.beam_spot`)
+    divergent: bool = False
+    #: standard deviation of each tangent-plane component of the beam direction, rad (``pulsed_laser``'s
+    #: ``beam_sigma_rad``; used when ``divergent``)
+    beam_sigma: object = None
 
     @classmethod
     def build(cls, setup, options: dict, *, seed: int, n_group: int) -> "KernelConstants":
@@ -124,6 +137,7 @@ class KernelConstants:
         max_depth = options.get("max_depth", -1)
         alpha = float(options.get("hidden_geometry_prob", 0.8)) if setup.hidden_shapes else 0.0
         center = setup.pixel_sampling == "center"
+        divergent = setup.laser.divergence_mrad > 0
         return cls(
             detector=_opt(setup.detector), patch_origin=_opt(c00), pitch_x=_ovec(fr.ex * setup.pitch_m),
             pitch_y=_ovec(fr.ey * setup.pitch_m), footprint_x=_ovec(fr.ex * setup.footprint_m),
@@ -140,9 +154,13 @@ class KernelConstants:
             patch_center_only=center,
             max_depth_static=UNLIMITED_DEPTH if max_depth == -1 else int(max_depth),
             confocal=confocal,
-            spot_is_wall_point=confocal and center,
+            spot_is_wall_point=confocal and center and not setup.windows and not divergent,
             n_group_spots=dr.opaque(mi.UInt32, n_group),
             rqmc=bool(options.get("rqmc", True)),
+            windows=setup.windows,
+            hidden_excludes=setup.hidden_excludes,
+            divergent=divergent,
+            beam_sigma=_of(setup.laser.beam_sigma_rad),
         )
 
 
@@ -153,7 +171,10 @@ class KernelScene:
     ``hidden_ptrs`` and ``hidden_distr``: the hidden shapes and the discrete distribution choosing one in
     proportion to its area (None without hidden geometry); ``wall_ptr``: the relay wall; ``group``: what a
     BSDF evaluation at each laser spot of the group needs (surface-interaction fields, shape and BSDF
-    pointers), None in confocal captures (each lane traces its own spot).
+    pointers), None in confocal captures (each lane traces its own spot). In scenes with windows the
+    laser legs are traced through them: the ``t`` entry then holds the leg's optical path length and an
+    11th entry its transmittance. With a divergent beam ``group`` holds only the beam axes (unit vectors
+    from the laser towards the spot targets): each connection samples its own spot.
     """
 
     hidden_ptrs: object
@@ -180,26 +201,37 @@ class KernelScene:
             Lo = setup.laser_origin
             d = tg - Lo
             d = d / np.linalg.norm(d, axis=1, keepdims=True)
+            if setup.laser.divergence_mrad > 0:
+                axes = mi.Vector3f(*[mi.Float(d[:, i]) for i in range(3)])
+                dr.eval(axes)
+                return cls(hidden_ptrs, distr, wall_ptr, (axes,))
             ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.full(len(tg), Lo[i])) for i in range(3)]),
                            mi.Vector3f(*[mi.Float(d[:, i]) for i in range(3)]))
-            si_g = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
+            if setup.windows:
+                si_g, thr_g, opl_g = trace_leg(scene, ray.o, ray.d)
+                si_g.t = opl_g  # what the record adds for the laser leg (first_last_factor * t)
+            else:
+                si_g = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
             # what a BSDF evaluation at the spot needs (gathered per connection: keep it small)
             group = (si_g.p, si_g.n, si_g.sh_frame.s, si_g.sh_frame.t, si_g.sh_frame.n, si_g.uv, si_g.wi,
                      si_g.t, si_g.shape, si_g.bsdf())
+            if setup.windows:
+                group = group + (thr_g,)
             dr.eval(*group)
         return cls(hidden_ptrs, distr, wall_ptr, group)
 
 
 @dr.syntax
 def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot, group, wall_ptr, ctx,
-                   visible=None, eta=None):
+                   visible=None, eta=None, rng=None):
     """Deterministic connection of vertex ``si`` to the laser spot(s) (next-event estimation).
 
     ``spot``: the lane's own spot ``(si_s, bsdf_s)`` (confocal), else ``group``
     holds the group's spots, connected one after another. ``visible``: the
     visibility when it is already known (confocal patch-centre captures).
     ``eta``: the relative refractive index the path is in at ``si`` (None: 1,
-    the relay wall's side; see :mod:`transient_mi.integrators._optical_path`).
+    the relay wall's side; see :mod:`transient_mi.integrators._optical_path`). ``rng``: the PCG32 streams
+    a divergent beam samples its directions from (``spot`` is then ``(axis,)`` and ``group`` ``(axes,)``).
     """
     bsdf = si.bsdf()
     active_nee = active & (depth + 2 <= c.max_depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
@@ -207,13 +239,24 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
         # spot and vertex on the same plane: cos(theta_S) = 0 exactly, nothing to connect
         active_nee &= si.shape != wall_ptr
     if dr.hint(group is None, mode="scalar"):  # the lane's own spot: no loop over a group
+        if dr.hint(c.divergent, mode="scalar"):
+            si_s, bsdf_s, thr_s = beam_spot(scene, c.laser_origin, c.beam_sigma, spot[0], rng, active_nee,
+                                              si.wavelengths)
+            _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, si_s, bsdf_s, mi.UInt32(0),
+                         ctx, visible, eta, thr_s)
+            return
         _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, spot[0], spot[1], mi.UInt32(0),
-                     ctx, visible, eta)
+                     ctx, visible, eta, spot[2] if c.windows else None)
         return
     b = mi.UInt32(0)
     while active_nee & (b < c.n_group_spots):
+        thr_s = None
         if dr.hint(group is None, mode="scalar"):
             si_s, bsdf_s = spot
+        elif dr.hint(c.divergent, mode="scalar"):
+            axis = dr.gather(mi.Vector3f, group[0], b, active_nee & (b < c.n_group_spots))
+            si_s, bsdf_s, thr_s = beam_spot(scene, c.laser_origin, c.beam_sigma, axis, rng,
+                                            active_nee & (b < c.n_group_spots), si.wavelengths)
         else:
             g_ok = active_nee & (b < c.n_group_spots)
             si_s = dr.zeros(mi.SurfaceInteraction3f)
@@ -228,13 +271,19 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
             si_s.shape = dr.gather(mi.ShapePtr, group[8], b, g_ok)
             si_s.wavelengths = si.wavelengths
             bsdf_s = dr.gather(mi.BSDFPtr, group[9], b, g_ok)
-        _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, si_s, bsdf_s, b, ctx, visible, eta)
+        if dr.hint(c.windows and not c.divergent, mode="scalar"):
+            thr_s = dr.gather(mi.Float, group[10], b, active_nee & (b < c.n_group_spots))
+        _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, si_s, bsdf_s, b, ctx, visible, eta,
+                     thr_s)
         b += 1
 
 
 def _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active, c, si_s, bsdf_s, sub, ctx, visible,
-                 eta=None):
-    """Connect vertex ``si`` to the spot ``si_s`` and record the contribution in sub-slot ``sub``."""
+                 eta=None, spot_weight=None):
+    """Connect vertex ``si`` to the spot ``si_s`` and record the contribution in sub-slot ``sub``.
+
+    ``spot_weight``: the laser leg's transmittance through windows (None: 1).
+    """
     spot_p = si_s.p
     to_s = spot_p - si.p
     dist_s = dr.norm(to_s)
@@ -246,6 +295,8 @@ def _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active, c, si_s, bs
         path_s = segment_index(bsdf, si, wo, eta, active) * dist_s
     i_s = bsdf_s.eval(ctx, si_s, si_s.to_local(-d_s), active)
     val = to_mono(beta * f_x * i_s, si.wavelengths) * (w0 / dr.square(dist_s))
+    if spot_weight is not None:
+        val = val * spot_weight
     ok = active & (val > 0) & si_s.is_valid()
     if visible is None:
         ok &= ~scene.ray_test(si.spawn_ray_to(spot_p), ok)
@@ -282,6 +333,8 @@ def _first_bounce(scene, si, active, u, rng, c, hidden_ptrs, distr, wall_ptr, ct
     si_next = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
     f_val, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ray.d), active)
     on_hidden = si_next.is_valid() & (si_next.shape != wall_ptr)
+    if dr.hint(c.hidden_excludes, mode="scalar"):  # shapes without a smooth component are not hidden geometry
+        on_hidden &= mi.has_flag(si_next.bsdf().flags(), mi.BSDFFlags.Smooth)
     cos_y = dr.abs(dr.dot(si_next.n, ray.d))
     dist2_y = dr.squared_norm(si_next.p - si.p)
     pdf_h = dr.select(on_hidden & (cos_y > 0), dist2_y / (cos_y * c.hidden_area_m2), 0.0)
@@ -321,8 +374,15 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
     spot = None
     if dr.hint(c.confocal, mode="scalar"):
         laser_ray = mi.Ray3f(c.laser_origin, dr.normalize(centre - c.laser_origin))
-        si_s = scene.ray_intersect(laser_ray, ray_flags=mi.RayFlags.All, coherent=True)
-        spot = (si_s, si_s.bsdf())
+        if dr.hint(c.divergent, mode="scalar"):  # every connection samples its spot around the axis
+            spot = (laser_ray.d,)
+        elif dr.hint(c.windows, mode="scalar"):
+            si_s, thr_s, opl_s = trace_leg(scene, laser_ray.o, laser_ray.d)
+            si_s.t = opl_s  # what the record adds for the laser leg
+            spot = (si_s, si_s.bsdf(), thr_s)
+        else:
+            si_s = scene.ray_intersect(laser_ray, ray_flags=mi.RayFlags.All, coherent=True)
+            spot = (si_s, si_s.bsdf())
 
     # ---- randomised QMC: an R_d sequence over the pixel's samples, shifted at random per pixel
     gen = [dr.opaque(mi.UInt32, g) for g in kronecker_generators()]
@@ -337,12 +397,18 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
             si_c = dr.detach(spot[0])  # the laser spot itself, seen from the detector
             to_c = si_c.p - c.detector
             si_c.wi = si_c.to_local(-dr.normalize(to_c))
+        elif dr.hint(c.windows, mode="scalar"):
+            si_c, thr_c, opl_leg_c = trace_leg(scene, c.detector, dr.normalize(centre - c.detector))
         else:
             si_c = scene.ray_intersect(mi.Ray3f(c.detector, dr.normalize(centre - c.detector)),
                                        ray_flags=mi.RayFlags.All, coherent=True)
         to_c = centre - c.detector
         w0_c = _sensor_weight(c, dr.normalize(to_c), dr.squared_norm(to_c))
-        opl_c = c.first_last_factor * dr.norm(si_c.p - c.detector)
+        if dr.hint(c.windows, mode="scalar"):
+            w0_c = w0_c * thr_c  # radiance through the windows: times their transmittance
+            opl_c = c.first_last_factor * opl_leg_c
+        else:
+            opl_c = c.first_last_factor * dr.norm(si_c.p - c.detector)
 
     j = mi.UInt32(dr.opaque(mi.UInt32, j0))
     j_end = dr.opaque(mi.UInt32, j1)
@@ -367,11 +433,17 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
             dist_q = dr.norm(to_q)
             d0 = to_q / dist_q
             w0 = _sensor_weight(c, d0, dr.square(dist_q))
-            si = scene.ray_intersect(mi.Ray3f(c.detector, d0), ray_flags=mi.RayFlags.All, coherent=True)
-            opl = c.first_last_factor * si.t
+            if dr.hint(c.windows, mode="scalar"):  # through the windows: transmittance and optical length
+                si, thr_d, opl_d = trace_leg(scene, c.detector, d0)
+                w0 = w0 * thr_d
+                opl = c.first_last_factor * opl_d
+            else:
+                si = scene.ray_intersect(mi.Ray3f(c.detector, d0), ray_flags=mi.RayFlags.All, coherent=True)
+                opl = c.first_last_factor * si.t
         active = si.is_valid()
         beta = mi.Spectrum(1.0)
-        _connect_spots(scene, hist, lane, si, beta, w0, opl, mi.Int32(1), active, c, spot, group, wall_ptr, ctx)
+        _connect_spots(scene, hist, lane, si, beta, w0, opl, mi.Int32(1), active, c, spot, group, wall_ptr, ctx,
+                       rng=rng)
 
         # ---- vertex 2 by one-sample MIS, then its spot connection (three-bounce light)
         active &= 5 <= c.max_depth + 1  # i.e. max_depth >= 4
@@ -382,10 +454,10 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
         if dr.hint(c.spot_is_wall_point, mode="scalar"):
             # the segment vertex 2 -> spot is the segment just traced from the spot: visible
             _connect_spots(scene, hist, lane, si2, beta, w0, opl, mi.Int32(2), active, c, spot, group, wall_ptr,
-                           ctx, visible=mi.Bool(True))
+                           ctx, visible=mi.Bool(True), rng=rng)
         else:
             _connect_spots(scene, hist, lane, si2, beta, w0, opl, mi.Int32(2), active, c, spot, group, wall_ptr,
-                           ctx)
+                           ctx, rng=rng)
 
         # ---- further vertices: BSDF sampling, spot connections, Russian roulette
         if dr.hint(deeper, mode="scalar"):
@@ -409,7 +481,7 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
                 beta[rr_active] *= dr.rcp(rr_prob)
                 active = active_next & si_next.is_valid() & (~rr_active | rr_continue) & (beta_max > 0)
                 _connect_spots(scene, hist, lane, si_next, beta, w0, opl, depth, active, c, spot, group, wall_ptr,
-                               ctx, eta=eta)
+                               ctx, eta=eta, rng=rng)
                 si = si_next
         j += 1
     return rng

@@ -125,6 +125,15 @@ class NLOSMedium:
             raise PluginParameterError(
                 f"{plugin}: include_first_last=false with the medium {mid!r}; NLOS captures through a medium "
                 "need include_first_last=true (light scattered before the wall has no wall-relative time)")
+        if setup.windows:
+            raise PluginParameterError(
+                f"{plugin}: the scene has a window (a shape with a purely delta-transmissive or null BSDF) and "
+                f"the medium {mid!r}; NLOS captures through a medium do not follow the device legs through "
+                "windows (render the window scene without the medium, with transient_nlos_path)")
+        if setup.laser.divergence_mrad > 0:
+            raise PluginParameterError(
+                f"pulsed_laser: divergence_mrad={setup.laser.divergence_mrad:g} with the medium {mid!r}; NLOS "
+                "captures through a medium need a collimated beam (divergence_mrad=0)")
         mei = dr.zeros(mi.MediumInteraction3f, 1)
         sig_s, _, sig_t = medium.get_scattering_coefficients(mei)
         st = np.asarray(mi.unpolarized_spectrum(sig_t), dtype=np.float64).ravel()

@@ -240,16 +240,20 @@ def _render_replicate(setup: "NLOSSetup", scene, film, options: dict, *, seed: i
         if progress is not None:
             progress(min(total, layout.n_pixels * min(spp, j1 * K)), total)
 
-    # closed-form first-bounce return of the wall (weighted by spp: collect() divides by it)
+    # closed-form first-bounce return of the wall (weighted by spp: collect() divides by it); a divergent
+    # beam's footprint has M entries per spot (arrays [n_spots, M], flattened here)
     wr = setup.wall_return if fog is None else fog.wall_return(setup)
     all_spots = np.arange(setup.n_spots) if confocal else np.array(spots)
     sub = np.zeros(len(all_spots), dtype=np.uint32) if confocal else np.arange(G, dtype=np.uint32)
     pix = wr["pixel"][all_spots]
-    sel = (pix >= 0) & (wr["photons"][all_spots] > 0)
+    sub = np.broadcast_to(sub.reshape((-1,) + (1,) * (pix.ndim - 1)), pix.shape).reshape(-1)
+    pix = pix.reshape(-1)
+    photons = wr["photons"][all_spots].reshape(-1)
+    sel = (pix >= 0) & (photons > 0)
     if sel.any():
-        ph = wr["photons"][all_spots][sel] / setup.photons_per_pulse  # N is applied below
+        ph = photons[sel] / setup.photons_per_pulse  # N is applied below
         lanes = mi.UInt32((pix[sel] * K).astype(np.uint32))
-        hist.record(lanes, mi.Float(wr["opl_m"][all_spots][sel]), mi.Float(ph * spp), mi.Bool(True),
+        hist.record(lanes, mi.Float(wr["opl_m"][all_spots].reshape(-1)[sel]), mi.Float(ph * spp), mi.Bool(True),
                     sub=mi.UInt32(sub[sel]))
         hist.evaluate()
 

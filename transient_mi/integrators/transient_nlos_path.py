@@ -15,6 +15,8 @@ by job:
   their histograms (:func:`~transient_mi.integrators._nlos_render.render_spots`);
 * :mod:`transient_mi.integrators._nlos_kernel`: the Dr.Jit kernel (patch
   point, spot connections, one-sample MIS, randomised QMC);
+* :mod:`transient_mi.integrators._device_legs`: the device legs (laser ->
+  spot, detector -> patch) through windows, and divergent-beam spots;
 * this module: the plug-in, its parameters and the render call.
 
 Radiometry (what one bin of an ideal capture holds)
@@ -30,6 +32,10 @@ All quantities are per laser pulse; distances in metres.
    ``I(w) = N f_s(S; w_L, w) cos(theta_S(w))``, with ``f_s`` the wall's
    BSDF (1/sr) and ``w_L`` the direction back to the laser. (Mitsuba's
    ``bsdf.eval`` with ``si.wi`` towards the laser returns ``f_s cos``.)
+   Through windows (below) ``T_L N`` photons arrive and ``w_L`` is the
+   refracted beam's direction; a divergent beam (``pulsed_laser``
+   ``divergence_mrad``) spreads the ``N`` photons over a footprint of spots
+   ``S(w)``, ``w`` distributed like the beam's angular profile.
 3. A surface point ``X`` with normal ``n_X`` receives the irradiance (photons
    per m^2) ``E(X) = I(w_SX) cos(theta_X) / |S - X|^2`` (if ``S`` and ``X``
    see each other) and scatters radiance
@@ -43,23 +49,46 @@ All quantities are per laser pulse; distances in metres.
    the array's ``target``, which subtends the solid angle
    ``A_ap cos(theta_ap) / |p - D|^2``. The ideal capture is
    ``Phi_k = int_{A_k} L(p, w_pD) cos(theta_p) A_ap cos(theta_ap) / |p - D|^2 dA_p``
-   (photons), resolved by arrival time.
+   (photons), resolved by arrival time. Through windows the pixel keeps its
+   cone of directions and the radiance arriving at ``D`` is ``T_D`` times the
+   radiance leaving the (displaced) wall point along the refracted ray.
 5. Arrival time: the optical path length of the whole path divided by c,
    time zero being the pulse leaving the laser. With
    ``include_first_last=false`` the first (``|L - S|``) and last
    (``|p - D|``) segments are left out of the recorded path length (the
-   actual sampled segments).
+   actual sampled segments); through windows these two legs count with their
+   optical path length ``sum_i n_i d_i``.
 6. The wall's own first-bounce return (``L -> S -> D``) is a delta in space
    and time: the pixel whose patch contains ``S`` receives
    ``N f_s(S; w_L, w_SD) cos(theta_S) A_ap cos(theta_ap) / |S - D|^2``
    photons at path length ``|L - S| + |S - D|`` (0 without first/last),
    added in closed form (no sampling noise); ``include_wall_return=false``
-   leaves it out.
+   leaves it out. Through windows: ``N T_L T_D f_s cos(theta_S) A_ap
+   cos(theta_ap) / (cos(theta_S) J)`` with ``J`` the wall area per solid
+   angle at ``D`` along the refracted leg (``|S - D|^2 / cos(theta_S)``
+   without window), in the pixel whose cone of directions holds that leg, at
+   the legs' optical path length. A divergent beam's return is integrated
+   over its footprint by a fixed 64 x 64 quadrature of beam directions
+   (energy and width exact, see :mod:`transient_mi.sensors._nlos_setup`).
 
 Estimator (unbiased)
 --------------------
 Per sample, for the lane's pixel ``k`` (and its laser spot ``S``: the
 array's current spot, or in confocal mode the spot on patch ``k``):
+
+* **Device legs through windows.** A *window* is a shape whose BSDF has no
+  smooth component and transmits (``dielectric``, ``thindielectric``,
+  ``null``). The detector ray ``D -> q`` and the laser ray ``L -> S`` follow
+  the transmitted branch of every window they meet (up to 8 interfaces) to
+  the first smooth surface, deterministically: Snell refraction, the leg's
+  weight times the Fresnel transmittance of each interface (a
+  ``thindielectric``'s total transmittance), its optical path ``n_i d_i``
+  per segment (:mod:`transient_mi.integrators._device_legs`). Reflections
+  at the windows (ghosts, relative amplitude ~``R^2``) are not rendered.
+  Scenes without windows compile none of this (same bytes as before).
+* **Divergent beam.** With ``divergence_mrad > 0`` every spot connection
+  samples its own beam direction (PCG32) and connects to the spot it hits:
+  an unbiased estimate of the footprint's light.
 
 * **Patch sampling.** ``q`` uniform on the planar square patch (pdf
   ``1/A_pix``); ``p`` = first surface hit of the ray ``D -> q``. In the
@@ -106,11 +135,16 @@ array's current spot, or in confocal mode the spot on patch ``k``):
 * **Patch centres only** (``pixel_sampling="center"``): the wall point is
   the patch centre (the point approximation of mitransient/y-tal); in
   confocal captures it is the laser spot itself, so the segment back to
-  the spot is the one just traced and needs no shadow ray.
+  the spot is the one just traced and needs no shadow ray (not through
+  windows or with a divergent beam: there the spot is traced on its own).
 
-The *relay wall* is the shape hit by the ray from the detector to the
-array's ``target``; *hidden geometry* is every other shape. Other emitters
-of the scene are ignored: only the laser lights an NLOS capture.
+The *relay wall* is the shape hit by the ray (through windows) from the
+detector to the array's ``target``; *hidden geometry* is every other shape
+with a smooth BSDF component (a shape with only delta lobes, a window or a
+mirror, contributes nothing to a spot connection, so sampling points on it
+would only waste samples: it is left out of hidden-geometry sampling and of
+the MIS weight). Other emitters of the scene are ignored: only the laser
+lights an NLOS capture.
 
 Fog: a ``spad_array`` with a sensor medium is refused here (and by
 ``transient_path``) in one line; ``transient_volpath`` renders it, with this

@@ -11,13 +11,42 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from statistics import NormalDist
 
 import mitsuba as mi
 import numpy as np
 
+from transient_mi.integrators import _device_legs as legs
 from transient_mi.integrators._lanes import to_mono
 from transient_mi.props import PluginParameterError
 from transient_mi.wall import WallFrame, ray_plane_point
+
+
+#: Beam directions per axis of the footprint quadrature of a divergent laser (``BEAM_NODES_PER_AXIS^2`` per
+#: spot, see :func:`beam_nodes`).
+BEAM_NODES_PER_AXIS = 64
+#: Spots whose footprint quadrature is evaluated together (bounds the memory: 256 x 4096 legs, ~0.5 GB).
+FOOTPRINT_SPOTS_PER_CHUNK = 256
+
+
+def beam_nodes(k: int = BEAM_NODES_PER_AXIS) -> np.ndarray:
+    """Standard-normal quadrature nodes ``x_i = Phi^-1((i + 1/2) / k) / s`` (``k`` of them, equal weights).
+
+    ``s = sqrt(mean(Phi^-1((i + 1/2) / k)^2))`` rescales the midpoint rule so that the nodes' variance is
+    exactly 1 (the plain midpoint rule truncates the tails: variance 0.980 for ``k = 64``): the product grid
+    ``(x_i, x_j)`` keeps the beam's energy and its second moments (the footprint width) exact.
+    """
+    nd = NormalDist()
+    x = np.array([nd.inv_cdf((i + 0.5) / k) for i in range(k)])
+    return x / math.sqrt(float(np.mean(x ** 2)))
+
+
+def _perpendicular_frame(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vectors ``e1, e2`` ``[n, 3]`` perpendicular to the unit vectors ``a`` ``[n, 3]`` and to each other."""
+    helper = np.where(np.abs(a[:, 2:3]) < 0.9, np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]]))
+    e1 = np.cross(a, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return e1, np.cross(a, e1)
 
 
 def _fmt(p) -> str:
@@ -83,6 +112,15 @@ class NLOSSetup:
     hidden_area_m2: float
     planar_wall: bool = False
     pixel_sampling: str = "area"
+    #: the scene has windows (delta-transmissive shapes, see :mod:`transient_mi.integrators._device_legs`):
+    #: the device legs are traced through them
+    windows: bool = False
+    #: some non-wall shape has no smooth BSDF component (a window, a mirror): it is not hidden geometry
+    hidden_excludes: bool = False
+    #: with windows: optical path lengths (m) of the laser legs ``L -> S`` (n_spots,) and of the detector
+    #: legs ``D -> patch centre`` (height, width), recorded in the manifest for reconstruction
+    spot_leg_opl_m: np.ndarray | None = None
+    pixel_leg_opl_m: np.ndarray | None = None
     wall_return: dict = field(default_factory=dict)
 
     @property
@@ -119,7 +157,8 @@ class NLOSSetup:
         pitch = sensor.pixel_pitch_m
 
         # ---- relay wall: the shape hit at the array's target
-        si_t = _intersect(scene, D[None], (sensor.target - D)[None])
+        windows = bool(legs.window_shapes(scene))  # device legs then run through them (_device_legs)
+        si_t = _intersect(scene, D[None], (sensor.target - D)[None], windows)
         if not bool(si_t["valid"][0]):
             raise PluginParameterError(
                 f"{name}: the ray from origin={_fmt(D)} to target={_fmt(sensor.target)} hits no surface; "
@@ -146,7 +185,7 @@ class NLOSSetup:
 
         # ---- patches must lie on the relay wall: test every patch corner
         corners = frame.grid_corners(W, H, pitch, shrink=1e-4, cell=fp).reshape(-1, 3)
-        hit = _intersect(scene, np.broadcast_to(D, corners.shape), corners - D)
+        hit = _intersect(scene, np.broadcast_to(D, corners.shape), corners - D, windows)
         on_wall = hit["valid"] & _same_shape(hit["shape"], wall)
         if not on_wall.all():
             bad = int(np.argmin(on_wall)) // 4
@@ -164,7 +203,7 @@ class NLOSSetup:
                 f"{_fmt(sensor.target)}) is larger than the relay wall: the patch of pixel (x={ix}, y={iy}) "
                 "extends beyond it; use fewer pixels or a smaller pixel_pitch_m/pixel_footprint_m")
         centers_plane = frame.grid(W, H, pitch).reshape(-1, 3)
-        hc = _intersect(scene, np.broadcast_to(D, centers_plane.shape), centers_plane - D)
+        hc = _intersect(scene, np.broadcast_to(D, centers_plane.shape), centers_plane - D, windows)
         pixel_centers = hc["p"].reshape(H, W, 3)
         pixel_normals = hc["n"].reshape(H, W, 3)
 
@@ -176,7 +215,7 @@ class NLOSSetup:
             spot_targets = laser.spot_targets()
             spot_grid = (laser.spots_y, laser.spots_x)
         Lo = laser.origin
-        hs = _intersect(scene, np.broadcast_to(Lo, spot_targets.shape), spot_targets - Lo)
+        hs = _intersect(scene, np.broadcast_to(Lo, spot_targets.shape), spot_targets - Lo, windows)
         ok = hs["valid"] & _same_shape(hs["shape"], wall)
         if not ok.all():
             j = int(np.argmin(ok))
@@ -192,7 +231,11 @@ class NLOSSetup:
         aperture_normal = sensor.target - D
         aperture_normal = aperture_normal / np.linalg.norm(aperture_normal)
         wall_size = _extent_in_frame(wall, frame)
-        hidden = [s for s in scene.shapes() if not _is(s, wall)]
+        # hidden geometry: every other shape that a spot connection can reach (a smooth BSDF component);
+        # a shape with only delta lobes (a window, a mirror) contributes nothing to a connection, so
+        # sampling points on it would only waste samples
+        others = [s for s in scene.shapes() if not _is(s, wall)]
+        hidden = [s for s in others if legs.has_smooth_component(s.bsdf())]
         hidden_area = float(sum(float(s.surface_area()[0]) for s in hidden))
 
         setup = cls(
@@ -206,21 +249,65 @@ class NLOSSetup:
             pixel_centers=pixel_centers, pixel_normals=pixel_normals, wall_size_m=wall_size,
             relay_wall=wall, hidden_shapes=hidden, hidden_area_m2=hidden_area,
             planar_wall=bool(thick <= 1e-6 * max(1.0, max(wall_size))),
-            pixel_sampling=sensor.pixel_sampling,
+            pixel_sampling=sensor.pixel_sampling, windows=windows, hidden_excludes=len(hidden) < len(others),
+            spot_leg_opl_m=hs["opl_m"] if windows else None,
+            pixel_leg_opl_m=hc["opl_m"].reshape(H, W) if windows else None,
         )
         setup.wall_return = setup._wall_return(scene, hs)
         return setup
 
     def _wall_return(self, scene, hs) -> dict:
-        """Closed-form first-bounce return ``L -> S -> D`` for every spot (photons per pulse)."""
-        S = self.spots
+        """Closed-form first-bounce return ``L -> S -> D`` for every spot (photons per pulse).
+
+        Arrays ``pixel``, ``photons``, ``opl_m`` of shape ``(n_spots,)``; with a divergent beam
+        ``(n_spots, M)``: the footprint integrated by the ``M = BEAM_NODES_PER_AXIS^2`` beam directions of
+        :meth:`beam_directions`, each carrying ``N / M`` photons to its own point of the wall.
+        """
+        n = self.n_spots
+        if self.laser.divergence_mrad > 0:
+            parts = [self._footprint_return(scene, j0, min(n, j0 + FOOTPRINT_SPOTS_PER_CHUNK))
+                     for j0 in range(0, n, FOOTPRINT_SPOTS_PER_CHUNK)]
+            return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        return (self._wall_return_windows if self.windows else self._wall_return_points)(scene, hs, np.arange(n))
+
+    def _footprint_return(self, scene, j0: int, j1: int) -> dict:
+        """The divergent beam's wall return of spots ``[j0, j1)``: arrays ``[j1 - j0, M]``."""
+        dirs = self.beam_directions(j0, j1)  # [n, M, 3]
+        n, M = dirs.shape[:2]
+        Lo = self.laser_origin
+        sub = legs.trace_legs_np(scene, np.broadcast_to(Lo, (n * M, 3)), dirs.reshape(-1, 3))
+        spot_of = np.repeat(np.arange(j0, j1), M)
+        wr = (self._wall_return_windows if self.windows else self._wall_return_points)(scene, sub, spot_of)
+        on_wall = sub["valid"] & _same_shape(sub["shape"], self.relay_wall) & (sub["throughput"] > 0)
+        wr["photons"] = np.where(on_wall, wr["photons"] / M, 0.0)
+        return {k: v.reshape(n, M) for k, v in wr.items()}
+
+    def beam_directions(self, j0: int = 0, j1: int | None = None) -> np.ndarray:
+        """The divergent beam's quadrature directions ``[n, M, 3]`` of spots ``[j0, j1)`` (default all; unit
+        vectors from the laser).
+
+        ``normalize(a + sigma (x_i e1 + x_j e2))`` over the product grid of :func:`beam_nodes`, with ``a``
+        the axis towards each spot target and ``sigma`` the laser's ``beam_sigma_rad``.
+        """
+        a = self.spot_targets[j0:j1] - self.laser_origin
+        a = a / np.linalg.norm(a, axis=1, keepdims=True)
+        e1, e2 = _perpendicular_frame(a)
+        x = beam_nodes()
+        gx, gy = np.meshgrid(x, x, indexing="ij")
+        s = self.laser.beam_sigma_rad
+        d = a[:, None, :] + s * (gx.reshape(1, -1, 1) * e1[:, None, :] + gy.reshape(1, -1, 1) * e2[:, None, :])
+        return d / np.linalg.norm(d, axis=2, keepdims=True)
+
+    def _wall_return_points(self, scene, hs, spot_of) -> dict:
+        """:meth:`_wall_return` without windows, for the wall points ``hs["p"]`` lit by spot ``spot_of``."""
+        S = hs["p"]
         n = len(S)
         D = self.detector
         ix, iy, inside = self.frame.cell_of(ray_plane_point(D, S, self.frame), self.width, self.height,
                                             self.pitch_m, cell=self.footprint_m)
         pixel = np.where(inside, iy * self.width + ix, -1)
         if self.capture == "confocal":  # pixel k is recorded with spot k only
-            pixel = np.where(pixel == np.arange(n), pixel, -1)
+            pixel = np.where(pixel == spot_of, pixel, -1)
         # f_s(S; w_L, w_SD) cos, evaluated by Mitsuba on the spot's surface interaction
         Lo = self.laser_origin
         d = S - Lo
@@ -240,6 +327,43 @@ class NLOSSetup:
         photons = self.photons_per_pulse * f * self.aperture_area_m2 * cos_ap / dist ** 2
         photons = np.where(vis & (pixel >= 0) & self.include_wall_return, photons, 0.0)
         opl = (np.linalg.norm(d, axis=1) + dist) if self.include_first_last else np.zeros(n)
+        return {"pixel": pixel.astype(np.int64), "photons": photons, "opl_m": opl}
+
+    def _wall_return_windows(self, scene, hs, spot_of) -> dict:
+        """:meth:`_wall_return` through windows: the legs ``L -> S`` and ``S -> D`` refract at every window.
+
+        The detector direction that sees ``S`` is found by :func:`~transient_mi.integrators._device_legs.
+        aim_through_windows`; the pixel is the one whose cone of directions holds it; the photons are
+        ``N T_L T_D f_s cos(theta_S) A_ap cos(theta_ap) / (cos(theta_S) J)`` with ``J = dA_S / dOmega_D``
+        of the detector leg (:func:`~transient_mi.integrators._device_legs.leg_jacobian`); the path length
+        is the legs' optical lengths.
+        """
+        S = hs["p"]
+        n = len(S)
+        D = self.detector
+        w, residual = legs.aim_through_windows(scene, D, S)
+        ix, iy, inside = self.frame.cell_of(ray_plane_point(D, D + w, self.frame), self.width, self.height,
+                                            self.pitch_m, cell=self.footprint_m)
+        pixel = np.where(inside, iy * self.width + ix, -1)
+        if self.capture == "confocal":
+            pixel = np.where(pixel == spot_of, pixel, -1)
+        det = legs.trace_legs_np(scene, np.broadcast_to(D, w.shape), w)
+        si = hs["si"]
+        # leaving S along the detector leg's last segment (towards the window): its ``wi``
+        out_w = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in det["si"].to_world(det["si"].wi)],
+                         axis=1)
+        wo = si.to_local(mi.Vector3f(*[mi.Float(c) for c in out_w.T]))
+        f_cos = np.asarray(to_mono(si.bsdf().eval(mi.BSDFContext(), si, wo), si.wavelengths).numpy(),
+                           dtype=np.float64)
+        cos_s = np.abs(np.sum(out_w * hs["n"], axis=1))
+        J = legs.leg_jacobian(scene, D, w)
+        vis = det["valid"] & _same_shape(det["shape"], self.relay_wall) & (residual <= 1e-5) & (J > 0)
+        cos_ap = np.clip(w @ self.aperture_normal, 0.0, None)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            photons = (self.photons_per_pulse * hs["throughput"] * det["throughput"] * f_cos * self.aperture_area_m2
+                       * cos_ap / (cos_s * J))
+        photons = np.where(vis & (pixel >= 0) & (cos_s > 0) & self.include_wall_return, photons, 0.0)
+        opl = (hs["opl_m"] + det["opl_m"]) if self.include_first_last else np.zeros(n)
         return {"pixel": pixel.astype(np.int64), "photons": photons, "opl_m": opl}
 
     # ------------------------------------------------------------- manifest
@@ -265,14 +389,24 @@ class NLOSSetup:
             "pixel_sampling": self.pixel_sampling,
             "relay_wall": self.relay_wall.id(),
             "hidden_area_m2": self.hidden_area_m2,
+            # through windows: the legs' optical path lengths (the first/last segments a reconstruction
+            # subtracts; without windows they are the distances to laser_origin / detector_origin)
+            **({"spot_leg_opl_m": self.spot_leg_opl_m.tolist(), "pixel_leg_opl_m": self.pixel_leg_opl_m.tolist()}
+               if self.windows else {}),
         }
 
 
 # ---------------------------------------------------------------------- helpers
 
 
-def _intersect(scene, origins, directions) -> dict:
-    """Intersect rays (numpy ``[n, 3]``) with the scene; returns numpy fields and shape pointers."""
+def _intersect(scene, origins, directions, windows: bool = False) -> dict:
+    """Intersect rays (numpy ``[n, 3]``) with the scene; returns numpy fields and shape pointers.
+
+    ``windows``: follow the rays through the scene's windows (device legs,
+    :func:`~transient_mi.integrators._device_legs.trace_legs_np`; adds ``throughput``, ``opl_m``, ``si``).
+    """
+    if windows:
+        return legs.trace_legs_np(scene, origins, directions)
     o = np.asarray(origins, dtype=np.float64)
     d = np.asarray(directions, dtype=np.float64)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)

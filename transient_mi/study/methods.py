@@ -59,19 +59,21 @@ def scene_ground_truth(scene) -> object:
 
     Loads the scene with Mitsuba (its ``-D`` values applied) and joins the
     world-space triangles of every shape that is a mesh (Mitsuba's
-    rectangles, discs and PLY/OBJ shapes are) other than the relay wall.
+    rectangles, discs and PLY/OBJ shapes are) other than the relay wall and windows
+    (:func:`transient_mi.integrators._device_legs.is_window_bsdf`: a glass pane in front of the device).
     """
     import transient_mi  # noqa: F401  (sets the variant before mitsuba is used)
     import mitsuba as mi
     import trimesh
 
     from recon.metrics import GroundTruth
+    from transient_mi.integrators._device_legs import is_window_bsdf
     from transient_mi.scene_io import load_scene
 
     sc = load_scene(scene.path, scene.defines)
     parts = []
     for shape in sc.shapes():
-        if shape.id() == "relay_wall" or not isinstance(shape, mi.Mesh):
+        if shape.id() == "relay_wall" or not isinstance(shape, mi.Mesh) or is_window_bsdf(shape.bsdf()):
             continue
         v = np.array(shape.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
         f = np.array(shape.faces_buffer(), dtype=np.int64).reshape(-1, 3)
