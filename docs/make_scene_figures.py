@@ -36,10 +36,12 @@ FIGURES = {
     "glass_window_nlos": ("scenes/glass_window_nlos.xml", ["--seed", "1", "-D", "spots_x=1", "-D", "spots_y=1"]),
     "fog_nlos": ("scenes/fog_nlos.xml", ["--seed", "1", "-D", "spots_x=1", "-D", "spots_y=1"]),
 }
-#: NLOS figures: (label with the effect, label without, -D arguments that remove the effect)
+#: NLOS figures: (label with the effect, label without, -D arguments that remove the effect, histogram
+#: drawn with the wall return (log scale) or without it (linear, the hidden object's return))
 COMPARE = {
-    "glass_window_nlos": ("through the glass window", "no window", ["-D", "window_thickness_m=0"]),
-    "fog_nlos": ("in fog (sigma_t 0.2 /m, albedo 0.9)", "clear air", ["-D", "sigma_t=1e-9"]),
+    "glass_window_nlos": ("through the 1 cm glass pane", "index-matched pane (window_ior=1: no window)",
+                          ["-D", "window_ior=1"], False),
+    "fog_nlos": ("in fog (sigma_t 0.2 /m, albedo 0.9)", "clear air", ["-D", "sigma_t=1e-9"], True),
 }
 
 
@@ -56,8 +58,10 @@ def _render(scene: str, out: Path, extra: list[str]) -> Path:
     return out
 
 
-def compare_figure(dest: Path, with_effect: Path, without: Path, labels: tuple[str, str], title: str) -> None:
-    """Pixel-summed histogram of spot 0 with and without the effect (log scale), and the image with it."""
+def compare_figure(dest: Path, with_effect: Path, without: Path, labels: tuple[str, str], title: str,
+                   log: bool = True) -> None:
+    """Pixel-summed histogram of spot 0 with and without the effect (``log``: all of it on a log scale, else
+    the hidden object's return on a linear scale, wall return excluded), and the image with the effect."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -74,16 +78,24 @@ def compare_figure(dest: Path, with_effect: Path, without: Path, labels: tuple[s
         h = stack.intensity(stack.read_spot(d, 0, m), m).astype(np.float64)
         t = m["time"]
         t_ns = (t["t0_ps"] + (np.arange(t["n_bins"]) + 0.5) * t["bin_width_ps"]) / 1000.0
-        ax.semilogy(t_ns, np.maximum(h.sum(axis=(0, 1)), 1e-30), color=colour, lw=0.9, label=label)
+        h_hidden = np.where(wall_return_mask(m, 0, h.shape), 0.0, h)
+        if log:
+            ax.semilogy(t_ns, np.maximum(h.sum(axis=(0, 1)), 1e-30), color=colour, lw=0.9, label=label)
+        else:
+            prof = h_hidden.sum(axis=(0, 1))
+            ax.plot(t_ns, prof, color=colour, lw=0.9, label=label, drawstyle="steps-mid")
+            on = np.flatnonzero(prof > 0.01 * prof.max())
+            ax.set_xlim(t_ns[on[0]] - 0.3, t_ns[on[-1]] + 0.3)  # the hidden object's return
         if d == with_effect:
-            hidden = np.where(wall_return_mask(m, 0, h.shape), 0.0, h).sum(axis=-1)
+            hidden = h_hidden.sum(axis=-1)
             im = ax_img.imshow(hidden, origin="lower", cmap="viridis")
             fig.colorbar(im, ax=ax_img, fraction=0.046)
             ax_img.set_title(f"photons/pulse, {labels[0]}\n(wall return excluded)", fontsize=9)
             top = h.sum(axis=(0, 1)).max()
-    ax.set_ylim(top * 1e-7, top * 3)
+    if log:
+        ax.set_ylim(top * 1e-7, top * 3)
     ax.set_xlabel("time since the pulse left the laser (ns)")
-    ax.set_ylabel("photons per pulse per bin,\nsummed over pixels")
+    ax.set_ylabel("photons per pulse per bin,\nsummed over pixels" + ("" if log else "\n(wall return excluded)"))
     ax.set_title(title, fontsize=10)
     ax.legend(loc="upper right", fontsize=9)
     fig.tight_layout()
@@ -97,9 +109,9 @@ def render_figure(name: str, work: Path) -> Path:
     if name not in COMPARE:
         shutil.copyfile(out / "preview.png", dest)
     else:
-        lab_with, lab_without, remove = COMPARE[name]
+        lab_with, lab_without, remove, log = COMPARE[name]
         ref = _render(scene, work / f"{name}_without", extra + remove)
-        compare_figure(dest, out, ref, (lab_with, lab_without), f"{scene}: laser spot 0, every pixel")
+        compare_figure(dest, out, ref, (lab_with, lab_without), f"{scene}: laser spot 0, every pixel", log=log)
     print("wrote", dest.relative_to(ROOT), flush=True)
     return dest
 
