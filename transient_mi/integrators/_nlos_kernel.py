@@ -221,6 +221,23 @@ class KernelScene:
         return cls(hidden_ptrs, distr, wall_ptr, group)
 
 
+def gather_spot(group, b, active, wavelengths) -> list:
+    """``[si_s, bsdf_s]``: the surface interaction at the group's laser spot ``b`` (the fields a BSDF
+    evaluation needs, from :class:`KernelScene`'s ``group``) and its BSDF."""
+    si_s = dr.zeros(mi.SurfaceInteraction3f)
+    si_s.p = dr.gather(mi.Point3f, group[0], b, active)
+    si_s.n = dr.gather(mi.Normal3f, group[1], b, active)
+    si_s.sh_frame = mi.Frame3f(dr.gather(mi.Vector3f, group[2], b, active),
+                               dr.gather(mi.Vector3f, group[3], b, active),
+                               dr.gather(mi.Normal3f, group[4], b, active))
+    si_s.uv = dr.gather(mi.Point2f, group[5], b, active)
+    si_s.wi = dr.gather(mi.Vector3f, group[6], b, active)
+    si_s.t = dr.gather(mi.Float, group[7], b, active)
+    si_s.shape = dr.gather(mi.ShapePtr, group[8], b, active)
+    si_s.wavelengths = wavelengths
+    return [si_s, dr.gather(mi.BSDFPtr, group[9], b, active)]
+
+
 @dr.syntax
 def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot, group, wall_ptr, ctx,
                    visible=None, eta=None, rng=None):
@@ -258,19 +275,9 @@ def _connect_spots(scene, hist, lane, si, beta, w0, opl, depth, active, c, spot,
             si_s, bsdf_s, thr_s = beam_spot(scene, c.laser_origin, c.beam_sigma, axis, rng,
                                             active_nee & (b < c.n_group_spots), si.wavelengths)
         else:
-            g_ok = active_nee & (b < c.n_group_spots)
-            si_s = dr.zeros(mi.SurfaceInteraction3f)
-            si_s.p = dr.gather(mi.Point3f, group[0], b, g_ok)
-            si_s.n = dr.gather(mi.Normal3f, group[1], b, g_ok)
-            si_s.sh_frame = mi.Frame3f(dr.gather(mi.Vector3f, group[2], b, g_ok),
-                                       dr.gather(mi.Vector3f, group[3], b, g_ok),
-                                       dr.gather(mi.Normal3f, group[4], b, g_ok))
-            si_s.uv = dr.gather(mi.Point2f, group[5], b, g_ok)
-            si_s.wi = dr.gather(mi.Vector3f, group[6], b, g_ok)
-            si_s.t = dr.gather(mi.Float, group[7], b, g_ok)
-            si_s.shape = dr.gather(mi.ShapePtr, group[8], b, g_ok)
-            si_s.wavelengths = si.wavelengths
-            bsdf_s = dr.gather(mi.BSDFPtr, group[9], b, g_ok)
+            spot_b = gather_spot(group, b, active_nee & (b < c.n_group_spots), si.wavelengths)
+            si_s = spot_b[0]
+            bsdf_s = spot_b[1]
         if dr.hint(c.windows and not c.divergent, mode="scalar"):
             thr_s = dr.gather(mi.Float, group[10], b, active_nee & (b < c.n_group_spots))
         _connect_one(scene, hist, lane, si, bsdf, beta, w0, opl, active_nee, c, si_s, bsdf_s, b, ctx, visible, eta,

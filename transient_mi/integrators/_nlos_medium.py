@@ -78,7 +78,8 @@ import mitsuba as mi
 import numpy as np
 
 from transient_mi.integrators._lanes import to_mono
-from transient_mi.integrators._nlos_kernel import QMC_DIMS, _first_bounce, _of, _sensor_weight, kronecker_generators
+from transient_mi.integrators._nlos_kernel import (QMC_DIMS, _first_bounce, _of, _sensor_weight, gather_spot,
+                                                   kronecker_generators)
 from transient_mi.integrators._optical_path import segment_index
 from transient_mi.props import PluginParameterError
 
@@ -264,19 +265,9 @@ def _connect(scene, hist, lane, si, med, xm, wim, beta, w0, opl, depth, active, 
         return
     b = mi.UInt32(0)
     while active_nee & (b < c.n_group_spots):
-        g_ok = active_nee & (b < c.n_group_spots)
-        si_s = dr.zeros(mi.SurfaceInteraction3f)
-        si_s.p = dr.gather(mi.Point3f, group[0], b, g_ok)
-        si_s.n = dr.gather(mi.Normal3f, group[1], b, g_ok)
-        si_s.sh_frame = mi.Frame3f(dr.gather(mi.Vector3f, group[2], b, g_ok),
-                                   dr.gather(mi.Vector3f, group[3], b, g_ok),
-                                   dr.gather(mi.Normal3f, group[4], b, g_ok))
-        si_s.uv = dr.gather(mi.Point2f, group[5], b, g_ok)
-        si_s.wi = dr.gather(mi.Vector3f, group[6], b, g_ok)
-        si_s.t = dr.gather(mi.Float, group[7], b, g_ok)
-        si_s.shape = dr.gather(mi.ShapePtr, group[8], b, g_ok)
-        si_s.wavelengths = si.wavelengths
-        bsdf_s = dr.gather(mi.BSDFPtr, group[9], b, g_ok)
+        spot_b = gather_spot(group, b, active_nee & (b < c.n_group_spots), si.wavelengths)
+        si_s = spot_b[0]
+        bsdf_s = spot_b[1]
         _connect_one(scene, hist, lane, si, bsdf, med, xm, wim, beta, w0, opl, active_nee, c, mc, si_s, bsdf_s,
                      b, rng_m.next_float32(), wall_ptr, ctx, eta)
         b += 1
