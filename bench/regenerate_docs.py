@@ -219,6 +219,30 @@ def volpath_para(R) -> str:
             f"{100 * r['goal_ratio']:.0f} %). {provenance(rec)}\n")
 
 
+def volpath_mitransient_para(R) -> str:
+    rec = R("volpath_mitransient")
+    r = rec["result"]
+    e, x = r["efficiency"], r["cross_check"]
+    o, m = e["transient-mi"], e["mitransient"]
+    eps = sorted(r["speedup_at_equal_error"], key=float)[-1]
+    sp = r["speedup_at_equal_error"][eps]
+    hi = str(r["spp_hi"])
+    return (f"\n**Against mitransient's `transient_prbvolpath`** (`python bench/bench_volpath_mitransient.py`: a "
+            f"camera outside a `null` cube of homogeneous medium on a floor under an area light, {r['size']} x "
+            f"{r['size']}, {r['n_bins']} bins of {r['bin_width_ps']:g} ps, unlimited depth; each renderer in its own "
+            f"process, {r['rounds']} alternating rounds, best times): transient-mi {o['time_s'][hi]:.2f} s and "
+            f"mitransient {m['time_s'][hi]:.2f} s for {r['spp_hi']} spp, the same error per sample (relative RMS "
+            f"error of one {r['spp_hi']}-spp render {o['relative_rmse_at_spp_hi']:.3f} vs "
+            f"{m['relative_rmse_at_spp_hi']:.3f}), so transient-mi reaches a relative error of {100 * float(eps):g} % "
+            f"in {1 / sp:.2f}x mitransient's time ({'faster' if sp > 1 else 'slower'}); peak memory "
+            f"{o['peak_rss_mb']:.0f} vs {m['peak_rss_mb']:.0f} MB. Cross-check: the means agree within Monte Carlo "
+            f"error ({x['comparisons']} Welch comparisons of {r['replicates']} + {r['replicates']} replicates, the "
+            f"image total and the pixel-summed profile in groups of bins, family-wise false-failure rate "
+            f"{x['family_false_failure_rate']:g}: largest |t| {x['max_abs_t']:.2f}, {x['max_abs_t_over_bound']:.2f} of "
+            f"its bound; image totals differ by {100 * x['image_total_relative_difference']:+.3f} %). "
+            f"{provenance(rec)}\n")
+
+
 def cornell_inline(R) -> str:
     rec = R("integrator")
     x = rec["result"].get("readme_example")
@@ -561,6 +585,7 @@ GENERATORS = {
     "cornell_render": (cornell_inline, ["integrator"], True),
     "integrator": (integrator_para, ["integrator"], False),
     "volpath": (volpath_para, ["volpath"], False),
+    "volpath_mitransient": (volpath_mitransient_para, ["volpath_mitransient"], False),
     "channels": (channels_para, ["channels"], False),
     "nlos_table": (nlos_readme_table, ["nlos"], False),
     "nlos_docs_table": (nlos_docs_table, ["nlos"], False),
