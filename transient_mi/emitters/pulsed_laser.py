@@ -87,6 +87,11 @@ class PulsedLaser(mi.Emitter):
        * - ``wavelength_nm``
          - float
          - Vacuum wavelength, nm, > 0 (default 1550).
+
+    ``mi.traverse`` exposes ``pulse_energy_j`` (J, a differentiable ``mi.Float``): the NLOS captures are
+    linear in it, and :meth:`photons_per_pulse_ad` carries its gradient into differentiable NLOS renders
+    (:mod:`transient_mi.integrators._nlos_ad`). ``params.update()`` after changing it updates
+    ``pulse_energy_j``, ``average_power_w`` and ``photons_per_pulse``; a value <= 0 is refused in one line.
     """
 
     NAME = "pulsed_laser"
@@ -136,8 +141,18 @@ class PulsedLaser(mi.Emitter):
             p = get_float(props, name, "average_power_w", DEFAULT_AVERAGE_POWER_W, min_value=0.0,
                           min_exclusive=True)
             self.pulse_energy_j = p / self.repetition_rate_hz
+        self._set_energy(self.pulse_energy_j)
+        #: the pulse energy as a Dr.Jit value (J), exposed by :meth:`traverse`
+        self.pulse_energy = mi.Float(self.pulse_energy_j)
+
+    def _set_energy(self, energy_j: float) -> None:
+        self.pulse_energy_j = float(energy_j)
         self.average_power_w = self.pulse_energy_j * self.repetition_rate_hz
         self.photons_per_pulse = self.pulse_energy_j / photon_energy_j(self.wavelength_nm)
+
+    def photons_per_pulse_ad(self) -> "mi.Float":
+        """Photons per pulse as a Dr.Jit value attached to the traversed ``pulse_energy_j`` (its gradient)."""
+        return self.pulse_energy * (1.0 / photon_energy_j(self.wavelength_nm))
 
     # ------------------------------------------------------------ queries
 
@@ -205,7 +220,14 @@ class PulsedLaser(mi.Emitter):
         return mi.ScalarBoundingBox3f(p, p)
 
     def traverse(self, callback):
-        pass
+        callback.put("pulse_energy_j", self.pulse_energy, mi.ParamFlags.Differentiable)
+
+    def parameters_changed(self, keys=None):
+        e = float(dr.detach(self.pulse_energy)[0]) if dr.width(self.pulse_energy) else float("nan")
+        if not (dr.width(self.pulse_energy) == 1 and e > 0 and math.isfinite(e)):
+            raise PluginParameterError(f"{self.NAME}: pulse_energy_j={e:g} (width {dr.width(self.pulse_energy)}) "
+                                       "must be one finite value > 0")
+        self._set_energy(e)
 
     def to_string(self):
         return (f"PulsedLaser[origin={tuple(self.origin.tolist())}, target={tuple(self.target.tolist())}, "

@@ -1,0 +1,563 @@
+r"""Differentiable NLOS captures: ``render_backward`` / ``render_forward`` of ``transient_nlos_path``.
+
+``mi.render(scene, params)`` on a ``spad_array`` scene returns spot 0 of an array capture (or the confocal
+capture) as ``[height, width, n_bins]``; ``dr.backward`` / ``dr.forward`` then call the integrator's
+``render_backward`` / ``render_forward``, which run :func:`nlos_backward` / :func:`nlos_forward` here.
+
+Same estimator, same samples
+----------------------------
+The kernel below (:func:`_ad_pass`) is the NLOS estimator of :mod:`._nlos_kernel` up to three-bounce light
+(``max_depth <= 4``: detector - patch point ``p`` - hidden vertex ``X`` - laser spot ``S`` - laser) with the
+same lanes, replicates, seeds, randomised QMC numbers and PCG32 draws as the primal
+(:func:`~._nlos_render.render_spots`), so for the same seed it replays the primal's samples exactly: its
+values equal the primal's to float rounding (tested), and forward mode equals reverse mode on a scalar
+loss. The paths are at most three segments long: each contribution is computed with gradients attached
+and back-propagated (reverse) or pushed forward (forward) at once, inside the sample loop; nothing of a
+path is kept on a tape (memory does not grow with the number of samples or the path length; cf. PRB).
+
+What is differentiated
+----------------------
+* BSDF values (the hidden object's and the relay wall's reflectance, ...): at the patch point, the hidden
+  vertex, the laser spot (its radiant intensity) and in the closed-form wall return. Sampling densities
+  and MIS weights are detached (the gradient stays unbiased).
+* The laser's ``pulse_energy_j`` (``mi.traverse`` exposes it; captures are linear in it).
+* Geometry of a hidden shape (``to_world`` of a rectangle, ``vertex_positions`` of a mesh: translation,
+  rotation): the hidden vertex of a hidden-geometry (area) sample follows the shape (its position at fixed
+  sample, ``RayFlags.FollowShape``), so the cosines at ``p``, ``X`` and ``S``, both inverse squares and the
+  arrival time are differentiated: the *interior* derivative. Not differentiated: visibility (the shadow
+  ray ``X -> S`` and the check that ``X`` is the first hit from ``p``) and the shape's silhouette (the
+  boundary terms): the geometric gradient is biased wherever the moving shape changes what is visible
+  (occlusion edges, a shape crossing the laser's or a pixel's field of view), unbiased otherwise (a
+  hidden patch fully visible from the patches and the spot). Geometry needs ``hidden_geometry_prob = 1``
+  (every hidden vertex area-sampled: BSDF-sampled vertices do not follow the shape) and refuses the relay
+  wall's geometry.
+* Arrival time (geometry only): with a box time bin a contribution's bin does not change with its path
+  length ``s`` (zero derivative). With the film's ``kernel_sigma_ps = sigma > 0`` the arrival time is
+  differentiated through the continuous kernel: bin ``b`` receives ``w_b(s) = Phi((t_b+1 - s/c)/sigma) -
+  Phi((t_b - s/c)/sigma)`` (the Gaussian integrated over the bin), whose derivative
+  ``dw_b/ds = (phi((t_b - s/c)/sigma) - phi((t_b+1 - s/c)/sigma)) / (c sigma)`` is closed form. The value
+  of a contribution is spread as the primal spreads it (box bin, then the discrete taps,
+  :func:`~transient_mi.time_axis.gaussian_kernel_taps`): the primal's expected histogram is the
+  continuous-kernel one with an extra box of one bin (variance ``bin_width^2 / 12``), so the arrival-time
+  derivative is that of a kernel narrower by that box (relative mismatch ~ ``bin_width^2 / (24 sigma^2)``;
+  measured in tests/test_nlos_differentiable.py).
+
+Refused in one line: ``max_depth`` -1 or > 4, a sensor medium, spectral/polarized variants, geometry of the
+relay wall, geometry with ``hidden_geometry_prob < 1`` or without a temporal kernel (``kernel_sigma_ps = 0``).
+
+Forward mode with geometry runs the sample loop evaluated with evaluated virtual calls (Dr.Jit cannot
+forward-propagate a shape parameter into symbolic scopes, drjit issue 295): slower than reverse mode.
+"""
+
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from transient_core.units import C_M_PER_PS
+from transient_mi.integrators._lanes import LaneHistogram, LaneLayout, seed_rng, to_mono
+from transient_mi.integrators._nlos_kernel import (QMC_DIMS, VISIBILITY_REL_TOL, KernelConstants, KernelScene,
+                                                   _sensor_weight, kronecker_generators)
+from transient_mi.integrators._nlos_render import GroupHistogram, group_layout
+from transient_mi.integrators._replicates import effective_replicates, replicate_seed
+from transient_mi.integrators._sensor_checks import is_nlos_sensor
+from transient_mi.props import PluginParameterError
+
+#: Longest path (segments) the differentiable NLOS estimator records: three-bounce light.
+MAX_AD_DEPTH = 4
+#: Parameter names (last key component) of a shape that move it.
+GEOMETRY_KEYS = ("to_world", "vertex_positions", "vertex_normals", "center", "radius")
+
+
+def _geometry_params(params, setup, name: str) -> bool:
+    """Whether ``params`` holds a grad-enabled hidden-shape geometry parameter; refuses the relay wall's."""
+    if params is None:
+        return False
+    found = False
+    for key in params.keys():
+        value, _, node, _ = params.properties[key]
+        if not isinstance(node, mi.Shape) or key.rsplit(".", 1)[-1] not in GEOMETRY_KEYS:
+            continue
+        try:
+            on = dr.grad_enabled(params[key])
+        except Exception:  # noqa: BLE001 (a value without AD support is not a parameter being differentiated)
+            on = False
+        if not on:
+            continue
+        if node == setup.relay_wall or (hasattr(node, "ptr") and node.ptr == setup.relay_wall.ptr):
+            raise PluginParameterError(
+                f"{name}: {key} moves the relay wall; differentiable NLOS captures support the geometry of "
+                "hidden shapes only")
+        found = True
+    return found
+
+
+def check(integrator, scene, sensor, params):
+    """Refuse what the differentiable NLOS estimator does not support (one line); returns
+    ``(setup, geometry)``."""
+    name = integrator.NAME
+    if not is_nlos_sensor(sensor):
+        raise PluginParameterError(f"{name}: differentiable rendering needs a spad_array sensor, not "
+                                   f"{type(sensor).__name__}")
+    if mi.is_spectral or mi.is_polarized:
+        raise PluginParameterError(f"{name}: differentiable NLOS captures support *_mono and *_rgb variants, "
+                                   f"not {mi.variant()}")
+    depth = integrator.max_depth_param
+    if depth == -1 or depth > MAX_AD_DEPTH:
+        raise PluginParameterError(
+            f"{name}: max_depth={depth}; differentiable NLOS captures record up to three-bounce light: "
+            f"max_depth must be in [1, {MAX_AD_DEPTH}]")
+    if sensor.get_medium() is not None:
+        raise PluginParameterError(f"{name}: differentiable NLOS captures through a medium are not supported")
+    sensor.forget_nlos_setup()  # the scene's parameters may have changed since the setup was cached
+    setup = sensor.nlos_setup(scene)
+    geometry = _geometry_params(params, setup, name)
+    alpha = float(integrator.nlos_options["hidden_geometry_prob"])
+    if geometry and alpha != 1.0:
+        raise PluginParameterError(
+            f"{name}: hidden_geometry_prob={alpha:g}; derivatives with respect to hidden geometry need "
+            "hidden_geometry_prob=1 (BSDF-sampled hidden vertices do not follow the shape)")
+    if geometry and not sensor.film().kernel_sigma_ps > 0:
+        raise PluginParameterError(
+            f"{name}: the film's kernel_sigma_ps=0; derivatives with respect to hidden geometry need a temporal "
+            "kernel (kernel_sigma_ps > 0): a box time bin has no derivative with respect to arrival time")
+    return setup, geometry
+
+
+class _Time:
+    """The continuous temporal kernel's bin weights' derivative ``dw_b/ds`` (1/m) near a path length."""
+
+    def __init__(self, axis, sigma_ps: float, taps):
+        self.on = sigma_ps > 0
+        self.T = axis.n_bins
+        self.M = len(taps) // 2 + 1  # bins each side of the contribution's own
+        self._t0 = dr.opaque(mi.Float, axis.t0_ps)
+        self._bw = dr.opaque(mi.Float, axis.bin_width_ps)
+        self._inv_sigma = dr.opaque(mi.Float, 1.0 / sigma_ps if sigma_ps > 0 else 0.0)
+        self._k = dr.opaque(mi.Float, 1.0 / (C_M_PER_PS * sigma_ps * math.sqrt(2 * math.pi)) if sigma_ps > 0
+                            else 0.0)
+
+    def weights(self, opl):
+        """``[(bin b (Int32), dw_b/ds)]`` for the ``2 M + 1`` bins around the bin of ``opl`` (detached)."""
+        tau = mi.Float(dr.detach(opl)) / C_M_PER_PS
+        x = (tau - self._t0) / self._bw
+        b0 = mi.Int32(dr.floor(dr.select(dr.isfinite(x), dr.clip(x, -1e9, 1e9), -1e9)))
+        out = []
+        prev = None
+        for m in range(-self.M, self.M + 2):  # edges t_b, b = b0 - M .. b0 + M + 1
+            e = self._t0 + mi.Float(b0 + m) * self._bw
+            z = (e - tau) * self._inv_sigma
+            g = dr.exp(-0.5 * z * z)
+            if prev is not None:
+                out.append((b0 + (m - 1), self._k * (prev - g)))
+            prev = g
+        return out
+
+
+class _Backward:
+    """Reverse mode: back-propagates ``delta . c`` of each contribution (and its arrival-time term)."""
+
+    def __init__(self, delta, taps, axis, layout_K, P, G, time: _Time, scale: float):
+        pad = len(taps) // 2
+        self.T = axis.n_bins
+        d = np.asarray(delta, dtype=np.float64).reshape(G * P, self.T)
+        d_ext = np.pad(d, ((0, 0), (pad, pad)))
+        if pad:
+            from scipy.ndimage import convolve1d  # adjoint of the primal's convolution (symmetric taps)
+            d_ext = convolve1d(d_ext, taps, axis=1, mode="constant", cval=0.0)
+        self.T_ext = self.T + 2 * pad
+        self.delta_ext = mi.Float(d_ext.astype(np.float32).ravel())
+        self.delta = mi.Float(d.astype(np.float32).ravel())
+        self.binner = LaneHistogram(LaneLayout(1, 1, 1), axis, pad)
+        self.K, self.P = layout_K, P
+        self.time = time
+        self.scale = scale
+
+    def record(self, lane, sub, opl, val, ok, geometry: bool):
+        valid, _, b_ext, invalid = self.binner.bin_index(dr.detach(opl))
+        slot = mi.UInt32(sub) * self.P + mi.UInt32(lane) // self.K
+        ok_v = mi.Bool(ok) & valid & ~invalid
+        d = dr.gather(mi.Float, self.delta_ext, slot * self.T_ext + mi.UInt32(dr.maximum(b_ext, 0)), ok_v)
+        obj = d * dr.select(ok_v, val, 0.0)
+        if geometry and self.time.on:
+            ok_t = mi.Bool(ok) & ~invalid
+            g = mi.Float(0.0)
+            for b, w in self.time.weights(opl):
+                inb = ok_t & (b >= 0) & (b < self.T)
+                g += dr.gather(mi.Float, self.delta, slot * self.T + mi.UInt32(dr.maximum(b, 0)), inb) * w
+            obj += dr.detach(dr.select(ok_t, val * g, 0.0)) * opl
+        dr.backward_from(self.scale * obj)
+
+
+class _Forward:
+    """Forward mode: records the tangent of each contribution (and its arrival-time term) in histograms."""
+
+    def __init__(self, layout, axis, taps, G, time: _Time):
+        self.hist = GroupHistogram(layout, axis, len(taps) // 2, G)
+        self.time = time
+        self.G = G
+        self.T = axis.n_bins
+        self.tdata = dr.zeros(mi.Float, layout.n_lanes * G * self.T) if time.on else None
+
+    def record(self, lane, sub, opl, val, ok, geometry: bool):
+        dv, ds = dr.forward_to(val, opl)
+        dv, ds = dr.detach(dv), dr.detach(ds)
+        self.hist.record(lane, dr.detach(opl), dr.select(ok, dv, 0.0), ok, sub=sub)
+        if geometry and self.time.on:
+            slot = mi.UInt32(lane) * self.G + mi.UInt32(sub)
+            c_ds = dr.detach(val) * ds
+            for b, w in self.time.weights(opl):
+                inb = mi.Bool(ok) & (b >= 0) & (b < self.T) & dr.isfinite(c_ds)
+                dr.scatter_reduce(dr.ReduceOp.Add, self.tdata, c_ds * w, slot * self.T + mi.UInt32(dr.maximum(b, 0)),
+                                  inb, mode=dr.ReduceMode.NoConflicts)
+
+    def evaluate(self, rng):
+        if self.tdata is not None:
+            dr.eval(self.hist.data, self.hist.counts, self.tdata, rng.state)
+        else:
+            self.hist.evaluate(rng.state)
+
+
+def _connect(scene, rec, lane, si, beta, w0, opl, active, c, spot, group, wall_ptr, ctx, n_att, geometry,
+             visible=None, depth=1):
+    """Connect vertex ``si`` to the laser spot(s) and record (as ``_nlos_kernel._connect_spots``)."""
+    bsdf = si.bsdf()
+    active = active & (depth + 2 <= c.max_depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+    if c.planar_wall:
+        active &= si.shape != wall_ptr
+    if group is None:
+        _connect_one(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, spot[0], spot[1], mi.UInt32(0), ctx,
+                     n_att, geometry, visible)
+    else:
+        _connect_group(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, group, ctx, n_att, geometry)
+
+
+def _connect_group(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, group, ctx, n_att, geometry):
+    """The spots of an array capture's group one after another, unrolled (``group = (n, fields)``: a Python
+    loop; a symbolic loop around the back-propagation would nest it in the sample loop)."""
+    n, fields = group
+    for b in range(n):
+        idx = mi.UInt32(b)
+        si_s = dr.zeros(mi.SurfaceInteraction3f)
+        si_s.p = dr.gather(mi.Point3f, fields[0], idx)
+        si_s.n = dr.gather(mi.Normal3f, fields[1], idx)
+        si_s.sh_frame = mi.Frame3f(dr.gather(mi.Vector3f, fields[2], idx), dr.gather(mi.Vector3f, fields[3], idx),
+                                   dr.gather(mi.Normal3f, fields[4], idx))
+        si_s.uv = dr.gather(mi.Point2f, fields[5], idx)
+        si_s.wi = dr.gather(mi.Vector3f, fields[6], idx)
+        si_s.t = dr.gather(mi.Float, fields[7], idx)
+        si_s.shape = dr.gather(mi.ShapePtr, fields[8], idx)
+        si_s.wavelengths = si.wavelengths
+        bsdf_s = dr.gather(mi.BSDFPtr, fields[9], idx)
+        _connect_one(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, si_s, bsdf_s, idx, ctx, n_att, geometry,
+                     None)
+
+
+def _connect_one(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, si_s, bsdf_s, sub, ctx, n_att, geometry,
+                 visible):
+    with dr.resume_grad():
+        to_s = si_s.p - si.p
+        dist_s = dr.norm(to_s)
+        d_s = to_s / dist_s
+        f_x = bsdf.eval(ctx, si, si.to_local(d_s), active)
+        i_s = bsdf_s.eval(ctx, si_s, si_s.to_local(-d_s), active)
+        val = to_mono(beta * f_x * i_s, si.wavelengths) * (w0 / dr.square(dist_s)) * n_att()
+        ok = active & (dr.detach(val) > 0) & si_s.is_valid()
+        if visible is None:
+            ok &= ~scene.ray_test(dr.detach(si).spawn_ray_to(dr.detach(si_s.p)), ok)
+        else:
+            ok &= visible
+        rec.record(lane, sub, opl + dist_s + c.first_last_factor * si_s.t, val, ok, geometry)
+
+
+def _first_bounce(scene, si, active, u, rng, c, ks, ctx, geometry):
+    """The primal's one-sample MIS at the patch point (:func:`._nlos_kernel._first_bounce`, same draws), with
+    the BSDF value attached and, for hidden-geometry samples, the hidden vertex following its shape.
+
+    Returns ``(si_next, weight, active)``; ``si_next`` is attached (p, n, frame, wi) where it follows a shape.
+    """
+    bsdf = si.bsdf()
+    alpha = c.hidden_geometry_prob
+    use_hg = active & (u[0] < alpha)
+    if ks.hidden_ptrs is not None:
+        idx = ks.hidden_distr.sample(u[1], use_hg)
+        shape = dr.gather(mi.ShapePtr, ks.hidden_ptrs, idx, use_hg)
+        ps = shape.sample_position(0.0, mi.Point2f(u[2], u[3]), use_hg)
+        p_hg = dr.detach(ps.p)
+        o_hg = si.spawn_ray_to(p_hg).o
+        to_x = p_hg - o_hg
+        dist_x = dr.norm(to_x)
+        d_hg = to_x / dist_x
+    else:
+        shape = dr.zeros(mi.ShapePtr)
+        dist_x = mi.Float(0.0)
+        o_hg = mi.Point3f(si.p)
+        d_hg = mi.Vector3f(0.0, 0.0, 1.0)
+    bs, bsdf_w = bsdf.sample(ctx, si, rng.next_float32(), mi.Point2f(u[4], u[5]), active & ~use_hg)
+    ray_b = si.spawn_ray(si.to_world(bs.wo))
+    ray = mi.Ray3f(dr.select(use_hg, o_hg, ray_b.o), dr.select(use_hg, d_hg, ray_b.d))
+    flags = mi.RayFlags.All | (mi.RayFlags.FollowShape if geometry else mi.RayFlags.Empty)
+    si_next = scene.ray_intersect(dr.detach(ray), ray_flags=flags, coherent=False, active=active)
+    with dr.suspend_grad():
+        f_det, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ray.d), active)
+        on_hidden = si_next.is_valid() & (si_next.shape != ks.wall_ptr)
+        cos_y = dr.abs(dr.dot(si_next.n, ray.d))
+        dist2_y = dr.squared_norm(si_next.p - si.p)
+        pdf_h = dr.select(on_hidden & (cos_y > 0), dist2_y / (cos_y * c.hidden_area_m2), 0.0)
+        pdf_mix = alpha * pdf_h + (1.0 - alpha) * pdf_b
+        hg_ok = si_next.is_valid() & (si_next.shape == shape) & \
+            (dr.abs(si_next.t - dist_x) <= VISIBILITY_REL_TOL * dist_x)
+        delta_lobe = ~use_hg & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        mis_h = dr.select(pdf_mix > 0, pdf_h / pdf_mix, 0.0)  # area-sampling's share (detached)
+    with dr.resume_grad():
+        if geometry:
+            # area measure: f cos_p * cos_X A / |X - p|^2 * (pdf_h / pdf_mix), every factor at the moving X
+            to_y = si_next.p - si.p
+            d2 = dr.squared_norm(to_y)
+            d_y = to_y * dr.rsqrt(d2)
+            si_next.wi = si_next.to_local(-d_y)
+            f_att = bsdf.eval(ctx, si, si.to_local(d_y), active)
+            g = dr.abs(dr.dot(si_next.n, d_y)) * c.hidden_area_m2 / d2
+            weight = dr.select(use_hg & on_hidden, f_att * g * mis_h, 0.0)
+        else:
+            f_att = bsdf.eval(ctx, si, si.to_local(ray.d), active)
+            weight = dr.select(pdf_mix > 0, f_att / dr.select(pdf_mix > 0, pdf_mix, 1.0), 0.0)
+        weight = mi.Spectrum(weight)
+        weight = dr.select(use_hg & ~hg_ok, 0.0, weight)
+        weight = dr.select(delta_lobe, dr.detach(bsdf_w) / (1.0 - alpha), weight)
+    return si_next, weight, active & si_next.is_valid()
+
+
+@dr.syntax
+def _ad_pass(scene, rec, rng, layout, j0, j1, c: KernelConstants, ks: KernelScene, n_att, geometry: bool,
+             n_group: int, loop_mode: str):
+    """The samples ``[j0, j1)`` of every lane, as :func:`._nlos_kernel.nlos_pass` up to ``max_depth = 4``."""
+    group = None if ks.group is None else (n_group, ks.group)
+    wall_ptr = ks.wall_ptr
+    K = layout.streams
+    lane = dr.arange(mi.UInt32, layout.n_lanes)
+    pixel = lane // K
+    k = lane - pixel * K
+    px = mi.Float(pixel % c.width_px)
+    py = mi.Float(pixel // c.width_px)
+    centre = c.patch_origin + px * c.pitch_x + py * c.pitch_y
+    spot = None
+    if dr.hint(c.confocal, mode="scalar"):
+        laser_ray = mi.Ray3f(c.laser_origin, dr.normalize(centre - c.laser_origin))
+        si_s = scene.ray_intersect(laser_ray, ray_flags=mi.RayFlags.All, coherent=True)
+        spot = (si_s, si_s.bsdf())
+    gen = [dr.opaque(mi.UInt32, g) for g in kronecker_generators()]
+    shift = []
+    for d in range(0, QMC_DIMS, 2):
+        a, b = mi.sample_tea_32(pixel, c.seed ^ mi.UInt32(0x9E3779B9 * (d + 1) & 0xFFFFFFFF))
+        shift += [a, b]
+    if dr.hint(c.patch_center_only, mode="scalar"):
+        if dr.hint(c.spot_is_wall_point, mode="scalar"):
+            si_c = dr.detach(spot[0])
+            si_c.wi = si_c.to_local(-dr.normalize(si_c.p - c.detector))
+        else:
+            si_c = scene.ray_intersect(mi.Ray3f(c.detector, dr.normalize(centre - c.detector)),
+                                       ray_flags=mi.RayFlags.All, coherent=True)
+        to_c = centre - c.detector
+        w0_c = _sensor_weight(c, dr.normalize(to_c), dr.squared_norm(to_c))
+        opl_c = c.first_last_factor * dr.norm(si_c.p - c.detector)
+    j = mi.UInt32(dr.opaque(mi.UInt32, j0))
+    j_end = dr.opaque(mi.UInt32, j1)
+    spp = dr.opaque(mi.UInt32, layout.spp)
+    ctx = mi.BSDFContext()
+    while dr.hint((j < j_end) & (k + j * K < spp), mode=loop_mode):
+        i_sample = k + j * K
+        if dr.hint(c.rqmc, mode="scalar"):
+            u = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
+        else:
+            u = [rng.next_float32() for d in range(QMC_DIMS)]
+        if dr.hint(c.patch_center_only, mode="scalar"):
+            si = si_c
+            w0 = w0_c
+            opl = opl_c
+        else:
+            q = centre + (u[0] - 0.5) * c.footprint_x + (u[1] - 0.5) * c.footprint_y
+            to_q = q - c.detector
+            dist_q = dr.norm(to_q)
+            d0 = to_q / dist_q
+            w0 = _sensor_weight(c, d0, dr.square(dist_q))
+            si = scene.ray_intersect(mi.Ray3f(c.detector, d0), ray_flags=mi.RayFlags.All, coherent=True)
+            opl = c.first_last_factor * si.t
+        active = si.is_valid()
+        beta = mi.Spectrum(1.0)
+        _connect(scene, rec, lane, si, beta, w0, opl, active, c, spot, group, wall_ptr, ctx, n_att, geometry)
+        active &= 5 <= c.max_depth + 1
+        si2, weight, active = _first_bounce(scene, si, active, u[2:], rng, c, ks, ctx, geometry)
+        with dr.resume_grad():
+            opl2 = opl + dr.norm(si2.p - si.p)
+        vis = mi.Bool(True) if c.spot_is_wall_point else None
+        _connect(scene, rec, lane, si2, weight, w0, opl2, active, c, spot, group, wall_ptr, ctx, n_att, geometry,
+                 visible=vis, depth=2)
+        j += 1
+    return rng
+
+
+def _wall_return(scene, setup, spots, n_att):
+    """The closed-form wall return of ``spots`` with the spot's BSDF value and the laser power attached:
+    ``(pixel, sub, photons (mi.Float), opl_m)`` (as :meth:`NLOSSetup._wall_return`, photons per pulse)."""
+    wr = setup.wall_return
+    confocal = setup.capture == "confocal"
+    all_spots = np.arange(setup.n_spots) if confocal else np.array(spots)
+    sub = np.zeros(len(all_spots), dtype=np.uint32) if confocal else np.arange(len(spots), dtype=np.uint32)
+    pix = wr["pixel"][all_spots]
+    sel = (pix >= 0) & (wr["photons"][all_spots] > 0)
+    if not sel.any():
+        return None
+    S = setup.spots[all_spots][sel]
+    Lo, D = setup.laser_origin, setup.detector
+    d = S - Lo
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.full(len(S), Lo[i])) for i in range(3)]),
+                   mi.Vector3f(*[mi.Float(d[:, i]) for i in range(3)]))
+    toD = D - S
+    dist = np.linalg.norm(toD, axis=1)
+    w = toD / dist[:, None]
+    cos_ap = np.clip(-(w @ setup.aperture_normal), 0.0, None)
+    with dr.resume_grad():
+        si = scene.ray_intersect(ray)
+        f = to_mono(si.bsdf().eval(mi.BSDFContext(), si, si.to_local(mi.Vector3f(*[mi.Float(c) for c in w.T]))),
+                    si.wavelengths)
+        photons = f * mi.Float(setup.aperture_area_m2 * cos_ap / dist ** 2) * n_att()
+    return pix[sel], sub[sel], photons, wr["opl_m"][all_spots][sel]
+
+
+def _passes(integrator, scene, sensor, setup, seed, spp, spots, make_rec, geometry, loop_mode="symbolic"):
+    """Run the kernel over every replicate (the primal's seeds and lanes); ``make_rec(layout)`` gives the
+    recorder (the same object may be returned for every replicate)."""
+    film = sensor.film()
+    taps = film.kernel_taps()
+    axis = film.time_axis()
+    W, H = setup.width, setup.height
+    options = dict(integrator.nlos_options)
+    options["max_depth"] = integrator.max_depth_param
+    options["rr_depth"] = integrator.rr_depth
+    confocal = setup.capture == "confocal"
+    R = effective_replicates(spp, integrator.replicates_for(True))
+    n = spp // R
+    K, _ = group_layout(W * H, n, axis.n_bins + 2 * (len(taps) // 2), 1 if confocal else setup.n_spots)
+    layout = LaneLayout(W * H, n, K)
+    laser = setup.laser
+    ks = KernelScene.build(scene, setup, spots)
+    rec = None
+    for r in range(R):
+        s = replicate_seed(seed, r, R)
+        rng = seed_rng(s, layout.n_lanes)
+        c = KernelConstants.build(setup, options, seed=s, n_group=len(spots))
+        rec = make_rec(layout, R)
+        for j0, j1 in layout.passes():
+            rng = _ad_pass(scene, rec, rng, layout, j0, j1, c, ks, laser.photons_per_pulse_ad, geometry,
+                           len(spots), loop_mode)
+            if hasattr(rec, "evaluate"):
+                rec.evaluate(rng)
+            else:
+                dr.eval(rng.state)
+    return rec, layout, R
+
+
+def _delta_shape(setup, grad_in, T, spots) -> np.ndarray:
+    g = np.asarray(grad_in, dtype=np.float64)
+    want = (setup.height, setup.width, T) if len(spots) == 1 else (len(spots), setup.height, setup.width, T)
+    if g.size != int(np.prod(want)):
+        raise PluginParameterError(f"render_backward: grad_in has shape {g.shape}; expected {want}")
+    return g.reshape(len(spots), setup.height * setup.width, T)
+
+
+def nlos_backward(integrator, scene, params, grad_in, sensor, seed: int, spp: int, spots=None) -> None:
+    """Reverse mode: propagate ``grad_in`` (``[height, width, n_bins]``, the adjoint of ``mi.render``'s spot-0
+    capture; ``[len(spots), height, width, n_bins]`` for a spot group) to the scene parameters."""
+    setup, geometry = check(integrator, scene, sensor, params)
+    spots = [0] if spots is None else [int(j) for j in spots]
+    film = sensor.film()
+    taps, axis = film.kernel_taps(), film.time_axis()
+    spp = spp or int(sensor.sampler().sample_count())
+    delta = _delta_shape(setup, grad_in, axis.n_bins, spots)
+    time = _Time(axis, film.kernel_sigma_ps, taps)
+    P = setup.width * setup.height
+    rec_holder = {}
+
+    def make_rec(layout, R):
+        if "rec" not in rec_holder:
+            rec_holder["rec"] = _Backward(delta, taps, axis, layout.streams, P, len(spots), time, 1.0 / (layout.spp * R))
+        return rec_holder["rec"]
+
+    _passes(integrator, scene, sensor, setup, seed, spp, spots, make_rec, geometry)
+    wr = _wall_return(scene, setup, spots, setup.laser.photons_per_pulse_ad)
+    if wr is not None:
+        pix, sub, photons, opl = wr
+        rec = rec_holder["rec"]
+        with dr.resume_grad():
+            valid, _, b_ext, _ = rec.binner.bin_index(mi.Float(opl))
+            slot = mi.UInt32(sub) * P + mi.UInt32(pix)
+            d = dr.gather(mi.Float, rec.delta_ext, slot * rec.T_ext + mi.UInt32(dr.maximum(b_ext, 0)), valid)
+            dr.backward_from(dr.sum(d * photons))
+
+
+def _push_tangents(params) -> None:
+    """Forward mode: push the parameters' tangents into what the scene derived from them at ``params.update()``
+    (a shape's frame and inverse transform, ...) before the sample loop, whose symbolic scope may not reach
+    edges created outside it."""
+    if params is None:
+        return
+    with dr.resume_grad():
+        for key in params.keys():
+            try:
+                v = params[key]
+                on = dr.grad_enabled(v)
+            except Exception:  # noqa: BLE001 (not a differentiable value)
+                on = False
+            if on:
+                dr.enqueue(dr.ADMode.Forward, v)
+        dr.traverse(dr.ADMode.Forward, dr.ADFlag.ClearEdges)
+
+
+def nlos_forward(integrator, scene, params, sensor, seed: int, spp: int, spots=None) -> mi.TensorXf:
+    """Forward mode: the derivative of ``mi.render``'s capture (``[height, width, n_bins]``; a spot group:
+    ``[len(spots), height, width, n_bins]``) along the parameters' tangents."""
+    setup, geometry = check(integrator, scene, sensor, params)
+    spots = [0] if spots is None else [int(j) for j in spots]
+    film = sensor.film()
+    taps, axis = film.kernel_taps(), film.time_axis()
+    spp = spp or int(sensor.sampler().sample_count())
+    time = _Time(axis, film.kernel_sigma_ps, taps)
+    _push_tangents(params)
+    holder = {}
+
+    def make_rec(layout, R):
+        if "rec" not in holder:
+            holder["rec"] = _Forward(layout, axis, taps, len(spots), time)
+        return holder["rec"]
+
+    # geometry: the shape's parameters enter the loop body (and the shapes' virtual calls) from outside, which
+    # symbolic scopes cannot forward-propagate (drjit issue 295): the sample loop runs evaluated (one kernel
+    # per sample index) with evaluated virtual calls (slower; reverse mode has no such restriction)
+    with dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, not geometry):
+        rec, layout, R = _passes(integrator, scene, sensor, setup, seed, spp, spots, make_rec, geometry,
+                                 "evaluated" if geometry else "symbolic")
+    wr = _wall_return(scene, setup, spots, setup.laser.photons_per_pulse_ad)
+    if wr is not None:
+        pix, sub, photons, opl = wr
+        with dr.resume_grad():
+            d_ph = dr.detach(dr.forward_to(photons))
+        rec.hist.record(mi.UInt32((pix * layout.streams).astype(np.uint32)), mi.Float(opl),
+                        d_ph * (layout.spp * R), mi.Bool(True), sub=mi.UInt32(sub))
+        rec.hist.evaluate()
+    G, P, T = len(spots), setup.width * setup.height, axis.n_bins
+    out = np.zeros((G, P, T))
+    tsum = None
+    if rec.tdata is not None:
+        t = np.asarray(rec.tdata, dtype=np.float64).reshape(P, layout.streams, G, T)
+        tsum = t.sum(axis=1) / (layout.spp * R)  # [P, G, T]
+    for g, (h, _, _, _) in enumerate(rec.hist.collect_all(taps, scale=1.0 / R)):
+        out[g] = h
+        if tsum is not None:
+            out[g] += tsum[:, g, :]
+    shape = (setup.height, setup.width, T) if G == 1 else (G, setup.height, setup.width, T)
+    return mi.TensorXf(out.astype(np.float32).reshape(shape))
