@@ -79,6 +79,21 @@ def _move(params, key, T0, kind, t):
     params.update()
 
 
+def _detach_all(params):
+    """Leave no parameter attached to the AD graph: a live shape whose to_world stays attached makes every later
+    symbolic loop that calls shapes (any scene: Dr.Jit's calls reach every registered instance) differentiable
+    in reverse mode, which the camera AD loops refuse (tests/test_differentiable.py in the same process)."""
+    for key in params.keys():
+        try:
+            v = params[key]
+            on = dr.grad_enabled(v)
+        except Exception:  # noqa: BLE001 (not a Dr.Jit value)
+            continue
+        if on:
+            params[key] = type(v)(dr.detach(v))
+    params.update()
+
+
 def _reverse(scene, params, w, seed):
     scene.integrator().render_backward(scene, params, mi.TensorXf(w), scene.sensors()[0], seed, SPP)
 
@@ -95,6 +110,7 @@ def test_forward_mode_in_laser_power_replays_the_primal_bin_by_bin(capture):
     dr.enable_grad(params[key])
     dr.set_grad(params[key], 1.0)
     dh = np.asarray(scene.integrator().render_forward(scene, params, scene.sensors()[0], 3, SPP), dtype=np.float64)
+    _detach_all(params)
     assert h.max() > 0
     np.testing.assert_allclose(dh * E, h, rtol=2e-5, atol=2e-5 * h.max())
 
@@ -136,19 +152,21 @@ def test_geometry_gradients_equal_central_differences(capture, kind):
     w = _weights(_render(scene, 3).shape)
     eps = 0.004 if kind < 3 else 1.0
     diffs, ads = [], []
-    for seed in SEEDS:
-        th = mi.Float(0.0)
-        dr.enable_grad(th)
-        _move(params, key, T0, kind, th)
-        _reverse(scene, params, w, seed)
-        ad = float(dr.grad(th)[0])
-        vals = []
-        for s in (1, -1):
-            _move(params, key, T0, kind, mi.Float(s * eps))
-            vals.append(float(np.sum(_render(scene, seed) * w)))
-        diffs.append(ad - (vals[0] - vals[1]) / (2 * eps))
-        ads.append(ad)
-    _move(params, key, T0, kind, mi.Float(0.0))
+    try:
+        for seed in SEEDS:
+            th = mi.Float(0.0)
+            dr.enable_grad(th)
+            _move(params, key, T0, kind, th)
+            _reverse(scene, params, w, seed)
+            ad = float(dr.grad(th)[0])
+            vals = []
+            for s in (1, -1):
+                _move(params, key, T0, kind, mi.Float(s * eps))
+                vals.append(float(np.sum(_render(scene, seed) * w)))
+            diffs.append(ad - (vals[0] - vals[1]) / (2 * eps))
+            ads.append(ad)
+    finally:
+        _detach_all(params)
     d = np.asarray(diffs)
     se = d.std(ddof=1) / np.sqrt(len(d))
     assert abs(np.mean(ads)) > 10 * se, "the derivative must be resolved well above the noise"
@@ -165,17 +183,20 @@ def test_an_occluding_edge_is_not_differentiated():
     w = _weights(_render(scene, 3).shape)
     eps = 0.01
     ads, fds = [], []
-    for seed in SEEDS:
-        th = mi.Float(0.0)
-        dr.enable_grad(th)
-        _move(params, key, T0, 0, th)
-        _reverse(scene, params, w, seed)
-        ads.append(float(dr.grad(th)[0]))
-        vals = []
-        for s in (1, -1):
-            _move(params, key, T0, 0, mi.Float(s * eps))
-            vals.append(float(np.sum(_render(scene, seed) * w)))
-        fds.append((vals[0] - vals[1]) / (2 * eps))
+    try:
+        for seed in SEEDS:
+            th = mi.Float(0.0)
+            dr.enable_grad(th)
+            _move(params, key, T0, 0, th)
+            _reverse(scene, params, w, seed)
+            ads.append(float(dr.grad(th)[0]))
+            vals = []
+            for s in (1, -1):
+                _move(params, key, T0, 0, mi.Float(s * eps))
+                vals.append(float(np.sum(_render(scene, seed) * w)))
+            fds.append((vals[0] - vals[1]) / (2 * eps))
+    finally:
+        _detach_all(params)
     fds = np.asarray(fds)
     assert np.all(np.asarray(ads) == 0.0)
     assert abs(fds.mean()) > T_Q * fds.std(ddof=1) / np.sqrt(len(fds))
@@ -200,17 +221,20 @@ def test_forward_mode_equals_reverse_mode(capture):
         _move(params, "target.to_world", T0, 0, 0.2 * th)
 
     out = []
-    for mode in ("reverse", "forward"):
-        th = mi.Float(0.0)
-        dr.enable_grad(th)
-        setup(th)
-        img = mi.render(scene, params, seed=1, seed_grad=7, spp=SPP, spp_grad=SPP)
-        if mode == "reverse":
-            dr.backward(dr.sum(img * mi.TensorXf(w), axis=None))
-            out.append(float(dr.grad(th)[0]))
-        else:
-            dr.forward(th)
-            out.append(float(np.sum(np.asarray(dr.grad(img), dtype=np.float64) * w)))
+    try:
+        for mode in ("reverse", "forward"):
+            th = mi.Float(0.0)
+            dr.enable_grad(th)
+            setup(th)
+            img = mi.render(scene, params, seed=1, seed_grad=7, spp=SPP, spp_grad=SPP)
+            if mode == "reverse":
+                dr.backward(dr.sum(img * mi.TensorXf(w), axis=None))
+                out.append(float(dr.grad(th)[0]))
+            else:
+                dr.forward(th)
+                out.append(float(np.sum(np.asarray(dr.grad(img), dtype=np.float64) * w)))
+    finally:
+        _detach_all(params)
     assert out[0] != 0 and out[1] == pytest.approx(out[0], rel=1e-4)
 
 
@@ -221,15 +245,19 @@ def test_same_seed_same_bytes():
     T0 = mi.Transform4f(params[key])
     w = _weights(_render(scene, 3).shape)
     grads = []
-    for _ in range(2):
-        th = mi.Float(0.0)
-        dr.enable_grad(th)
-        _move(params, key, T0, 2, th)
-        dr.enable_grad(params["target.bsdf.reflectance.value"])
-        params.update()
-        _reverse(scene, params, w, 5)
-        grads.append((dr.grad(th).numpy().tobytes(), dr.grad(params["target.bsdf.reflectance.value"]).numpy().tobytes()))
-        dr.disable_grad(params["target.bsdf.reflectance.value"])
+    try:
+        for _ in range(2):
+            th = mi.Float(0.0)
+            dr.enable_grad(th)
+            _move(params, key, T0, 2, th)
+            dr.enable_grad(params["target.bsdf.reflectance.value"])
+            params.update()
+            _reverse(scene, params, w, 5)
+            grads.append((dr.grad(th).numpy().tobytes(),
+                          dr.grad(params["target.bsdf.reflectance.value"]).numpy().tobytes()))
+            _detach_all(params)
+    finally:
+        _detach_all(params)
     assert grads[0] == grads[1]
 
 
@@ -248,10 +276,12 @@ def test_unsupported_cases_are_refused_in_one_line():
         params = mi.traverse(scene)
         dr.enable_grad(params["target.to_world"])
         refuse(scene, params, match)
+        _detach_all(params)
     scene = _scene()
     params = mi.traverse(scene)
     dr.enable_grad(params["relay_wall.to_world"])
     refuse(scene, params, "relay_wall.to_world moves the relay wall")
+    _detach_all(params)
     cam = mi.load_dict({"type": "scene", "integrator": {"type": "transient_nlos_path"},
                         "sensor": {"type": "perspective", "film": {"type": "transient_film", "width": 2, "height": 2,
                                                                    "n_bins": 4, "bin_width_ps": 10.0}},

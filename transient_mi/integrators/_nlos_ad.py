@@ -66,6 +66,8 @@ from transient_mi.integrators._replicates import effective_replicates, replicate
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
 from transient_mi.props import PluginParameterError
 
+#: AD flags: a term that no parameter being differentiated reaches is not an error
+_FLAGS = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
 #: Longest path (segments) the differentiable NLOS estimator records: three-bounce light.
 MAX_AD_DEPTH = 4
 #: Parameter names (last key component) of a shape that move it.
@@ -112,7 +114,9 @@ def check(integrator, scene, sensor, params):
             f"max_depth must be in [1, {MAX_AD_DEPTH}]")
     if sensor.get_medium() is not None:
         raise PluginParameterError(f"{name}: differentiable NLOS captures through a medium are not supported")
-    sensor.forget_nlos_setup()  # the scene's parameters may have changed since the setup was cached
+    # (the cached scene analysis is rebuilt by the primal render that mi.render runs first, see
+    # _path_options.render_tensor; what the derivatives read of it, the wall's spots and pixels and the hidden
+    # shapes' areas, does not change with the supported parameters)
     setup = sensor.nlos_setup(scene)
     geometry = _geometry_params(params, setup, name)
     alpha = float(integrator.nlos_options["hidden_geometry_prob"])
@@ -125,6 +129,16 @@ def check(integrator, scene, sensor, params):
             f"{name}: the film's kernel_sigma_ps=0; derivatives with respect to hidden geometry need a temporal "
             "kernel (kernel_sigma_ps > 0): a box time bin has no derivative with respect to arrival time")
     return setup, geometry
+
+
+def _upload(a, T=None):
+    """A numpy array as a Dr.Jit array in Dr.Jit's own (aligned) memory: arrays made from numpy memory are
+    loaded with the buffer's alignment, which varies from call to call and changes the kernel (a recompilation
+    at every call)."""
+    T = mi.Float if T is None else T
+    x = T(np.ascontiguousarray(a)) + dr.opaque(T, 0)  # (a real operation: dr.copy returns the mapped buffer)
+    dr.eval(x)
+    return x
 
 
 class _Time:
@@ -169,12 +183,13 @@ class _Backward:
             from scipy.ndimage import convolve1d  # adjoint of the primal's convolution (symmetric taps)
             d_ext = convolve1d(d_ext, taps, axis=1, mode="constant", cval=0.0)
         self.T_ext = self.T + 2 * pad
-        self.delta_ext = mi.Float(d_ext.astype(np.float32).ravel())
-        self.delta = mi.Float(d.astype(np.float32).ravel())
+        self.delta_ext = _upload(d_ext.astype(np.float32).ravel())
+        self.delta = _upload(d.astype(np.float32).ravel())
         self.binner = LaneHistogram(LaneLayout(1, 1, 1), axis, pad)
         self.K, self.P = layout_K, P
         self.time = time
         self.scale = scale
+        self._pending = []
 
     def record(self, lane, sub, opl, val, ok, geometry: bool):
         valid, _, b_ext, invalid = self.binner.bin_index(dr.detach(opl))
@@ -189,7 +204,17 @@ class _Backward:
                 inb = ok_t & (b >= 0) & (b < self.T)
                 g += dr.gather(mi.Float, self.delta, slot * self.T + mi.UInt32(dr.maximum(b, 0)), inb) * w
             obj += dr.detach(dr.select(ok_t, val * g, 0.0)) * opl
-        dr.backward_from(self.scale * obj)
+        self._pending.append(obj)
+
+    def flush(self):
+        """Back-propagate the sample's recorded terms at once (one reduction into the parameters' gradients
+        per sample rather than one per contribution)."""
+        if self._pending:
+            obj = self._pending[0]
+            for o in self._pending[1:]:
+                obj = obj + o
+            self._pending = []
+            dr.backward_from(self.scale * obj, flags=_FLAGS)
 
 
 class _Forward:
@@ -203,7 +228,7 @@ class _Forward:
         self.tdata = dr.zeros(mi.Float, layout.n_lanes * G * self.T) if time.on else None
 
     def record(self, lane, sub, opl, val, ok, geometry: bool):
-        dv, ds = dr.forward_to(val, opl)
+        dv, ds = dr.forward_to(val, opl, flags=_FLAGS)
         dv, ds = dr.detach(dv), dr.detach(ds)
         self.hist.record(lane, dr.detach(opl), dr.select(ok, dv, 0.0), ok, sub=sub)
         if geometry and self.time.on:
@@ -213,6 +238,9 @@ class _Forward:
                 inb = mi.Bool(ok) & (b >= 0) & (b < self.T) & dr.isfinite(c_ds)
                 dr.scatter_reduce(dr.ReduceOp.Add, self.tdata, c_ds * w, slot * self.T + mi.UInt32(dr.maximum(b, 0)),
                                   inb, mode=dr.ReduceMode.NoConflicts)
+
+    def flush(self):
+        pass
 
     def evaluate(self, rng):
         if self.tdata is not None:
@@ -368,7 +396,7 @@ def _ad_pass(scene, rec, rng, layout, j0, j1, c: KernelConstants, ks: KernelScen
     j_end = dr.opaque(mi.UInt32, j1)
     spp = dr.opaque(mi.UInt32, layout.spp)
     ctx = mi.BSDFContext()
-    while dr.hint((j < j_end) & (k + j * K < spp), mode=loop_mode):
+    while dr.hint((j < j_end) & (k + j * K < spp), mode=loop_mode, max_iterations=-1):
         i_sample = k + j * K
         if dr.hint(c.rqmc, mode="scalar"):
             u = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
@@ -396,37 +424,78 @@ def _ad_pass(scene, rec, rng, layout, j0, j1, c: KernelConstants, ks: KernelScen
         vis = mi.Bool(True) if c.spot_is_wall_point else None
         _connect(scene, rec, lane, si2, weight, w0, opl2, active, c, spot, group, wall_ptr, ctx, n_att, geometry,
                  visible=vis, depth=2)
+        with dr.resume_grad():
+            rec.flush()
         j += 1
     return rng
 
 
-def _wall_return(scene, setup, spots, n_att):
-    """The closed-form wall return of ``spots`` with the spot's BSDF value and the laser power attached:
-    ``(pixel, sub, photons (mi.Float), opl_m)`` (as :meth:`NLOSSetup._wall_return`, photons per pulse)."""
+def _wall_return_inputs(setup, spots):
+    """What the closed-form wall return of ``spots`` needs (as :meth:`NLOSSetup._wall_return`): ``None`` if no
+    spot returns light to a pixel, else ``dict(lane_pixel, sub, opl, ray, to_detector, geometric)`` (Dr.Jit
+    arrays; ``geometric = A_ap cos(theta_ap) / |S - D|^2``)."""
     wr = setup.wall_return
     confocal = setup.capture == "confocal"
     all_spots = np.arange(setup.n_spots) if confocal else np.array(spots)
     sub = np.zeros(len(all_spots), dtype=np.uint32) if confocal else np.arange(len(spots), dtype=np.uint32)
     pix = wr["pixel"][all_spots]
-    sel = (pix >= 0) & (wr["photons"][all_spots] > 0)
-    if not sel.any():
-        return None
-    S = setup.spots[all_spots][sel]
     Lo, D = setup.laser_origin, setup.detector
-    d = S - Lo
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.full(len(S), Lo[i])) for i in range(3)]),
-                   mi.Vector3f(*[mi.Float(d[:, i]) for i in range(3)]))
-    toD = D - S
+    toD = D - setup.spots[all_spots]
     dist = np.linalg.norm(toD, axis=1)
     w = toD / dist[:, None]
     cos_ap = np.clip(-(w @ setup.aperture_normal), 0.0, None)
-    with dr.resume_grad():
-        si = scene.ray_intersect(ray)
-        f = to_mono(si.bsdf().eval(mi.BSDFContext(), si, si.to_local(mi.Vector3f(*[mi.Float(c) for c in w.T]))),
-                    si.wavelengths)
-        photons = f * mi.Float(setup.aperture_area_m2 * cos_ap / dist ** 2) * n_att()
-    return pix[sel], sub[sel], photons, wr["opl_m"][all_spots][sel]
+    sel = (pix >= 0) & (cos_ap > 0) & setup.include_wall_return
+    if not sel.any():
+        return None
+    S, w, cos_ap, dist = setup.spots[all_spots][sel], w[sel], cos_ap[sel], dist[sel]
+    d = S - Lo
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    n = len(S)
+    f32 = np.float32
+    return {"pixel": _upload(pix[sel].astype(np.uint32), mi.UInt32), "sub": _upload(sub[sel], mi.UInt32),
+            "opl": _upload(wr["opl_m"][all_spots][sel].astype(f32)), "n": n,
+            "ray": mi.Ray3f(mi.Point3f(*[_upload(np.full(n, Lo[i], f32)) for i in range(3)]),
+                            mi.Vector3f(*[_upload(d[:, i].astype(f32)) for i in range(3)])),
+            "detector": mi.Point3f(*[_upload(np.full(n, D[i], f32)) for i in range(3)]),
+            "w": mi.Vector3f(*[_upload(c.astype(f32)) for c in w.T]),
+            "geometric": _upload((setup.aperture_area_m2 * cos_ap / dist ** 2).astype(f32))}
+
+
+def _wall_return_photons(scene, wall_bsdf, inp, n_att):
+    """Photons per pulse of each spot's wall return (``mi.Float``, attached to the wall's BSDF and the laser's
+    pulse energy). Every spot is on the relay wall: its BSDF is called directly."""
+    si = scene.ray_intersect(inp["ray"])
+    visible = ~scene.ray_test(si.spawn_ray_to(inp["detector"]))
+    f = to_mono(wall_bsdf.eval(mi.BSDFContext(), si, si.to_local(inp["w"])), si.wavelengths)
+    return dr.select(visible, f * inp["geometric"] * n_att(), 0.0)
+
+
+@dr.syntax
+def _wall_return_backward(scene, wall_bsdf, inp, n_att, rec, P):
+    """Back-propagate the wall return's adjoint (inside a one-iteration symbolic loop: a kernel compiled once;
+    outside a loop the BSDF's backward pass would be compiled anew at every call)."""
+    i = dr.zeros(mi.UInt32, inp["n"])
+    while dr.hint(i < 1, mode="symbolic", exclude=[inp], max_iterations=-1):
+        with dr.resume_grad():
+            photons = _wall_return_photons(scene, wall_bsdf, inp, n_att)
+            valid, _, b_ext, _ = rec.binner.bin_index(inp["opl"])
+            slot = inp["sub"] * P + inp["pixel"]
+            d = dr.gather(mi.Float, rec.delta_ext, slot * rec.T_ext + mi.UInt32(dr.maximum(b_ext, 0)), valid)
+            dr.backward_from(d * photons, flags=_FLAGS)
+        i += 1
+
+
+@dr.syntax
+def _wall_return_forward(scene, wall_bsdf, inp, n_att, hist, K: int, weight: float, loop_mode: str):
+    """Record the wall return's tangent (times ``weight``) in ``hist`` at lane ``pixel * K`` (one-iteration
+    loop, as :func:`_wall_return_backward`)."""
+    i = dr.zeros(mi.UInt32, inp["n"])
+    while dr.hint(i < 1, mode=loop_mode, exclude=[inp], max_iterations=-1):
+        with dr.resume_grad():
+            photons = _wall_return_photons(scene, wall_bsdf, inp, n_att)
+            d_ph = dr.detach(dr.forward_to(photons, flags=_FLAGS))
+        hist.record(inp["pixel"] * K, inp["opl"], d_ph * weight, mi.Bool(True), sub=inp["sub"])
+        i += 1
 
 
 def _passes(integrator, scene, sensor, setup, seed, spp, spots, make_rec, geometry, loop_mode="symbolic"):
@@ -489,15 +558,9 @@ def nlos_backward(integrator, scene, params, grad_in, sensor, seed: int, spp: in
         return rec_holder["rec"]
 
     _passes(integrator, scene, sensor, setup, seed, spp, spots, make_rec, geometry)
-    wr = _wall_return(scene, setup, spots, setup.laser.photons_per_pulse_ad)
-    if wr is not None:
-        pix, sub, photons, opl = wr
-        rec = rec_holder["rec"]
-        with dr.resume_grad():
-            valid, _, b_ext, _ = rec.binner.bin_index(mi.Float(opl))
-            slot = mi.UInt32(sub) * P + mi.UInt32(pix)
-            d = dr.gather(mi.Float, rec.delta_ext, slot * rec.T_ext + mi.UInt32(dr.maximum(b_ext, 0)), valid)
-            dr.backward_from(dr.sum(d * photons))
+    inp = _wall_return_inputs(setup, spots)
+    if inp is not None:
+        _wall_return_backward(scene, setup.relay_wall.bsdf(), inp, setup.laser.photons_per_pulse_ad, rec_holder["rec"], P)
 
 
 def _push_tangents(params) -> None:
@@ -541,14 +604,11 @@ def nlos_forward(integrator, scene, params, sensor, seed: int, spp: int, spots=N
     with dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, not geometry):
         rec, layout, R = _passes(integrator, scene, sensor, setup, seed, spp, spots, make_rec, geometry,
                                  "evaluated" if geometry else "symbolic")
-    wr = _wall_return(scene, setup, spots, setup.laser.photons_per_pulse_ad)
-    if wr is not None:
-        pix, sub, photons, opl = wr
-        with dr.resume_grad():
-            d_ph = dr.detach(dr.forward_to(photons))
-        rec.hist.record(mi.UInt32((pix * layout.streams).astype(np.uint32)), mi.Float(opl),
-                        d_ph * (layout.spp * R), mi.Bool(True), sub=mi.UInt32(sub))
-        rec.hist.evaluate()
+        inp = _wall_return_inputs(setup, spots)
+        if inp is not None:
+            _wall_return_forward(scene, setup.relay_wall.bsdf(), inp, setup.laser.photons_per_pulse_ad, rec.hist, layout.streams,
+                                 float(layout.spp * R), "evaluated" if geometry else "symbolic")
+            rec.hist.evaluate()
     G, P, T = len(spots), setup.width * setup.height, axis.n_bins
     out = np.zeros((G, P, T))
     tsum = None
