@@ -129,7 +129,8 @@ def main() -> None:
     result = {
         "benchmark": "reverse-mode gradient vs primal: transient_nlos_path, scenes/nlos_letter.xml confocal",
         "cpu_count": os.cpu_count(),
-        "settings": {"size": a.size, "bins": a.bins, "bin_width_ps": a.bin_width, "spp": a.spp, "rounds": a.rounds, "max_depth": 4,
+        "settings": {"size": a.size, "bins": a.bins, "bin_width_ps": a.bin_width, "spp": a.spp,
+                     "rounds": a.rounds, "max_depth": 4,
                      "kernel_sigma_ps": 32.0, "hidden_geometry_prob": 1.0,
                      "warm_policy": "one untimed call of each first (compilation); best round kept"},
         "targets": {"time_ratio_max": 3.0, "peak_rss_ratio_max": 3.0},

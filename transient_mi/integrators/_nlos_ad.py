@@ -554,31 +554,15 @@ def nlos_backward(integrator, scene, params, grad_in, sensor, seed: int, spp: in
 
     def make_rec(layout, R):
         if "rec" not in rec_holder:
-            rec_holder["rec"] = _Backward(delta, taps, axis, layout.streams, P, len(spots), time, 1.0 / (layout.spp * R))
+            rec_holder["rec"] = _Backward(delta, taps, axis, layout.streams, P, len(spots), time,
+                                          1.0 / (layout.spp * R))
         return rec_holder["rec"]
 
     _passes(integrator, scene, sensor, setup, seed, spp, spots, make_rec, geometry)
     inp = _wall_return_inputs(setup, spots)
     if inp is not None:
-        _wall_return_backward(scene, setup.relay_wall.bsdf(), inp, setup.laser.photons_per_pulse_ad, rec_holder["rec"], P)
-
-
-def _push_tangents(params) -> None:
-    """Forward mode: push the parameters' tangents into what the scene derived from them at ``params.update()``
-    (a shape's frame and inverse transform, ...) before the sample loop, whose symbolic scope may not reach
-    edges created outside it."""
-    if params is None:
-        return
-    with dr.resume_grad():
-        for key in params.keys():
-            try:
-                v = params[key]
-                on = dr.grad_enabled(v)
-            except Exception:  # noqa: BLE001 (not a differentiable value)
-                on = False
-            if on:
-                dr.enqueue(dr.ADMode.Forward, v)
-        dr.traverse(dr.ADMode.Forward, dr.ADFlag.ClearEdges)
+        _wall_return_backward(scene, setup.relay_wall.bsdf(), inp, setup.laser.photons_per_pulse_ad,
+                              rec_holder["rec"], P)
 
 
 def nlos_forward(integrator, scene, params, sensor, seed: int, spp: int, spots=None) -> mi.TensorXf:
@@ -590,7 +574,6 @@ def nlos_forward(integrator, scene, params, sensor, seed: int, spp: int, spots=N
     taps, axis = film.kernel_taps(), film.time_axis()
     spp = spp or int(sensor.sampler().sample_count())
     time = _Time(axis, film.kernel_sigma_ps, taps)
-    _push_tangents(params)
     holder = {}
 
     def make_rec(layout, R):
@@ -606,8 +589,8 @@ def nlos_forward(integrator, scene, params, sensor, seed: int, spp: int, spots=N
                                  "evaluated" if geometry else "symbolic")
         inp = _wall_return_inputs(setup, spots)
         if inp is not None:
-            _wall_return_forward(scene, setup.relay_wall.bsdf(), inp, setup.laser.photons_per_pulse_ad, rec.hist, layout.streams,
-                                 float(layout.spp * R), "evaluated" if geometry else "symbolic")
+            _wall_return_forward(scene, setup.relay_wall.bsdf(), inp, setup.laser.photons_per_pulse_ad, rec.hist,
+                                 layout.streams, float(layout.spp * R), "evaluated" if geometry else "symbolic")
             rec.hist.evaluate()
     G, P, T = len(spots), setup.width * setup.height, axis.n_bins
     out = np.zeros((G, P, T))

@@ -119,6 +119,16 @@ connections to the laser beam: :mod:`transient_mi.integrators._nlos_medium`).
 
 Histograms are accumulated per SIMD lane (:mod:`._lanes`): same seed, same
 bytes.
+
+Differentiable rendering
+------------------------
+``mi.render(scene, params)`` then ``dr.backward`` / ``dr.forward`` differentiate a capture (spot 0 of an
+array capture, or the confocal capture) up to three-bounce light (``max_depth <= 4``) with the same
+samples as the primal: BSDF values (hidden and relay-wall reflectances), the laser's ``pulse_energy_j``
+(exposed by ``mi.traverse``), the closed-form wall return, and hidden-shape geometry (translation,
+rotation: the interior derivative, with the arrival time through the film's temporal kernel; visibility
+and silhouette terms are not differentiated). See :mod:`transient_mi.integrators._nlos_ad` and
+``docs/differentiable.md``.
 """
 
 from __future__ import annotations
