@@ -265,6 +265,24 @@ def test_forward_mode_equals_reverse_mode(capture):
     assert out[0] != 0 and out[1] == pytest.approx(out[0], rel=1e-4)
 
 
+def test_transient_path_under_a_spad_array_gives_the_same_gradient():
+    """transient_path delegates NLOS captures to the same estimator: same gradient bytes."""
+    out = []
+    for integrator in ("transient_nlos_path", "transient_path"):
+        scene = nh.nlos_scene(hidden=[nh.square(TARGET, 0.2, 0.6, id_="target")], n_bins=128, width=4, height=4,
+                              bin_width_ps=50.0, t0_ps=9000.0, integrator=integrator)
+        params = mi.traverse(scene)
+        key = "target.bsdf.reflectance.value"
+        dr.enable_grad(params[key])
+        params.update()
+        try:
+            _reverse(scene, params, _weights((4, 4, 128)), 5)
+            out.append(dr.grad(params[key]).numpy().tobytes())
+        finally:
+            _detach_all(params)
+    assert out[0] == out[1] and np.frombuffer(out[0], np.float32)[0] != 0
+
+
 def test_same_seed_same_bytes():
     scene = _scene("array")
     params = mi.traverse(scene)
