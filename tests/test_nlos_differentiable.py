@@ -315,6 +315,10 @@ def test_unsupported_cases_are_refused_in_one_line():
         assert "\n" not in str(e.value)
 
     refuse(_scene(max_depth=5), None, r"max_depth=5; .* must be in \[1, 4\]")
+    params = mi.traverse(_scene())
+    params["laser.pulse_energy_j"] = mi.Float(-1e-9)
+    with pytest.raises(PluginParameterError, match=r"pulsed_laser: pulse_energy_j=-1e-09 .* one finite value > 0"):
+        params.update()
     for kw, match in (({"alpha": 0.8}, "hidden_geometry_prob=0.8; derivatives with respect to hidden geometry"),
                       ({"sigma_ps": 0.0}, "kernel_sigma_ps=0; derivatives with respect to hidden geometry")):
         scene = _scene(**kw)
