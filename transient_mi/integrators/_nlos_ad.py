@@ -21,9 +21,10 @@ What is differentiated
   vertex, the laser spot (its radiant intensity) and in the closed-form wall return. Sampling densities
   and MIS weights are detached (the gradient stays unbiased).
 * The laser's ``pulse_energy_j`` (``mi.traverse`` exposes it; captures are linear in it).
-* Geometry of a hidden shape (``to_world`` of a rectangle, tested; ``vertex_positions`` of a mesh or a
-  sphere's ``center``/``radius`` go through the same code, untested: translation, rotation): the hidden vertex of a hidden-geometry (area) sample follows the shape (its position at fixed
-  sample, ``RayFlags.FollowShape``), so the cosines at ``p``, ``X`` and ``S``, both inverse squares and the
+* Geometry of a hidden shape (translation, rotation: ``to_world`` of a rectangle, tested; a mesh's
+  ``vertex_positions`` or a sphere's ``center``/``radius`` go through the same code, untested): the hidden
+  vertex of a hidden-geometry (area) sample follows the shape (its position at a fixed sample,
+  ``RayFlags.FollowShape``), so the cosines at ``p``, ``X`` and ``S``, both inverse squares and the
   arrival time are differentiated: the *interior* derivative. Not differentiated: visibility (the shadow
   ray ``X -> S`` and the check that ``X`` is the first hit from ``p``) and the shape's silhouette (the
   boundary terms): the geometric gradient is biased wherever the moving shape changes what is visible
