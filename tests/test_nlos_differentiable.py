@@ -8,8 +8,9 @@ Statistics: the BSDF and laser-power checks are deterministic (at fixed samples 
 of degree <= 2 in each of these parameters, so central differences with common random numbers are exact to
 float rounding). The geometry checks compare, per seed, the AD gradient with central differences of the
 primal at the same seed (common random numbers) and test the mean of the paired differences over 10 seeds
-with a two-sided t-test (9 degrees of freedom, quantile 6.40); the 8 comparisons share a total false-failure
-rate of 1e-3 (Bonferroni: 1.25e-4 each). The bias test asserts a difference at the same per-comparison rate.
+with a two-sided t-test (9 degrees of freedom, quantile 6.50); the 9 comparisons (8 for the rectangle, 1
+for a mesh's vertex positions) share a total false-failure rate of 1e-3 (Bonferroni: 1.11e-4 each). The
+bias test asserts a difference at the same per-comparison rate.
 Power (measured): without the arrival-time derivative the x, z and rotation comparisons fail (t of 8 to 60).
 """
 
@@ -34,13 +35,17 @@ from transient_mi.props import PluginParameterError  # noqa: E402
 TARGET = (0.05, 0.02, 0.4)
 SPP = 128
 SEEDS = range(11, 21)
-N_GEOMETRY_TESTS = 8
+N_GEOMETRY_TESTS = 9
 ALPHA_TOTAL = 1e-3
 T_Q = float(stats.t.ppf(1 - ALPHA_TOTAL / N_GEOMETRY_TESTS / 2, len(SEEDS) - 1))
 
 
-def _scene(capture="array", sigma_ps=150.0, occluder=False, max_depth=4, alpha=1.0, spots=(1, 1), spacing=0.0):
+def _scene(capture="array", sigma_ps=150.0, occluder=False, max_depth=4, alpha=1.0, spots=(1, 1), spacing=0.0,
+           mesh=None):
     hidden = [nh.square(TARGET, 0.2, 0.6, id_="target")]
+    if mesh is not None:  # the same square as a PLY mesh
+        hidden = [{"type": "ply", "filename": str(mesh), "id": "target",
+                   "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.6] * 3}}}]
     if occluder:  # a black square covering part of the target, between it and the wall
         hidden.append(nh.square((TARGET[0] + 0.08, TARGET[1], 0.3), 0.1, 0.0, id_="occluder"))
     orig = mi.load_dict
@@ -197,6 +202,51 @@ def test_geometry_gradients_equal_central_differences(capture, kind):
     d = np.asarray(diffs)
     se = d.std(ddof=1) / np.sqrt(len(d))
     assert abs(np.mean(ads)) > 10 * se, "the derivative must be resolved well above the noise"
+    assert abs(d.mean()) <= T_Q * se, (np.mean(ads), d.mean(), se)
+
+
+def _square_ply(path):
+    """The test square (side 0.2 m at TARGET, normal -z towards the wall) as a two-triangle PLY mesh."""
+    m = mi.Mesh("target", 4, 2)
+    h, c = 0.1, TARGET
+    v = [[c[0] - h, c[1] - h, c[2]], [c[0] + h, c[1] - h, c[2]], [c[0] + h, c[1] + h, c[2]], [c[0] - h, c[1] + h, c[2]]]
+    p = mi.traverse(m)
+    p["vertex_positions"] = mi.Float(np.asarray(v, np.float32).ravel())
+    p["faces"] = mi.UInt32(np.array([0, 2, 1, 0, 3, 2], np.uint32))
+    p.update()
+    m.write_ply(str(path))
+    return path
+
+
+def test_mesh_vertex_positions_gradient_equals_central_differences(tmp_path):
+    """A mesh moved through its vertex_positions (along z, confocal): the same interior derivative."""
+    scene = _scene("confocal", mesh=_square_ply(tmp_path / "square.ply"))
+    params = mi.traverse(scene)
+    key = "target.vertex_positions"
+    V0 = dr.unravel(mi.Point3f, mi.Float(params[key]))
+    w = _weights(_render(scene, 3).shape)
+    eps = 0.004
+    diffs, ads = [], []
+    try:
+        for seed in SEEDS:
+            th = mi.Float(0.0)
+            dr.enable_grad(th)
+            params[key] = dr.ravel(V0 + mi.Vector3f(0, 0, th))
+            params.update()
+            _reverse(scene, params, w, seed)
+            ad = float(dr.grad(th)[0])
+            vals = []
+            for s in (1, -1):
+                params[key] = dr.ravel(V0 + mi.Vector3f(0, 0, s * eps))
+                params.update()
+                vals.append(float(np.sum(_render(scene, seed) * w)))
+            diffs.append(ad - (vals[0] - vals[1]) / (2 * eps))
+            ads.append(ad)
+    finally:
+        _detach_all(params)
+    d = np.asarray(diffs)
+    se = d.std(ddof=1) / np.sqrt(len(d))
+    assert abs(np.mean(ads)) > 10 * se
     assert abs(d.mean()) <= T_Q * se, (np.mean(ads), d.mean(), se)
 
 

@@ -21,8 +21,8 @@ What is differentiated
   vertex, the laser spot (its radiant intensity) and in the closed-form wall return. Sampling densities
   and MIS weights are detached (the gradient stays unbiased).
 * The laser's ``pulse_energy_j`` (``mi.traverse`` exposes it; captures are linear in it).
-* Geometry of a hidden shape (translation, rotation: ``to_world`` of a rectangle, tested; a mesh's
-  ``vertex_positions`` or a sphere's ``center``/``radius`` go through the same code, untested): the hidden
+* Geometry of a hidden shape (translation, rotation: a rectangle's ``to_world`` and a mesh's
+  ``vertex_positions``, tested; a sphere's ``center``/``radius`` goes through the same code, untested): the hidden
   vertex of a hidden-geometry (area) sample follows the shape (its position at a fixed sample,
   ``RayFlags.FollowShape``), so the cosines at ``p``, ``X`` and ``S``, both inverse squares and the
   arrival time are differentiated: the *interior* derivative. Not differentiated: visibility (the shadow
