@@ -11,7 +11,7 @@ primal at the same seed (common random numbers) and test the mean of the paired 
 with a two-sided t-test (9 degrees of freedom, quantile 6.50); the 9 comparisons (8 for the rectangle, 1
 for a mesh's vertex positions) share a total false-failure rate of 1e-3 (Bonferroni: 1.11e-4 each). The
 bias test asserts a difference at the same per-comparison rate.
-Power (measured): without the arrival-time derivative the x, z and rotation comparisons fail (t of 8 to 60).
+Power (measured): without the arrival-time derivative the x, z and rotation comparisons fail (t of 10 to 78).
 """
 
 from __future__ import annotations
