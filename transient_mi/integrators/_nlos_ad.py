@@ -31,7 +31,8 @@ What is differentiated
   (occlusion edges, a shape crossing the laser's or a pixel's field of view), unbiased otherwise (a
   hidden patch fully visible from the patches and the spot). Geometry needs ``hidden_geometry_prob = 1``
   (every hidden vertex area-sampled: BSDF-sampled vertices do not follow the shape) and refuses the relay
-  wall's geometry.
+  wall's geometry. Rigid motions only: a deformation changes the shape's area, and the area density
+  ``1/A`` (and the setup's cached hidden area) is not differentiated (biased, not detected).
 * Arrival time (geometry only): with a box time bin a contribution's bin does not change with its path
   length ``s`` (zero derivative). With the film's ``kernel_sigma_ps = sigma > 0`` the arrival time is
   differentiated through the continuous kernel: bin ``b`` receives ``w_b(s) = Phi((t_b+1 - s/c)/sigma) -
@@ -79,7 +80,7 @@ def _geometry_params(params, setup, name: str) -> bool:
         return False
     found = False
     for key in params.keys():
-        value, _, node, _ = params.properties[key]
+        _, _, node, _ = params.properties[key]
         if not isinstance(node, mi.Shape) or key.rsplit(".", 1)[-1] not in GEOMETRY_KEYS:
             continue
         try:
