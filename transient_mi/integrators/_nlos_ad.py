@@ -59,17 +59,21 @@ import mitsuba as mi
 import numpy as np
 
 from transient_mi.integrators._lanes import LaneLayout, seed_rng, to_mono
-from transient_mi.integrators._nlos_ad_terms import (Backward, Forward, TimeKernel, wall_return_backward,
+from transient_mi.integrators._nlos_ad_terms import (_FLAGS, Backward, Forward, TimeKernel, wall_return_backward,
                                                      wall_return_forward, wall_return_inputs)
 from transient_mi.integrators._nlos_kernel import (QMC_DIMS, VISIBILITY_REL_TOL, KernelConstants, KernelScene,
                                                    _sensor_weight, kronecker_generators)
 from transient_mi.integrators._nlos_render import group_layout
+from transient_mi.integrators._optical_path import segment_index
 from transient_mi.integrators._replicates import effective_replicates, replicate_seed
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
 from transient_mi.props import PluginParameterError
 
-#: Longest path (segments) the differentiable NLOS estimator records: three-bounce light.
+#: Longest path (segments) with geometry derivatives and rgb variants: three-bounce light.
 MAX_AD_DEPTH = 4
+#: Longest path (segments) the differentiable NLOS estimator records (BSDF parameters and the laser power,
+#: mono variants); the vertices beyond the hidden one are unrolled.
+MAX_UNROLLED_DEPTH = 16
 #: Parameter names (last key component) of a shape that move it.
 GEOMETRY_KEYS = ("to_world", "vertex_positions", "vertex_normals", "center", "radius")
 
@@ -108,10 +112,15 @@ def check(integrator, scene, sensor, params):
         raise PluginParameterError(f"{name}: differentiable NLOS captures support *_mono and *_rgb variants, "
                                    f"not {mi.variant()}")
     depth = integrator.max_depth_param
-    if depth == -1 or depth > MAX_AD_DEPTH:
+    if depth == -1 or depth > MAX_UNROLLED_DEPTH:
         raise PluginParameterError(
-            f"{name}: max_depth={depth}; differentiable NLOS captures record up to three-bounce light: "
-            f"max_depth must be in [1, {MAX_AD_DEPTH}]")
+            f"{name}: max_depth={depth}; differentiable NLOS captures need a finite max_depth in "
+            f"[1, {MAX_UNROLLED_DEPTH}] (the vertices beyond the hidden one are unrolled)")
+    deeper = depth > MAX_AD_DEPTH
+    if deeper and (mi.is_rgb or mi.is_spectral or mi.is_polarized):
+        raise PluginParameterError(
+            f"{name}: max_depth={depth}; differentiable NLOS captures beyond three-bounce light need a *_mono "
+            f"variant, not {mi.variant()} (or max_depth in [1, {MAX_AD_DEPTH}])")
     if sensor.get_medium() is not None:
         raise PluginParameterError(f"{name}: differentiable NLOS captures through a medium are not supported")
     # (the cached scene analysis is rebuilt by the primal render that mi.render runs first, see
@@ -119,6 +128,10 @@ def check(integrator, scene, sensor, params):
     # shapes' areas, does not change with the supported parameters)
     setup = sensor.nlos_setup(scene)
     geometry = _geometry_params(params, setup, name)
+    if geometry and deeper:
+        raise PluginParameterError(
+            f"{name}: max_depth={depth}; derivatives with respect to hidden geometry record up to three-bounce "
+            f"light: max_depth must be in [1, {MAX_AD_DEPTH}]")
     alpha = float(integrator.nlos_options["hidden_geometry_prob"])
     if geometry and alpha != 1.0:
         raise PluginParameterError(
@@ -132,7 +145,7 @@ def check(integrator, scene, sensor, params):
 
 
 def _connect(scene, rec, lane, si, beta, w0, opl, active, c, spot, group, wall_ptr, ctx, n_att, geometry,
-             visible=None, depth=1):
+             visible=None, depth=1, eta=None, score=None):
     """Connect vertex ``si`` to the laser spot(s) and record (as ``_nlos_kernel._connect_spots``)."""
     bsdf = si.bsdf()
     active = active & (depth + 2 <= c.max_depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
@@ -140,12 +153,13 @@ def _connect(scene, rec, lane, si, beta, w0, opl, active, c, spot, group, wall_p
         active &= si.shape != wall_ptr
     if group is None:
         _connect_one(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, spot[0], spot[1], mi.UInt32(0), ctx,
-                     n_att, geometry, visible)
+                     n_att, geometry, visible, eta, score)
     else:
-        _connect_group(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, group, ctx, n_att, geometry)
+        _connect_group(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, group, ctx, n_att, geometry, eta, score)
 
 
-def _connect_group(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, group, ctx, n_att, geometry):
+def _connect_group(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, group, ctx, n_att, geometry, eta=None,
+                   score=None):
     """The spots of an array capture's group one after another, unrolled (``group = (n, fields)``: a Python
     loop; a symbolic loop around the back-propagation would nest it in the sample loop)."""
     n, fields = group
@@ -163,16 +177,18 @@ def _connect_group(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, group, 
         si_s.wavelengths = si.wavelengths
         bsdf_s = dr.gather(mi.BSDFPtr, fields[9], idx)
         _connect_one(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, si_s, bsdf_s, idx, ctx, n_att, geometry,
-                     None)
+                     None, eta, score)
 
 
 def _connect_one(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, si_s, bsdf_s, sub, ctx, n_att, geometry,
-                 visible):
+                 visible, eta=None, score=None):
     with dr.resume_grad():
         to_s = si_s.p - si.p
         dist_s = dr.norm(to_s)
         d_s = to_s / dist_s
-        f_x = bsdf.eval(ctx, si, si.to_local(d_s), active)
+        wo = si.to_local(d_s)
+        f_x = bsdf.eval(ctx, si, wo, active)
+        path_s = dist_s if eta is None else segment_index(bsdf, si, wo, eta, active) * dist_s
         i_s = bsdf_s.eval(ctx, si_s, si_s.to_local(-d_s), active)
         val = to_mono(beta * f_x * i_s, si.wavelengths) * (w0 / dr.square(dist_s)) * n_att()
         ok = active & (dr.detach(val) > 0) & si_s.is_valid()
@@ -180,14 +196,15 @@ def _connect_one(scene, rec, lane, si, bsdf, beta, w0, opl, active, c, si_s, bsd
             ok &= ~scene.ray_test(dr.detach(si).spawn_ray_to(dr.detach(si_s.p)), ok)
         else:
             ok &= visible
-        rec.record(lane, sub, opl + dist_s + c.first_last_factor * si_s.t, val, ok, geometry)
+        rec.record(lane, sub, opl + path_s + c.first_last_factor * si_s.t, val, ok, geometry, score)
 
 
 def _first_bounce(scene, si, active, u, rng, c, ks, ctx, geometry):
     """The primal's one-sample MIS at the patch point (:func:`._nlos_kernel._first_bounce`, same draws), with
     the BSDF value attached and, for hidden-geometry samples, the hidden vertex following its shape.
 
-    Returns ``(si_next, weight, active)``; ``si_next`` is attached (p, n, frame, wi) where it follows a shape.
+    Returns ``(si_next, weight, eta, active)``; ``si_next`` is attached (p, n, frame, wi) where it follows a
+    shape; ``eta`` the relative index after the bounce (as the primal's).
     """
     bsdf = si.bsdf()
     alpha = c.hidden_geometry_prob
@@ -238,7 +255,102 @@ def _first_bounce(scene, si, active, u, rng, c, ks, ctx, geometry):
         weight = mi.Spectrum(weight)
         weight = dr.select(use_hg & ~hg_ok, 0.0, weight)
         weight = dr.select(delta_lobe, dr.detach(bsdf_w) / (1.0 - alpha), weight)
-    return si_next, weight, active & si_next.is_valid()
+    eta = dr.select(use_hg, 1.0, bs.eta)
+    return si_next, weight, eta, active & si_next.is_valid()
+
+
+def _ratio(f, ok=True):
+    """``f / detach(f)`` (mono: channel 0): value 1, derivative ``df / f``; 1 where ``f`` is 0 or not ``ok``."""
+    x = mi.Float(f[0]) if isinstance(f, mi.Spectrum) and not isinstance(f, mi.Float) else mi.Float(f)
+    d = dr.detach(x)
+    good = mi.Bool(ok) & (d != 0)
+    return dr.select(good, x / dr.select(good, d, 1.0), 1.0)
+
+
+def _deeper(scene, rec, rng, lane, si2, weight, w0, opl2, eta, active, c, spot, group, wall_ptr, ctx, n_att):
+    """Vertices beyond the hidden vertex (``max_depth > 4``, BSDF parameters, mono): path replay.
+
+    Reverse mode (PRB): a first walk with a copy of the random stream sums ``A = sum_j delta_j c_j`` over the
+    deeper contributions (detached); the first bounce's BSDF value then back-propagates its share
+    ``A f / detach(f)``, and a second walk with the same numbers back-propagates, at each vertex, its own
+    contributions plus ``A_rest f_k / detach(f_k)`` for the BSDF value of the direction sampled there.
+    Forward mode: one walk carrying the derivative of the log-throughput.
+    """
+    si2 = dr.detach(si2)
+    w_det = mi.Spectrum(dr.detach(weight))
+    opl2 = mi.Float(dr.detach(opl2))
+    with dr.resume_grad():
+        ratio_w = _ratio(weight)
+    args = (scene, rec, lane, w0, c, spot, group, wall_ptr, ctx, n_att)
+    if isinstance(rec, Backward):
+        saved, rec._pending = rec._pending, []  # (the walks take their own vertices' terms from the recorder)
+        rng_w = mi.PCG32()
+        rng_w.state, rng_w.inc = mi.UInt64(rng.state), mi.UInt64(rng.inc)
+        A = _walk(*args, "weight", rng_w, si2, w_det, opl2, eta, active, mi.Float(0.0))
+        terms = []
+        _walk(*args, "backward", rng, si2, w_det, opl2, eta, active, A, terms)
+        # back-propagated with the sample: vertices 1 and 2, the first bounce's share of A, the deeper vertices
+        rec._pending = saved + [A * ratio_w] + terms
+    else:
+        with dr.resume_grad():
+            s0 = dr.detach(dr.forward_to(ratio_w, flags=_FLAGS))
+        _walk(*args, "forward", rng, si2, w_det, opl2, eta, active, s0)
+
+
+def _walk(scene, rec, lane, w0, c, spot, group, wall_ptr, ctx, n_att, mode, rng, si, beta, opl, eta, active, acc,
+          terms=None):
+    """The primal's deeper loop (:func:`._nlos_kernel.nlos_pass`, same draws) in one of three modes:
+    ``weight`` returns ``A`` (``acc`` starts at 0), ``backward`` back-propagates (``acc`` = ``A``),
+    ``forward`` records tangents (``acc`` = the log-throughput's derivative so far). ``terms``: the list the
+    backward walk appends each vertex's objective to.
+
+    Unrolled in Python (``max_depth - 3`` iterations; a symbolic loop nested in the sample loop around these
+    AD operations does not compile), with the random stream advanced only where the primal's loop runs.
+    """
+    depth = mi.Int32(2)
+    active = mi.Bool(active)
+    for _ in range(c.max_depth_static - 3):
+        head = mi.Bool(active)
+        active_next = head & (depth + 3 <= c.max_depth)
+        bsdf = si.bsdf()
+        u1 = rng.next_float32(head)
+        u2 = mi.Point2f(rng.next_float32(head), rng.next_float32(head))
+        with dr.suspend_grad():  # sampling detached: the sampled BSDF value's derivative is ``ratio``
+            bs, bsdf_w = bsdf.sample(ctx, si, u1, u2, active_next)
+        ratio = mi.Float(1.0)
+        if mode != "weight":
+            with dr.resume_grad():
+                smooth = active_next & ~mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+                ratio = _ratio(bsdf.eval(ctx, si, bs.wo, smooth), smooth)
+        ray = si.spawn_ray(si.to_world(bs.wo))
+        si_next = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active_next)
+        beta = beta * bsdf_w
+        eta = eta * bs.eta
+        opl = opl + eta * dr.norm(si_next.p - si.p)
+        depth = depth + 1
+        beta_max = dr.max(mi.unpolarized_spectrum(beta))
+        rr_prob = dr.minimum(beta_max * dr.square(eta), 0.95)
+        rr_active = (depth - 1) >= c.rr_depth
+        rr_continue = rng.next_float32(head) < rr_prob
+        beta = dr.select(rr_active, beta * dr.rcp(rr_prob), beta)
+        active = active_next & si_next.is_valid() & (~rr_active | rr_continue) & (beta_max > 0)
+        if mode == "forward":
+            with dr.resume_grad():
+                acc = acc + dr.select(active_next, dr.detach(dr.forward_to(ratio, flags=_FLAGS)), 0.0)
+            _connect(scene, rec, lane, si_next, beta, w0, opl, active, c, spot, group, wall_ptr, ctx, n_att, False,
+                     depth=depth, eta=eta, score=acc)
+        else:
+            _connect(scene, rec, lane, si_next, beta, w0, opl, active, c, spot, group, wall_ptr, ctx, n_att, False,
+                     depth=depth, eta=eta)
+            with dr.resume_grad():
+                own = rec.take()
+                if mode == "weight":
+                    acc = acc + dr.detach(own)
+                else:
+                    terms.append(acc * ratio + own)
+                    acc = acc - dr.detach(own)
+        si = si_next
+    return acc
 
 
 @dr.syntax
@@ -300,12 +412,14 @@ def _ad_pass(scene, rec, rng, layout, j0, j1, c: KernelConstants, ks: KernelScen
         beta = mi.Spectrum(1.0)
         _connect(scene, rec, lane, si, beta, w0, opl, active, c, spot, group, wall_ptr, ctx, n_att, geometry)
         active &= 5 <= c.max_depth + 1
-        si2, weight, active = _first_bounce(scene, si, active, u[2:], rng, c, ks, ctx, geometry)
+        si2, weight, eta, active = _first_bounce(scene, si, active, u[2:], rng, c, ks, ctx, geometry)
         with dr.resume_grad():
             opl2 = opl + dr.norm(si2.p - si.p)
         vis = mi.Bool(True) if c.spot_is_wall_point else None
         _connect(scene, rec, lane, si2, weight, w0, opl2, active, c, spot, group, wall_ptr, ctx, n_att, geometry,
                  visible=vis, depth=2)
+        if dr.hint(c.max_depth_static > 4, mode="scalar"):
+            _deeper(scene, rec, rng, lane, si2, weight, w0, opl2, eta, active, c, spot, group, wall_ptr, ctx, n_att)
         with dr.resume_grad():
             rec.flush()
         j += 1
@@ -398,13 +512,14 @@ def nlos_forward(integrator, scene, params, sensor, seed: int, spp: int, spots=N
     # geometry: the shape's parameters enter the loop body (and the shapes' virtual calls) from outside, which
     # symbolic scopes cannot forward-propagate (drjit issue 295): the sample loop runs evaluated (one kernel
     # per sample index) with evaluated virtual calls (slower; reverse mode has no such restriction)
-    with dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, not geometry):
+    evaluated = geometry or integrator.max_depth_param > MAX_AD_DEPTH  # (deeper paths: the same restriction)
+    with dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, not evaluated):
         rec, layout, R = _passes(integrator, scene, sensor, setup, seed, spp, spots, make_rec, geometry,
-                                 "evaluated" if geometry else "symbolic")
+                                 "evaluated" if evaluated else "symbolic")
         inp = wall_return_inputs(setup, spots)
         if inp is not None:
             wall_return_forward(scene, setup.relay_wall.bsdf(), inp, setup.laser.photons_per_pulse_ad, rec.hist,
-                                 layout.streams, float(layout.spp * R), "evaluated" if geometry else "symbolic")
+                                 layout.streams, float(layout.spp * R), "evaluated" if evaluated else "symbolic")
             rec.hist.evaluate()
     G, P, T = len(spots), setup.width * setup.height, axis.n_bins
     out = np.zeros((G, P, T))

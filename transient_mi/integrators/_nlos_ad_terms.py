@@ -80,7 +80,7 @@ class Backward:
         self.scale = scale
         self._pending = []
 
-    def record(self, lane, sub, opl, val, ok, geometry: bool):
+    def record(self, lane, sub, opl, val, ok, geometry: bool, score=None):
         valid, _, b_ext, invalid = self.binner.bin_index(dr.detach(opl))
         slot = mi.UInt32(sub) * self.P + mi.UInt32(lane) // self.K
         ok_v = mi.Bool(ok) & valid & ~invalid
@@ -95,15 +95,19 @@ class Backward:
             obj += dr.detach(dr.select(ok_t, val * g, 0.0)) * opl
         self._pending.append(obj)
 
+    def take(self):
+        """The sum of the terms recorded since the last call (attached), and forget them."""
+        obj = mi.Float(0.0)
+        for o in self._pending:
+            obj = obj + o
+        self._pending = []
+        return obj
+
     def flush(self):
         """Back-propagate the sample's recorded terms at once (one reduction into the parameters' gradients
         per sample rather than one per contribution)."""
         if self._pending:
-            obj = self._pending[0]
-            for o in self._pending[1:]:
-                obj = obj + o
-            self._pending = []
-            dr.backward_from(self.scale * obj, flags=_FLAGS)
+            dr.backward_from(self.scale * self.take(), flags=_FLAGS)
 
 
 class Forward:
@@ -116,9 +120,13 @@ class Forward:
         self.T = axis.n_bins
         self.tdata = dr.zeros(mi.Float, layout.n_lanes * G * self.T) if time.on else None
 
-    def record(self, lane, sub, opl, val, ok, geometry: bool):
+    def record(self, lane, sub, opl, val, ok, geometry: bool, score=None):
+        """``score``: the derivative of the log-throughput accumulated before this vertex (deeper paths), whose
+        share ``val * score`` is added to the tangent."""
         dv, ds = dr.forward_to(val, opl, flags=_FLAGS)
         dv, ds = dr.detach(dv), dr.detach(ds)
+        if score is not None:
+            dv = dv + dr.detach(val) * score
         self.hist.record(lane, dr.detach(opl), dr.select(ok, dv, 0.0), ok, sub=sub)
         if geometry and self.time.on:
             slot = mi.UInt32(lane) * self.G + mi.UInt32(sub)
