@@ -6,14 +6,18 @@ capture) as ``[height, width, n_bins]``; ``dr.backward`` / ``dr.forward`` then c
 
 Same estimator, same samples
 ----------------------------
-The kernel below (:func:`_ad_pass`) is the NLOS estimator of :mod:`._nlos_kernel` up to three-bounce light
-(``max_depth <= 4``: detector - patch point ``p`` - hidden vertex ``X`` - laser spot ``S`` - laser) with the
+The kernel below (:func:`_ad_pass`) is the NLOS estimator of :mod:`._nlos_kernel` (detector - patch point
+``p`` - hidden vertex ``X`` - laser spot ``S`` - laser, then further vertices up to ``max_depth``) with the
 same lanes, replicates, seeds, randomised QMC numbers and PCG32 draws as the primal
 (:func:`~._nlos_render.render_spots`), so for the same seed it replays the primal's samples exactly: its
 values equal the primal's to float rounding (tested), and forward mode equals reverse mode on a scalar
-loss. The paths are at most three segments long: each contribution is computed with gradients attached
-and back-propagated (reverse) or pushed forward (forward) at once, inside the sample loop; nothing of a
-path is kept on a tape (memory does not grow with the number of samples or the path length; cf. PRB).
+loss. Up to the hidden vertex each contribution is computed with gradients attached and back-propagated
+(reverse) or pushed forward (forward) at once, inside the sample loop. Beyond it (``max_depth`` 5 to 16:
+BSDF parameters and the laser power, mono variants) the deeper vertices are replayed as in PRB
+(:func:`_deeper`): a first walk sums the adjoint-weighted deeper contributions ``A``, a second walk with the
+same random numbers back-propagates each vertex's own terms plus ``A_rest f / detach(f)`` for the BSDF value
+sampled there; forward mode carries the derivative of the log-throughput. Nothing of a path is kept on a
+tape: memory does not grow with the number of samples or the path length (the unrolled code does).
 
 What is differentiated
 ----------------------
@@ -45,8 +49,9 @@ What is differentiated
   ``bin_width^2 / (12 sigma^2)`` of the arrival-time part; measured by ``bench/kernel_mismatch.py``: 0.2 %
   of the gradient at sigma = 3 bins, 2.4 % at one bin, see ``docs/differentiable.md``).
 
-Refused in one line: ``max_depth`` -1 or > 4, a sensor medium, spectral/polarized variants, geometry of the
-relay wall, geometry with ``hidden_geometry_prob < 1`` or without a temporal kernel (``kernel_sigma_ps = 0``).
+Refused in one line: ``max_depth`` -1 (unlimited) or > 16, ``max_depth`` > 4 with geometry parameters or in an
+rgb variant, a sensor medium, spectral/polarized variants, geometry of the relay wall, geometry with
+``hidden_geometry_prob < 1`` or without a temporal kernel (``kernel_sigma_ps = 0``).
 
 Forward mode with geometry runs the sample loop evaluated with evaluated virtual calls (Dr.Jit cannot
 forward-propagate a shape parameter into symbolic scopes, drjit issue 295): slower than reverse mode.
@@ -356,7 +361,7 @@ def _walk(scene, rec, lane, w0, c, spot, group, wall_ptr, ctx, n_att, mode, rng,
 @dr.syntax
 def _ad_pass(scene, rec, rng, layout, j0, j1, c: KernelConstants, ks: KernelScene, n_att, geometry: bool,
              n_group: int, loop_mode: str):
-    """The samples ``[j0, j1)`` of every lane, as :func:`._nlos_kernel.nlos_pass` up to ``max_depth = 4``."""
+    """The samples ``[j0, j1)`` of every lane, as :func:`._nlos_kernel.nlos_pass`."""
     group = None if ks.group is None else (n_group, ks.group)
     wall_ptr = ks.wall_ptr
     K = layout.streams

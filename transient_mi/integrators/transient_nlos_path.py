@@ -123,11 +123,12 @@ bytes.
 Differentiable rendering
 ------------------------
 ``mi.render(scene, params)`` then ``dr.backward`` / ``dr.forward`` differentiate a capture (spot 0 of an
-array capture, or the confocal capture) up to three-bounce light (``max_depth <= 4``) with the same
-samples as the primal: BSDF values (hidden and relay-wall reflectances), the laser's ``pulse_energy_j``
-(exposed by ``mi.traverse``), the closed-form wall return, and hidden-shape geometry (translation,
-rotation: the interior derivative, with the arrival time through the film's temporal kernel; visibility
-and silhouette terms are not differentiated). See :mod:`transient_mi.integrators._nlos_ad` and
+array capture, or the confocal capture) with the same samples as the primal: BSDF values (hidden and
+relay-wall reflectances) and the laser's ``pulse_energy_j`` (exposed by ``mi.traverse``) for a finite
+``max_depth`` up to 16 (beyond three-bounce light in *_mono variants), the closed-form wall return, and
+hidden-shape geometry up to three-bounce light (``max_depth <= 4``; translation, rotation: the interior
+derivative, with the arrival time through the film's temporal kernel; visibility and silhouette terms
+are not differentiated). See :mod:`transient_mi.integrators._nlos_ad` and
 ``docs/differentiable.md``.
 """
 
@@ -276,7 +277,7 @@ class TransientNLOSPath(mi.CppADIntegrator):
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
         """Reverse mode (what ``dr.backward`` after ``mi.render(scene, params)`` calls): propagate ``grad_in``
         (``[height, width, n_bins]``, spot 0 or the confocal capture) to the scene parameters. What is
-        differentiated: :mod:`transient_mi.integrators._nlos_ad` (``max_depth <= 4``)."""
+        differentiated: :mod:`transient_mi.integrators._nlos_ad` (a finite ``max_depth``)."""
         from transient_mi.integrators._nlos_ad import nlos_backward
 
         if isinstance(sensor, int):
