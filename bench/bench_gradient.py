@@ -7,7 +7,9 @@ Scene: ``scenes/nlos_letter.xml``, confocal capture, 32 x 32 pixels of 15 mm, 51
 
 * ``bsdf``: the letter's three reflectances, the relay wall's reflectance and the laser's pulse energy;
 * ``geometry``: additionally a translation of the letter's stem (its ``to_world``), which adds the arrival-time
-  derivative through the temporal kernel.
+  derivative through the temporal kernel;
+* ``bsdf_depth8``: as ``bsdf`` with ``max_depth = 8`` (up to seven-bounce light; the deeper vertices by path
+  replay), primal at the same depth.
 
 The primal render (``render_transient``) and the gradient (``render_backward``, same seed and spp) of each
 configuration run in separate processes: load, one untimed call (JIT compilation), then ``rounds`` timed
@@ -48,7 +50,8 @@ def _worker(config: str, mode: str, size: int, bins: int, bin_width: float, spp:
 
     scene = load_scene(ROOT / "scenes" / "nlos_letter.xml",
                        {"width": str(size), "height": str(size), "n_bins": str(bins), "capture": "confocal",
-                        "spp": str(spp), "max_depth": "4", "bin_width_ps": str(bin_width),
+                        "spp": str(spp), "max_depth": "8" if config == "bsdf_depth8" else "4",
+                        "bin_width_ps": str(bin_width),
                         "pixel_footprint_m": "0.015"})
     sensor = scene.sensors()[0]
     sensor.film().kernel_sigma_ps = 32.0
@@ -113,7 +116,7 @@ def main() -> None:
         return
     load_start = list(os.getloadavg())
     runs = {}
-    for config in ("bsdf", "geometry"):
+    for config in ("bsdf", "geometry", "bsdf_depth8"):
         r = {}
         for mode in ("primal", "gradient"):
             cmd = [sys.executable, __file__, "--worker", config, mode, "--size", str(a.size), "--bins", str(a.bins),
@@ -130,7 +133,7 @@ def main() -> None:
         "benchmark": "reverse-mode gradient vs primal: transient_nlos_path, scenes/nlos_letter.xml confocal",
         "cpu_count": os.cpu_count(),
         "settings": {"size": a.size, "bins": a.bins, "bin_width_ps": a.bin_width, "spp": a.spp,
-                     "rounds": a.rounds, "max_depth": 4,
+                     "rounds": a.rounds, "max_depth": {"bsdf": 4, "geometry": 4, "bsdf_depth8": 8},
                      "kernel_sigma_ps": 32.0, "hidden_geometry_prob": 1.0,
                      "warm_policy": "one untimed call of each first (compilation); best round kept"},
         "targets": {"time_ratio_max": 3.0, "peak_rss_ratio_max": 3.0},
