@@ -40,6 +40,14 @@ class PulsedLaser(mi.Emitter):
     In a ``confocal`` capture the sensor aims the laser at each pixel's
     patch centre instead, and the scan grid is not used.
 
+    ``mi.traverse`` exposes ``pulse_energy_j`` (J, a differentiable
+    ``mi.Float``): the NLOS captures are linear in it, and
+    :meth:`photons_per_pulse_ad` carries its gradient into differentiable
+    NLOS renders (:mod:`transient_mi.integrators._nlos_ad`).
+    ``params.update()`` after changing it updates ``pulse_energy_j``,
+    ``average_power_w`` and ``photons_per_pulse``; a value <= 0 is refused
+    in one line.
+
     Photons per pulse: ``N = pulse_energy_j / (h c / wavelength)``, with
     ``pulse_energy_j = average_power_w / repetition_rate_hz`` when the
     average power is given instead.
@@ -87,11 +95,6 @@ class PulsedLaser(mi.Emitter):
        * - ``wavelength_nm``
          - float
          - Vacuum wavelength, nm, > 0 (default 1550).
-
-    ``mi.traverse`` exposes ``pulse_energy_j`` (J, a differentiable ``mi.Float``): the NLOS captures are
-    linear in it, and :meth:`photons_per_pulse_ad` carries its gradient into differentiable NLOS renders
-    (:mod:`transient_mi.integrators._nlos_ad`). ``params.update()`` after changing it updates
-    ``pulse_energy_j``, ``average_power_w`` and ``photons_per_pulse``; a value <= 0 is refused in one line.
     """
 
     NAME = "pulsed_laser"
@@ -141,18 +144,8 @@ class PulsedLaser(mi.Emitter):
             p = get_float(props, name, "average_power_w", DEFAULT_AVERAGE_POWER_W, min_value=0.0,
                           min_exclusive=True)
             self.pulse_energy_j = p / self.repetition_rate_hz
-        self._set_energy(self.pulse_energy_j)
-        #: the pulse energy as a Dr.Jit value (J), exposed by :meth:`traverse`
-        self.pulse_energy = mi.Float(self.pulse_energy_j)
-
-    def _set_energy(self, energy_j: float) -> None:
-        self.pulse_energy_j = float(energy_j)
         self.average_power_w = self.pulse_energy_j * self.repetition_rate_hz
         self.photons_per_pulse = self.pulse_energy_j / photon_energy_j(self.wavelength_nm)
-
-    def photons_per_pulse_ad(self) -> "mi.Float":
-        """Photons per pulse as a Dr.Jit value attached to the traversed ``pulse_energy_j`` (its gradient)."""
-        return self.pulse_energy * (1.0 / photon_energy_j(self.wavelength_nm))
 
     # ------------------------------------------------------------ queries
 
@@ -219,15 +212,30 @@ class PulsedLaser(mi.Emitter):
         p = mi.ScalarPoint3f(*[float(c) for c in self.origin])
         return mi.ScalarBoundingBox3f(p, p)
 
+    # -------------------------------- differentiable pulse energy (mi.traverse)
+
+    def _energy_value(self):
+        """The pulse energy as a Dr.Jit value (J), created on first use (the traversed parameter)."""
+        if getattr(self, "pulse_energy", None) is None:
+            self.pulse_energy = mi.Float(self.pulse_energy_j)
+        return self.pulse_energy
+
+    def photons_per_pulse_ad(self) -> "mi.Float":
+        """Photons per pulse as a Dr.Jit value attached to the traversed ``pulse_energy_j`` (its gradient)."""
+        return self._energy_value() * (1.0 / photon_energy_j(self.wavelength_nm))
+
     def traverse(self, callback):
-        callback.put("pulse_energy_j", self.pulse_energy, mi.ParamFlags.Differentiable)
+        callback.put("pulse_energy_j", self._energy_value(), mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys=None):
-        e = float(dr.detach(self.pulse_energy)[0]) if dr.width(self.pulse_energy) else float("nan")
-        if not (dr.width(self.pulse_energy) == 1 and e > 0 and math.isfinite(e)):
-            raise PluginParameterError(f"{self.NAME}: pulse_energy_j={e:g} (width {dr.width(self.pulse_energy)}) "
-                                       "must be one finite value > 0")
-        self._set_energy(e)
+        v = self._energy_value()
+        e = float(dr.detach(v)[0]) if dr.width(v) == 1 else float("nan")
+        if not (e > 0 and math.isfinite(e)):
+            raise PluginParameterError(f"{self.NAME}: pulse_energy_j={e:g} (width {dr.width(v)}) must be one "
+                                       "finite value > 0")
+        self.pulse_energy_j = e
+        self.average_power_w = e * self.repetition_rate_hz
+        self.photons_per_pulse = e / photon_energy_j(self.wavelength_nm)
 
     def to_string(self):
         return (f"PulsedLaser[origin={tuple(self.origin.tolist())}, target={tuple(self.target.tolist())}, "
