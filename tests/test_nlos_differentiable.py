@@ -398,6 +398,27 @@ def test_same_seed_same_bytes():
     assert grads[0] == grads[1]
 
 
+@pytest.mark.skipif(not hasattr(__import__("transient_mi.emitters.pulsed_laser", fromlist=["x"]).PulsedLaser,
+                                 "beam_sigma_rad"), reason="this checkout's pulsed_laser has no divergence_mrad")
+def test_a_divergent_beam_is_refused_in_one_line():
+    orig = mi.load_dict
+
+    def load(d, **kw):
+        d["laser"]["divergence_mrad"] = 1.0
+        return orig(d, **kw)
+
+    mi.load_dict = load
+    try:
+        scene = _scene()
+    finally:
+        mi.load_dict = orig
+    with pytest.raises(PluginParameterError, match=r"divergence_mrad=1; differentiable NLOS captures need a "
+                                                   r"collimated beam") as e:
+        scene.integrator().render_backward(scene, None, mi.TensorXf(np.zeros((4, 4, 128), np.float32)),
+                                           scene.sensors()[0], 1, 4)
+    assert "\n" not in str(e.value)
+
+
 def test_unsupported_cases_are_refused_in_one_line():
     w = mi.TensorXf(np.zeros((4, 4, 128), np.float32))
 

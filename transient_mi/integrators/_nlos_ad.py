@@ -51,7 +51,8 @@ What is differentiated
   ``bin_width^2 / (12 sigma^2)`` of the arrival-time part; measured by ``bench/kernel_mismatch.py``: 0.2 %
   of the gradient at sigma = 3 bins, 2.4 % at one bin, see ``docs/differentiable.md``).
 
-Refused in one line: ``max_depth`` -1 (unlimited) or > 16, ``max_depth`` > 4 with geometry parameters or in an
+Refused in one line: a divergent laser beam or windows on the device legs (the primal's extensions this
+kernel does not replay), ``max_depth`` -1 (unlimited) or > 16, ``max_depth`` > 4 with geometry parameters or in an
 rgb variant, a sensor medium, spectral/polarized variants, geometry of the relay wall, geometry with
 ``hidden_geometry_prob < 1`` or without a temporal kernel (``kernel_sigma_ps = 0``).
 
@@ -134,6 +135,16 @@ def check(integrator, scene, sensor, params):
     # _path_options.render_tensor; what the derivatives read of it, the wall's spots and pixels and the hidden
     # shapes' areas, does not change with the supported parameters)
     setup = sensor.nlos_setup(scene)
+    # (features of the primal this estimator does not replay; absent from older setups)
+    divergence = float(getattr(setup.laser, "divergence_mrad", 0.0))
+    if divergence > 0:
+        raise PluginParameterError(
+            f"{name}: the pulsed_laser's divergence_mrad={divergence:g}; differentiable NLOS captures need a "
+            "collimated beam (divergence_mrad=0)")
+    if getattr(setup, "windows", False):
+        raise PluginParameterError(
+            f"{name}: the scene has windows (delta-transmissive shapes on the device legs); differentiable NLOS "
+            "captures through windows are not supported")
     geometry = _geometry_params(params, setup, name)
     if geometry and deeper:
         raise PluginParameterError(
