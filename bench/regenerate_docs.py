@@ -473,6 +473,27 @@ def _own_provenance(rec: dict, name: str) -> str:
             f"{m.get('cpu_model') or m.get('cpu', '?')}, {m.get('cores', '?')} cores{load_txt}).")
 
 
+def gradient_para(R) -> str:
+    rec = R("gradient")
+    r = rec["result"]
+    st = r["settings"]
+    runs = r["runs"]
+
+    def one(key, what):
+        x = runs[key]
+        p, g = x["primal"], x["gradient"]
+        return (f"{what} {g['best_s']:.3f} s vs {p['best_s']:.3f} s (time ratio {x['time_ratio']:.2f}), peak RSS "
+                f"{g['peak_rss_mb']:.0f} vs {p['peak_rss_mb']:.0f} MB ({x['peak_rss_ratio']:.2f})")
+
+    return (f"\n**Cost** (`python bench/bench_gradient.py`: one reverse-mode gradient of a {st['size']} x "
+            f"{st['size']} confocal, {st['bins']}-bin capture of `scenes/nlos_letter.xml` against the primal at the "
+            f"same spp, {st['spp']}, best of {st['rounds']} warm calls, primal and gradient in separate processes): "
+            f"{one('bsdf', 'gradient of four reflectances and the pulse energy')}; "
+            f"{one('geometry', 'with the translation of the letter as well (geometry, arrival-time term)')}; "
+            f"{one('bsdf_depth8', 'reflectances and pulse energy at `max_depth` 8 (path replay)')}. Targets: <= "
+            f"{r['targets']['time_ratio_max']:g} in both. {provenance(rec)}\n")
+
+
 def noise_demo_para(R) -> str:
     rec = R("noise_target")
     res = rec["result"]
@@ -609,6 +630,7 @@ GENERATORS = {
     "noise_cost": (noise_cost_inline, ["render_variance_cost", "render_variance_cost_16k"], True),
     "noise_vs_spp": (noise_vs_spp_inline, ["render_noise_vs_spp"], True),
     "dataset_docs_table": (dataset_docs_table, ["dataset_dataset_example"], False),
+    "gradient": (gradient_para, ["gradient"], False),
 }
 
 

@@ -106,7 +106,8 @@ def test_forward_mode_equals_reverse_mode(kernel_sigma_ps):
     assert rev != 0 and fwd == pytest.approx(rev, rel=2e-4)
 
 
-def test_nlos_captures_refuse_ad_with_one_line():
+def test_nlos_captures_with_unlimited_depth_refuse_ad_with_one_line():
+    """Differentiable NLOS captures (tests/test_nlos_differentiable.py) need a finite max_depth."""
     import sys
 
     sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
@@ -115,7 +116,7 @@ def test_nlos_captures_refuse_ad_with_one_line():
     from transient_mi.props import PluginParameterError
 
     for integrator in ("transient_nlos_path", "transient_path"):
-        scene = nlos_scene(hidden=[square((0, 0, 0.5), 0.2, 0.8)], n_bins=64, integrator=integrator)
-        with pytest.raises(PluginParameterError, match="differentiable rendering of NLOS captures"):
+        scene = nlos_scene(hidden=[square((0, 0, 0.5), 0.2, 0.8)], n_bins=64, integrator=integrator, max_depth=-1)
+        with pytest.raises(PluginParameterError, match="max_depth=-1; differentiable NLOS captures need a finite max_depth"):
             scene.integrator().render_backward(scene, None, mi.TensorXf(np.zeros((4, 4, 64), np.float32)),
                                                scene.sensors()[0], 1, 4)

@@ -43,6 +43,14 @@ class PulsedLaser(mi.Emitter):
     In a ``confocal`` capture the sensor aims the laser at each pixel's
     patch centre instead, and the scan grid is not used.
 
+    ``mi.traverse`` exposes ``pulse_energy_j`` (J, a differentiable
+    ``mi.Float``): the NLOS captures are linear in it, and
+    :meth:`photons_per_pulse_ad` carries its gradient into differentiable
+    NLOS renders (:mod:`transient_mi.integrators._nlos_ad`).
+    ``params.update()`` after changing it updates ``pulse_energy_j``,
+    ``average_power_w`` and ``photons_per_pulse``; a value <= 0 is refused
+    in one line.
+
     Photons per pulse: ``N = pulse_energy_j / (h c / wavelength)``, with
     ``pulse_energy_j = average_power_w / repetition_rate_hz`` when the
     average power is given instead.
@@ -234,8 +242,30 @@ class PulsedLaser(mi.Emitter):
         p = mi.ScalarPoint3f(*[float(c) for c in self.origin])
         return mi.ScalarBoundingBox3f(p, p)
 
+    # -------------------------------- differentiable pulse energy (mi.traverse)
+
+    def _energy_value(self):
+        """The pulse energy as a Dr.Jit value (J), created on first use (the traversed parameter)."""
+        if getattr(self, "pulse_energy", None) is None:
+            self.pulse_energy = mi.Float(self.pulse_energy_j)
+        return self.pulse_energy
+
+    def photons_per_pulse_ad(self) -> "mi.Float":
+        """Photons per pulse as a Dr.Jit value attached to the traversed ``pulse_energy_j`` (its gradient)."""
+        return self._energy_value() * (1.0 / photon_energy_j(self.wavelength_nm))
+
     def traverse(self, callback):
-        pass
+        callback.put("pulse_energy_j", self._energy_value(), mi.ParamFlags.Differentiable)
+
+    def parameters_changed(self, keys=None):
+        v = self._energy_value()
+        e = float(dr.detach(v)[0]) if dr.width(v) == 1 else float("nan")
+        if not (e > 0 and math.isfinite(e)):
+            raise PluginParameterError(f"{self.NAME}: pulse_energy_j={e:g} (width {dr.width(v)}) must be one "
+                                       "finite value > 0")
+        self.pulse_energy_j = e
+        self.average_power_w = e * self.repetition_rate_hz
+        self.photons_per_pulse = e / photon_energy_j(self.wavelength_nm)
 
     def to_string(self):
         return (f"PulsedLaser[origin={tuple(self.origin.tolist())}, target={tuple(self.target.tolist())}, "

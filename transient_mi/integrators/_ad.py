@@ -24,8 +24,8 @@ Parameters that enter BSDF values (reflectance, roughness's value at fixed sampl
 emitted radiance and the film's temporal kernel (the adjoint is correlated with the kernel taps). Not
 differentiated: sampling densities and MIS weights (detached, which keeps the gradient unbiased: the
 proposal does not need differentiating), visibility and geometry (a moving shape's silhouette and the
-arrival time of its light; see ``docs/differentiable.md``), and the NLOS estimator (``spad_array``
-sensors refuse AD for now).
+arrival time of its light; see ``docs/differentiable.md``). NLOS captures (``spad_array`` sensors) are
+differentiated by :mod:`transient_mi.integrators._nlos_ad`.
 """
 
 from __future__ import annotations
@@ -52,8 +52,8 @@ def _mis(pdf_a, pdf_b):
 def _check(integrator, sensor):
     if hasattr(sensor, "nlos_setup"):
         raise PluginParameterError(
-            f"{integrator.NAME}: differentiable rendering of NLOS captures (spad_array) is not implemented yet; "
-            "camera sensors are differentiable (see docs/differentiable.md)")
+            f"{integrator.NAME}: this is the camera AD path; NLOS captures (spad_array) are differentiated by "
+            "transient_mi.integrators._nlos_ad (see docs/differentiable.md)")
     film = sensor.film()
     if not hasattr(film, "is_transient"):
         raise PluginParameterError(f"{integrator.NAME}: the sensor's film is {type(film).__name__}; use a "

@@ -98,8 +98,14 @@ def as_int(x) -> int:
 
 def render_tensor(integrator, scene, sensor, seed, spp, progress):
     """``Integrator.render`` for both transient integrators: ``render_transient`` on ``sensor`` (an index or a
-    sensor), its histograms as ``mi.TensorXf``; the film keeps the full result."""
+    sensor), its histograms as ``mi.TensorXf``; the film keeps the full result.
+
+    This is what ``mi.render`` calls, after ``params.update()`` in optimisation loops: an NLOS sensor's cached
+    scene analysis (its closed-form wall return, the laser's photons per pulse, the hidden shapes) is rebuilt
+    first, as the parameters may have changed."""
     if isinstance(sensor, int):
         sensor = scene.sensors()[sensor]
+    if hasattr(sensor, "forget_nlos_setup"):
+        sensor.forget_nlos_setup()
     result = integrator.render_transient(scene, sensor, seed=as_int(seed), spp=as_int(spp), progress=progress)
     return mi.TensorXf(result.histogram)

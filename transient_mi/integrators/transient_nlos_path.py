@@ -153,14 +153,25 @@ connections to the laser beam: :mod:`transient_mi.integrators._nlos_medium`).
 
 Histograms are accumulated per SIMD lane (:mod:`._lanes`): same seed, same
 bytes.
+
+Differentiable rendering
+------------------------
+``mi.render(scene, params)`` then ``dr.backward`` / ``dr.forward`` differentiate a capture (spot 0 of an
+array capture, or the confocal capture) with the same samples as the primal: BSDF values (hidden and
+relay-wall reflectances) and the laser's ``pulse_energy_j`` (exposed by ``mi.traverse``) for a finite
+``max_depth`` up to 16 (beyond three-bounce light in *_mono variants), the closed-form wall return, and
+hidden-shape geometry up to three-bounce light (``max_depth <= 4``; translation, rotation: the interior
+derivative, with the arrival time through the film's temporal kernel; visibility and silhouette terms
+are not differentiated). See :mod:`transient_mi.integrators._nlos_ad` and
+``docs/differentiable.md``.
 """
 
 from __future__ import annotations
 
 import mitsuba as mi
 
-from transient_mi.integrators._path_options import (check_render_call, read_nlos_options, read_path_params,
-                                                     render_tensor, replicates_for)
+from transient_mi.integrators._path_options import (as_int, check_render_call, read_nlos_options,
+                                                     read_path_params, render_tensor, replicates_for)
 from transient_mi.props import PluginParameterError
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
 
@@ -292,19 +303,28 @@ class TransientNLOSPath(mi.CppADIntegrator):
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True, progress=None):
         """Render and return the histograms as ``mi.TensorXf [height, width, n_bins]`` (spot 0).
 
-        The film keeps the full :class:`~transient_mi.films.transient_film.TransientResult`.
+        The film keeps the full :class:`~transient_mi.films.transient_film.TransientResult`; the sensor's
+        scene analysis is rebuilt (see :func:`~._path_options.render_tensor`).
         """
         return render_tensor(self, scene, sensor, seed, spp, progress)
 
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
-        """Not implemented for NLOS captures yet: one clear line (camera views are differentiable with
-        ``transient_path``; see ``docs/differentiable.md``)."""
-        raise PluginParameterError(
-            f"{self.NAME}: differentiable rendering of NLOS captures (spad_array) is not implemented yet; "
-            "camera sensors are differentiable with transient_path (see docs/differentiable.md)")
+        """Reverse mode (what ``dr.backward`` after ``mi.render(scene, params)`` calls): propagate ``grad_in``
+        (``[height, width, n_bins]``, spot 0 or the confocal capture) to the scene parameters. What is
+        differentiated: :mod:`transient_mi.integrators._nlos_ad` (a finite ``max_depth``)."""
+        from transient_mi.integrators._nlos_ad import nlos_backward
+
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        nlos_backward(self, scene, params, grad_in, sensor, as_int(seed), as_int(spp))
 
     def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
-        self.render_backward(scene, params, None, sensor, seed, spp)
+        """Forward mode (``dr.forward``): the derivative of the capture along the parameters' tangents."""
+        from transient_mi.integrators._nlos_ad import nlos_forward
+
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        return nlos_forward(self, scene, params, sensor, as_int(seed), as_int(spp))
 
     def render_transient(self, scene, sensor, *, seed: int = 0, spp: int = 0, spot: int | None = None,
                          spots=None, progress=None, replicate_offset: int = 0, replicates: int | None = None):

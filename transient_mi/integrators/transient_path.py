@@ -162,11 +162,16 @@ class TransientPath(mi.CppADIntegrator):
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
         """Reverse-mode derivative (what ``dr.backward`` after ``mi.render(scene, params)`` calls): propagate
         ``grad_in`` (``[height, width, n_bins(, channels)]``) to the scene parameters. Camera sensors;
-        see :mod:`transient_mi.integrators._ad` for what is differentiated."""
+        see :mod:`transient_mi.integrators._ad` for what is differentiated; NLOS sensors
+        (``spad_array``): :mod:`transient_mi.integrators._nlos_ad`."""
         from transient_mi.integrators._ad import render_backward
 
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
+        if is_nlos_sensor(sensor):
+            from transient_mi.integrators._nlos_ad import nlos_backward
+
+            return nlos_backward(self, scene, params, grad_in, sensor, as_int(seed), as_int(spp))
         render_backward(self, scene, params, grad_in, sensor, as_int(seed), as_int(spp))
 
     def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
@@ -175,6 +180,10 @@ class TransientPath(mi.CppADIntegrator):
 
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
+        if is_nlos_sensor(sensor):
+            from transient_mi.integrators._nlos_ad import nlos_forward
+
+            return nlos_forward(self, scene, params, sensor, as_int(seed), as_int(spp))
         return render_forward(self, scene, params, sensor, as_int(seed), as_int(spp))
 
     def render_transient(self, scene, sensor, *, seed: int = 0, spp: int = 0, spot: int | None = None,

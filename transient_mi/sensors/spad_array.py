@@ -169,6 +169,11 @@ class SpadArray(mi.Sensor):
             self._setup_scene = scene
         return self._setup
 
+    def forget_nlos_setup(self) -> None:
+        """Drop the cached setup (the next :meth:`nlos_setup` rebuilds it: after ``params.update()``)."""
+        self._setup = None
+        self._setup_scene = None
+
     def capture_layout(self, scene) -> dict:
         """What the render pipeline needs to lay out the capture (see :mod:`transient_mi.render_capture`)."""
         s = self.nlos_setup(scene)
