@@ -156,7 +156,7 @@ class SpadArray(mi.Sensor):
         if not hasattr(film, "is_transient"):
             raise PluginParameterError(f"{name}: needs a transient_film (or spad_film) child, got {type(film).__name__}")
         self._setup = None
-        self._setup_scene = None
+        self._setup_scene_id = None
 
     # ------------------------------------------------------------ NLOS API
 
@@ -164,15 +164,31 @@ class SpadArray(mi.Sensor):
         """The validated :class:`~transient_mi.sensors._nlos_setup.NLOSSetup` for ``scene`` (cached)."""
         from transient_mi.sensors._nlos_setup import NLOSSetup
 
-        if self._setup is None or self._setup_scene is not scene:
+        if not self._setup_is_for(scene):
+            self._setup = None  # the old scene's shapes and laser go first
             self._setup = NLOSSetup.build(scene, self)
-            self._setup_scene = scene
+            self._setup_scene_id = id(scene)
         return self._setup
+
+    def _setup_is_for(self, scene) -> bool:
+        """Whether the cached setup was built for ``scene``.
+
+        No reference to the scene is kept: the scene holds this sensor, and a reference back would be a
+        cycle through C++ objects that Python's garbage collector cannot see, so every scene rendered
+        would stay alive (and every later Dr.Jit call over emitters or shapes would trace its Python
+        plug-ins again). The scene's ``id`` alone could be reused by a new scene after the old one is
+        freed; the setup's relay wall, which the setup keeps alive, cannot: a new scene shares it only
+        if it is the same scene.
+        """
+        if self._setup is None or self._setup_scene_id != id(scene):
+            return False
+        wall = self._setup.relay_wall
+        return any(s is wall for s in scene.shapes())
 
     def forget_nlos_setup(self) -> None:
         """Drop the cached setup (the next :meth:`nlos_setup` rebuilds it: after ``params.update()``)."""
         self._setup = None
-        self._setup_scene = None
+        self._setup_scene_id = None
 
     def capture_layout(self, scene) -> dict:
         """What the render pipeline needs to lay out the capture (see :mod:`transient_mi.render_capture`)."""
