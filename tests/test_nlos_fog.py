@@ -426,5 +426,8 @@ def test_fog_nlos_scene_renders_and_reconstructs_with_the_cli(tmp_path):
     m = json.loads((out / "manifest.json").read_text())
     assert m["status"] == "complete" and m["render"]["integrator"].startswith("TransientVolPath")
     assert m["dropped"]["invalid_path_lengths"] == 0
+    med = m["geometry"]["medium"]  # the fog's coefficients, for a reconstruction that compensates them
+    assert med["type"] == "homogeneous" and med["sigma_t_per_m"] == pytest.approx(0.2, rel=1e-6)
+    assert med["albedo"][0] == pytest.approx(0.9, rel=1e-6) and "hg" in med["phase_description"].lower()
     run("recon", out, "-o", tmp_path / "rec", "--voxels", "8")
     assert (tmp_path / "rec" / "volume.npz").exists()

@@ -146,6 +146,14 @@ class NLOSMedium:
         return cls(medium=medium, sigma_t=float(st[0]), sigma_s=tuple(float(v) for v in ss),
                    phase=medium.phase_function())
 
+    def manifest_entry(self) -> dict:
+        """What the capture's manifest records about the medium (``geometry.medium``): its extinction and
+        single-scattering albedo (per colour channel) and its phase function, so a reconstruction can
+        compensate the attenuation."""
+        return {"type": "homogeneous", "id": self.medium.id() or None, "sigma_t_per_m": self.sigma_t,
+                "albedo": list(self.albedo), "phase": str(self.phase).split("[", 1)[0].strip(),
+                "phase_description": " ".join(str(self.phase).split())}
+
     def wall_return(self, setup) -> dict:
         """The closed-form wall return of ``setup`` attenuated along ``L -> S -> D`` (``opl_m`` is that length:
         ``include_first_last`` is true)."""

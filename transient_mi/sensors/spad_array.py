@@ -193,12 +193,17 @@ class SpadArray(mi.Sensor):
     def capture_layout(self, scene) -> dict:
         """What the render pipeline needs to lay out the capture (see :mod:`transient_mi.render_capture`)."""
         s = self.nlos_setup(scene)
+        geometry = s.geometry()
+        if self.get_medium() is not None:  # fog: its coefficients (validated as the renderer validates them)
+            from transient_mi.integrators._nlos_medium import NLOSMedium
+
+            geometry["medium"] = NLOSMedium.from_sensor(scene, self, s, "transient_volpath").manifest_entry()
         return {
             "capture": s.capture,
             "n_files": s.n_files,
             "quantity": "photons_per_pulse",
             "include_first_last": s.include_first_last,
-            "geometry": s.geometry(),
+            "geometry": geometry,
             "laser": s.laser.laser_info(),
         }
 
