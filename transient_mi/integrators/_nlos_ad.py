@@ -70,8 +70,8 @@ from transient_mi.integrators._lanes import LaneLayout, seed_rng
 from transient_mi.integrators._nlos_ad_paths import connect, deeper, first_bounce
 from transient_mi.integrators._nlos_ad_terms import (Backward, Forward, TimeKernel, wall_return_backward,
                                                      wall_return_forward, wall_return_inputs)
-from transient_mi.integrators._nlos_kernel import (QMC_DIMS, KernelConstants, KernelScene, _sensor_weight,
-                                                   kronecker_generators)
+from transient_mi.integrators._nlos_kernel import KernelConstants, KernelScene, _sensor_weight
+from transient_mi.integrators._nlos_samples import PixelQMC, lane_pixels
 from transient_mi.integrators._nlos_render import group_layout
 from transient_mi.integrators._replicates import effective_replicates, replicate_seed
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
@@ -169,22 +169,14 @@ def _ad_pass(scene, rec, rng, layout, j0, j1, c: KernelConstants, ks: KernelScen
     group = None if ks.group is None else (n_group, ks.group)
     wall_ptr = ks.wall_ptr
     K = layout.streams
-    lane = dr.arange(mi.UInt32, layout.n_lanes)
-    pixel = lane // K
-    k = lane - pixel * K
-    px = mi.Float(pixel % c.width_px)
-    py = mi.Float(pixel // c.width_px)
-    centre = c.patch_origin + px * c.pitch_x + py * c.pitch_y
+    lanes = lane_pixels(c, layout)
+    lane, pixel, k, centre = lanes[0], lanes[1], lanes[2], lanes[3]
     spot = None
     if dr.hint(c.confocal, mode="scalar"):
         laser_ray = mi.Ray3f(c.laser_origin, dr.normalize(centre - c.laser_origin))
         si_s = scene.ray_intersect(laser_ray, ray_flags=mi.RayFlags.All, coherent=True)
         spot = (si_s, si_s.bsdf())
-    gen = [dr.opaque(mi.UInt32, g) for g in kronecker_generators()]
-    shift = []
-    for d in range(0, QMC_DIMS, 2):
-        a, b = mi.sample_tea_32(pixel, c.seed ^ mi.UInt32(0x9E3779B9 * (d + 1) & 0xFFFFFFFF))
-        shift += [a, b]
+    qmc = PixelQMC(c, pixel)
     if dr.hint(c.patch_center_only, mode="scalar"):
         if dr.hint(c.spot_is_wall_point, mode="scalar"):
             si_c = dr.detach(spot[0])
@@ -201,10 +193,7 @@ def _ad_pass(scene, rec, rng, layout, j0, j1, c: KernelConstants, ks: KernelScen
     ctx = mi.BSDFContext()
     while dr.hint((j < j_end) & (k + j * K < spp), mode=loop_mode, max_iterations=-1):
         i_sample = k + j * K
-        if dr.hint(c.rqmc, mode="scalar"):
-            u = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
-        else:
-            u = [rng.next_float32() for d in range(QMC_DIMS)]
+        u = qmc.numbers(c, rng, i_sample)
         if dr.hint(c.patch_center_only, mode="scalar"):
             si = si_c
             w0 = w0_c

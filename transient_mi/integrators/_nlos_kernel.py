@@ -19,6 +19,7 @@ import numpy as np
 
 from transient_mi.integrators._device_legs import beam_spot, trace_leg
 from transient_mi.integrators._lanes import to_mono
+from transient_mi.integrators._nlos_samples import PixelQMC, lane_pixels
 from transient_mi.integrators._optical_path import segment_index
 
 #: Relative tolerance on the hit distance when checking that a hidden-geometry
@@ -26,23 +27,6 @@ from transient_mi.integrators._optical_path import segment_index
 VISIBILITY_REL_TOL = 1e-4
 #: ``max_depth`` value standing for "unlimited".
 UNLIMITED_DEPTH = 1 << 30
-#: Dimensions drawn from the randomised low-discrepancy sequence: patch point (2), strategy choice (1),
-#: hidden shape (1), point on it (2), BSDF direction (2) at the patch point.
-QMC_DIMS = 8
-
-
-def kronecker_generators(d: int = QMC_DIMS) -> list[int]:
-    """Generators of the R_d Kronecker sequence (Roberts 2018) as 32-bit fixed-point fractions.
-
-    ``phi_d`` is the positive root of ``x^(d+1) = x + 1``; dimension ``k``
-    advances by ``frac(phi_d^-(k+1))`` per sample.
-    """
-    phi = 2.0
-    for _ in range(100):
-        phi = (1.0 + phi) ** (1.0 / (d + 1))
-    return [int((phi ** -(k + 1) % 1.0) * 2.0 ** 32) & 0xFFFFFFFF for k in range(d)]
-
-
 def _ovec(v) -> "mi.Vector3f":
     v = [float(c) for c in v]
     return mi.Vector3f(dr.opaque(mi.Float, v[0]), dr.opaque(mi.Float, v[1]), dr.opaque(mi.Float, v[2]))
@@ -370,12 +354,8 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
     """
     hidden_ptrs, distr, wall_ptr, group = ks.hidden_ptrs, ks.hidden_distr, ks.wall_ptr, ks.group
     K = layout.streams
-    lane = dr.arange(mi.UInt32, layout.n_lanes)
-    pixel = lane // K
-    k = lane - pixel * K
-    px = mi.Float(pixel % c.width_px)
-    py = mi.Float(pixel // c.width_px)
-    centre = c.patch_origin + px * c.pitch_x + py * c.pitch_y
+    lanes = lane_pixels(c, layout)
+    lane, pixel, k, centre = lanes[0], lanes[1], lanes[2], lanes[3]
 
     # ---- confocal: the laser spot of every lane is its own patch centre
     spot = None
@@ -392,11 +372,7 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
             spot = (si_s, si_s.bsdf())
 
     # ---- randomised QMC: an R_d sequence over the pixel's samples, shifted at random per pixel
-    gen = [dr.opaque(mi.UInt32, g) for g in kronecker_generators()]
-    shift = []
-    for d in range(0, QMC_DIMS, 2):
-        a, b = mi.sample_tea_32(pixel, c.seed ^ mi.UInt32(0x9E3779B9 * (d + 1) & 0xFFFFFFFF))
-        shift += [a, b]
+    qmc = PixelQMC(c, pixel)
 
     # ---- patch centre only: the wall point (vertex 1) is the same for every sample
     if dr.hint(c.patch_center_only, mode="scalar"):
@@ -425,10 +401,7 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
 
     while (j < j_end) & (k + j * K < spp):
         i_sample = k + j * K
-        if dr.hint(c.rqmc, mode="scalar"):
-            u = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
-        else:  # plain Monte Carlo (for comparisons: integrator parameter rqmc=false)
-            u = [rng.next_float32() for d in range(QMC_DIMS)]
+        u = qmc.numbers(c, rng, i_sample)
         # ---- patch point p (vertex 1) and the sensor weight
         if dr.hint(c.patch_center_only, mode="scalar"):
             si = si_c

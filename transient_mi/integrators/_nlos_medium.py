@@ -78,8 +78,8 @@ import mitsuba as mi
 import numpy as np
 
 from transient_mi.integrators._lanes import to_mono
-from transient_mi.integrators._nlos_kernel import (QMC_DIMS, _first_bounce, _of, _sensor_weight, gather_spot,
-                                                   kronecker_generators)
+from transient_mi.integrators._nlos_kernel import _first_bounce, _of, _sensor_weight, gather_spot
+from transient_mi.integrators._nlos_samples import PixelQMC, lane_pixels
 from transient_mi.integrators._optical_path import segment_index
 from transient_mi.props import PluginParameterError
 
@@ -304,12 +304,8 @@ def nlos_medium_pass(scene, hist, rng, layout, j0, j1, c, ks, mc: MediumConstant
     hidden_ptrs, distr, wall_ptr, group = ks.hidden_ptrs, ks.hidden_distr, ks.wall_ptr, ks.group
     rng_m = _medium_rng(c, layout, j0)
     K = layout.streams
-    lane = dr.arange(mi.UInt32, layout.n_lanes)
-    pixel = lane // K
-    k = lane - pixel * K
-    px = mi.Float(pixel % c.width_px)
-    py = mi.Float(pixel // c.width_px)
-    centre = c.patch_origin + px * c.pitch_x + py * c.pitch_y
+    lanes = lane_pixels(c, layout)
+    lane, pixel, k, centre = lanes[0], lanes[1], lanes[2], lanes[3]
 
     spot = None
     if dr.hint(c.confocal, mode="scalar"):
@@ -317,11 +313,7 @@ def nlos_medium_pass(scene, hist, rng, layout, j0, j1, c, ks, mc: MediumConstant
         si_s = scene.ray_intersect(laser_ray, ray_flags=mi.RayFlags.All, coherent=True)
         spot = (si_s, si_s.bsdf())
 
-    gen = [dr.opaque(mi.UInt32, g) for g in kronecker_generators()]
-    shift = []
-    for d in range(0, QMC_DIMS, 2):
-        a, b = mi.sample_tea_32(pixel, c.seed ^ mi.UInt32(0x9E3779B9 * (d + 1) & 0xFFFFFFFF))
-        shift += [a, b]
+    qmc = PixelQMC(c, pixel)
 
     if dr.hint(c.patch_center_only, mode="scalar"):
         if dr.hint(c.spot_is_wall_point, mode="scalar"):
@@ -345,10 +337,7 @@ def nlos_medium_pass(scene, hist, rng, layout, j0, j1, c, ks, mc: MediumConstant
 
     while (j < j_end) & (k + j * K < spp):
         i_sample = k + j * K
-        if dr.hint(c.rqmc, mode="scalar"):
-            u = [mi.Float((shift[d] + i_sample * gen[d]) >> 8) * (1.0 / (1 << 24)) for d in range(QMC_DIMS)]
-        else:
-            u = [rng.next_float32() for d in range(QMC_DIMS)]
+        u = qmc.numbers(c, rng, i_sample)
         # ---- vertex 1: a medium vertex on the detector ray, or the patch point p
         if dr.hint(c.patch_center_only, mode="scalar"):
             si = si_c
