@@ -36,6 +36,7 @@ import numpy as np
 
 from transient_mi.integrators._lanes import (ChannelHistogram, LaneHistogram, LaneLayout, channel_values,
                                              choose_streams, seed_rng)
+from transient_mi.integrators._ad_geometry import TimeAdjoint, TimeTangent, check_geometry, replay_geometry
 from transient_mi.integrators._optical_path import segment_index
 from transient_mi.integrators._pixel_filter import PixelFilter
 from transient_mi.integrators._time_origin import TimeOrigin
@@ -134,6 +135,9 @@ def render_backward(integrator, scene, params, grad_in, sensor, seed, spp) -> No
     rng = seed_rng(seed, layout.n_lanes)
     origin, pixel_filter = TimeOrigin(sensor), PixelFilter(film.rfilter(), film.sample_border())
     scale = 1.0 / layout.spp
+    if check_geometry(integrator, film, params):
+        return _geometry_backward(integrator, scene, sensor, film, layout, grad_in, n_ch, adj, rng, origin,
+                                  pixel_filter, scale)
 
     def trace(scene_, rng_, _hist, lane, ray, weight, org):
         state = (mi.UInt64(rng_.state), mi.UInt64(rng_.inc))
@@ -154,6 +158,9 @@ def render_forward(integrator, scene, params, sensor, seed, spp) -> mi.TensorXf:
     hist = LaneHistogram(layout, axis, pad) if channels is None else ChannelHistogram(layout, axis, pad, n_ch)
     rng = seed_rng(seed, layout.n_lanes)
     origin, pixel_filter = TimeOrigin(sensor), PixelFilter(film.rfilter(), film.sample_border())
+    if check_geometry(integrator, film, params):
+        return _geometry_forward(integrator, scene, sensor, film, layout, axis, taps, channels, n_ch, hist, rng,
+                                 origin, pixel_filter)
 
     def trace(scene_, rng_, hist_, lane, ray, weight, org):
         _replay(integrator, scene_, rng_, lane, ray, weight, org, None, "forward", hist_, 1.0)
@@ -165,6 +172,48 @@ def render_forward(integrator, scene, params, sensor, seed, spp) -> mi.TensorXf:
     h, _, _, _ = hist.collect(taps)
     H, W = film.height, film.width
     return mi.TensorXf(h.reshape((H, W, axis.n_bins) + h.shape[2:]))
+
+
+def _geometry_backward(integrator, scene, sensor, film, layout, grad_in, n_ch, adj, rng, origin, pixel_filter,
+                       scale) -> None:
+    """Reverse mode with shape geometry (:mod:`._ad_geometry`): the replay with attached vertices and the
+    arrival-time term."""
+    tadj = TimeAdjoint(grad_in, film, n_ch, layout.streams)
+
+    def trace(scene_, rng_, _hist, lane, ray, weight, org):
+        state = (mi.UInt64(rng_.state), mi.UInt64(rng_.inc))
+        with dr.suspend_grad():
+            A = replay_geometry(integrator, scene_, rng_, lane, ray, weight, org, adj, tadj, "weight", None, scale)
+        replay_rng = mi.PCG32()
+        replay_rng.state, replay_rng.inc = state
+        replay_geometry(integrator, scene_, replay_rng, lane, ray, weight, org, adj, tadj, "backward", A, scale)
+
+    for j0, j1 in layout.passes():
+        rng = integrator._camera_pass(scene, sensor, None, rng, layout, j0, j1, film.width, film.height, origin,
+                                      pixel_filter, trace=trace)
+        dr.eval(rng.state)
+
+
+def _geometry_forward(integrator, scene, sensor, film, layout, axis, taps, channels, n_ch, hist, rng, origin,
+                      pixel_filter) -> mi.TensorXf:
+    """Forward mode with shape geometry: evaluated loops and calls (Dr.Jit cannot forward-propagate a shape
+    parameter into symbolic scopes, drjit issue 295); the arrival-time tangent is added after the taps."""
+    tt = TimeTangent(film, layout.n_lanes, n_ch)
+
+    def trace(scene_, rng_, hist_, lane, ray, weight, org):
+        replay_geometry(integrator, scene_, rng_, lane, ray, weight, org, None, None, "forward", hist_, 1.0,
+                        time_tangent=tt)
+
+    with dr.scoped_set_flag(dr.JitFlag.SymbolicLoops, False), dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, False):
+        for j0, j1 in layout.passes():
+            rng = integrator._camera_pass(scene, sensor, hist, rng, layout, j0, j1, film.width, film.height, origin,
+                                          pixel_filter, trace=trace)
+            hist.evaluate(rng, tt.data)
+    h, _, _, _ = hist.collect(taps)
+    h = np.asarray(h, dtype=np.float64).reshape(layout.n_pixels, axis.n_bins, n_ch) + tt.collect(layout)
+    H, W = film.height, film.width
+    shape = (H, W, axis.n_bins) if channels is None else (H, W, axis.n_bins, n_ch)
+    return mi.TensorXf(h.astype(np.float32).reshape(shape))
 
 
 def _accumulate(adj, lane, acc, opl, le, act_le, opl_em, lr, act_em):
