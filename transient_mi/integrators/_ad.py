@@ -21,11 +21,22 @@ accumulates the derivative of the path's log-throughput ``S`` (a tangent, per la
 What is differentiated
 ----------------------
 Parameters that enter BSDF values (reflectance, roughness's value at fixed sampled directions),
-emitted radiance and the film's temporal kernel (the adjoint is correlated with the kernel taps). Not
-differentiated: sampling densities and MIS weights (detached, which keeps the gradient unbiased: the
-proposal does not need differentiating), visibility and geometry (a moving shape's silhouette and the
-arrival time of its light; see ``docs/differentiable.md``). NLOS captures (``spad_array`` sensors) are
-differentiated by :mod:`transient_mi.integrators._nlos_ad`.
+emitted radiance and the film's temporal kernel (the adjoint is correlated with the kernel taps), and
+**shape geometry** (a shape's ``to_world``, tested on rectangles; a mesh's ``vertex_positions`` and a
+sphere's ``center`` take the same code, untested):
+:mod:`transient_mi.integrators._ad_geometry` replays the path with every vertex attached to its shape
+(the camera vertex along its fixed ray, later vertices ``FollowShape`` in area measure) and
+differentiates the arrival time through the film's Gaussian kernel (``kernel_sigma_ps > 0``, refused
+otherwise): the interior derivative. Not differentiated: sampling densities and MIS weights (detached,
+which keeps the gradient unbiased: the proposal does not need differentiating) and visibility (a moving
+shape's silhouette, a shadow edge sweeping over a surface: biased, measured in
+``docs/differentiable.md``). NLOS captures (``spad_array`` sensors) are differentiated by
+:mod:`transient_mi.integrators._nlos_ad`.
+
+Determinism: forward mode records tangents in per-lane histograms (same seed, same bytes); reverse mode
+accumulates each parameter's gradient with Dr.Jit's atomic adds across threads (same seed: equal to float
+rounding; the last bits of a gradient can change from run to run with more than one thread, as for an
+emitter's ``intensity`` here before geometry was added).
 """
 
 from __future__ import annotations
