@@ -72,14 +72,20 @@ def _scene(light="point", sigma_ps=120.0, occluder=False):
     return mi.load_dict(d)
 
 
+def _shape():
+    """The histogram's shape: ``[H, W, bins]``, and ``[H, W, bins, 3]`` in rgb variants (R, G, B channels)."""
+    return (H, W, N_BINS) + ((3,) if mi.is_rgb else ())
+
+
 def _weights():
-    return np.random.default_rng(7).random((H, W, N_BINS)).astype(np.float32)
+    return np.random.default_rng(7).random(_shape()).astype(np.float32)
 
 
 def _ramp():
     """Weights growing with time (the loss: a mean arrival time times the light): its gradient is mostly the
     arrival time's."""
-    return np.broadcast_to(np.linspace(0.0, 1.0, N_BINS, dtype=np.float32), (H, W, N_BINS)).copy()
+    ramp = np.linspace(0.0, 1.0, N_BINS, dtype=np.float32)
+    return np.broadcast_to(ramp.reshape((1, 1, N_BINS) + (1,) * (len(_shape()) - 3)), _shape()).copy()
 
 
 def _render(scene, seed, spp=SPP):
@@ -240,7 +246,7 @@ def test_geometry_without_a_temporal_kernel_is_refused_in_one_line():
     scene = _scene(sigma_ps=0.0)
     params = mi.traverse(scene)
     dr.enable_grad(params["plane.to_world"])
-    w = mi.TensorXf(np.zeros((H, W, N_BINS), np.float32))
+    w = mi.TensorXf(np.zeros(_shape(), np.float32))
     try:
         for call in (lambda: scene.integrator().render_backward(scene, params, w, scene.sensors()[0], 1, 4),
                      lambda: scene.integrator().render_forward(scene, params, scene.sensors()[0], 1, 4)):
