@@ -9,11 +9,11 @@ weights ``w`` per pixel and bin.
 
 Statistics: each geometry check compares, per seed, the reverse-mode gradient with central differences of the
 primal at the same seed (common random numbers) and tests the mean of the paired differences over 10 seeds
-with a two-sided t-test (9 degrees of freedom); the 8 comparisons share a total false-failure rate of 1e-3
-(Bonferroni: 1.25e-4 each, quantile 6.40). Each also asserts that the gradient is resolved (its mean at
+with a two-sided t-test (9 degrees of freedom); the 9 comparisons share a total false-failure rate of 1e-3
+(Bonferroni: 1.11e-4 each, quantile 6.50). Each also asserts that the gradient is resolved (its mean at
 least 5 standard errors of the differences from 0), so that agreement is not vacuous. Without the
-arrival-time term the view-axis comparison must fail (|t| > 6.40; measured t about 170: the power of the
-test); the occluder check asserts that central differences see a change (|t| > 6.40, measured about 100)
+arrival-time term the view-axis comparison must fail (|t| > 6.50; measured t about 170: the power of the
+test); the occluder check asserts that central differences see a change (|t| > 6.50, measured about 100)
 that AD does not (zero to float rounding). Forward against reverse mode, same bytes and the refusal are
 deterministic (no false-failure rate).
 """
@@ -38,13 +38,13 @@ W = H = 8
 N_BINS = 320
 SPP = 256
 SEEDS = range(10)
-N_COMPARISONS = 8
+N_COMPARISONS = 9
 ALPHA_TOTAL = 1e-3
 T_Q = float(stats.t.isf(ALPHA_TOTAL / N_COMPARISONS / 2, len(SEEDS) - 1))
 PLANE = T().rotate([1, 0, 0], -20) @ T().rotate([0, 1, 0], 25) @ T().scale(2.0)
 
 
-def _scene(light="point", sigma_ps=120.0, occluder=False):
+def _scene(light="point", sigma_ps=120.0, occluder=False, mesh=None):
     d = {"type": "scene",
          "integrator": {"type": "transient_path", "max_depth": 3},
          "sensor": {"type": "perspective", "fov": 30.0,
@@ -59,6 +59,9 @@ def _scene(light="point", sigma_ps=120.0, occluder=False):
          "wall": {"type": "rectangle",
                   "to_world": T().translate([-0.6, 0, 1.0]) @ T().rotate([0, 1, 0], 90) @ T().scale(0.5),
                   "bsdf": {"type": "diffuse", "reflectance": {"type": "spectrum", "value": 0.8}}}}
+    if mesh is not None:  # the same plane as a PLY mesh
+        d["plane"] = {"type": "ply", "filename": str(mesh),
+                      "bsdf": {"type": "diffuse", "reflectance": {"type": "spectrum", "value": 0.6}}}
     if light == "point":
         d["light"] = {"type": "point", "position": [0.5, 0.4, 1.0], "intensity": {"type": "spectrum", "value": 5.0}}
     else:  # a 0.2 m square facing down
@@ -167,6 +170,49 @@ def test_geometry_gradient_equals_central_differences(light, key, kind):
     t, resolved = _t(ads, fds)
     assert abs(resolved) > 5, f"not resolved: AD {ads.mean():.4g}, differences' se {ads.mean() / resolved:.3g}"
     assert abs(t) <= T_Q, f"AD {ads.mean():.5g} vs central differences {fds.mean():.5g}: paired t = {t:+.2f}"
+
+
+def _plane_ply(path):
+    """The test plane (the rectangle's four corners under ``PLANE``) as a two-triangle PLY mesh."""
+    m = mi.Mesh("plane", 4, 2)
+    v = [PLANE @ mi.ScalarPoint3f(x, y, 0.0) for x, y in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    p = mi.traverse(m)
+    p["vertex_positions"] = mi.Float(np.asarray([list(q) for q in v], np.float32).ravel())
+    p["faces"] = mi.UInt32(np.array([0, 1, 2, 0, 2, 3], np.uint32))
+    p.update()
+    m.write_ply(str(path))
+    return path
+
+
+def test_mesh_vertex_positions_gradient_equals_central_differences(tmp_path):
+    """The plane as a mesh moved along z through its vertex_positions (the 9th comparison): the same interior
+    derivative as through a rectangle's to_world."""
+    scene = _scene(mesh=_plane_ply(tmp_path / "plane.ply"))
+    params = mi.traverse(scene)
+    key = "plane.vertex_positions"
+    V0 = dr.unravel(mi.Point3f, mi.Float(params[key]))
+    w = _weights()
+    eps = 0.004
+    ads, fds = [], []
+    try:
+        for seed in SEEDS:
+            th = mi.Float(0.0)
+            dr.enable_grad(th)
+            params[key] = dr.ravel(V0 + mi.Vector3f(0, 0, th))
+            params.update()
+            scene.integrator().render_backward(scene, params, mi.TensorXf(w), scene.sensors()[0], seed, SPP)
+            ads.append(float(dr.grad(th)[0]))
+            _detach_all(params)
+            vals = []
+            for s in (1, -1):
+                params[key] = dr.ravel(V0 + mi.Vector3f(0, 0, s * eps))
+                params.update()
+                vals.append(float(np.sum(_render(scene, seed) * w)))
+            fds.append((vals[0] - vals[1]) / (2 * eps))
+    finally:
+        _detach_all(params)
+    t, resolved = _t(np.asarray(ads), np.asarray(fds))
+    assert abs(resolved) > 5 and abs(t) <= T_Q, f"AD {np.mean(ads):.5g} vs {np.mean(fds):.5g}: paired t = {t:+.2f}"
 
 
 def test_the_arrival_time_term_is_needed(monkeypatch):

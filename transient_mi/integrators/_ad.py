@@ -22,8 +22,8 @@ What is differentiated
 ----------------------
 Parameters that enter BSDF values (reflectance, roughness's value at fixed sampled directions),
 emitted radiance and the film's temporal kernel (the adjoint is correlated with the kernel taps), and
-**shape geometry** (a shape's ``to_world``, tested on rectangles; a mesh's ``vertex_positions`` and a
-sphere's ``center`` take the same code, untested):
+**shape geometry** (a shape's ``to_world`` and a mesh's ``vertex_positions``, tested; a sphere's
+``center`` takes the same code, untested):
 :mod:`transient_mi.integrators._ad_geometry` replays the path with every vertex attached to its shape
 (the camera vertex along its fixed ray, later vertices ``FollowShape`` in area measure) and
 differentiates the arrival time through the film's Gaussian kernel (``kernel_sigma_ps > 0``, refused

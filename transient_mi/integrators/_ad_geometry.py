@@ -40,7 +40,8 @@ The primal is unchanged (box bin then discrete taps): the sub-bin mismatch of :m
 Not differentiated (biased): visibility and silhouettes (the boundary terms); a deformation's change of area
 (scaling a shape, moving single vertices of a mesh: the area density is not differentiated); paths through
 delta (specular) lobes (their segment factor is left at 1: a specular chain's vertices do not follow the
-shapes in a consistent measure). Untested: moving emitters, spheres and meshes in camera views.
+shapes in a consistent measure). Tested: rectangles (``to_world``) and a mesh (``vertex_positions``);
+untested: moving emitters, spheres.
 """
 
 from __future__ import annotations
