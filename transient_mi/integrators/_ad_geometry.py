@@ -266,7 +266,7 @@ def replay_geometry(integrator, scene, rng, lane, ray, throughput, origin, adj, 
             p_prev = dr.select(first, origin, xp.p)
             to_x = x.p - p_prev
             dist_in = dr.norm(to_x)
-            x.wi = dr.select(first, x.wi, x.to_local(-to_x / dist_in))
+            x.wi = dr.select(first | ~x.is_valid(), x.wi, x.to_local(-to_x / dist_in))  # (escaped: -ray.d)
             seg_cam = dr.select(first, dist_in, 0)  # the camera segment (its later segments: seg_out)
 
             # ---- emitter hit
