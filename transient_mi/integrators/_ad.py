@@ -33,6 +33,10 @@ shape's silhouette, a shadow edge sweeping over a surface: biased, measured in
 ``docs/differentiable.md``). NLOS captures (``spad_array`` sensors) are differentiated by
 :mod:`transient_mi.integrators._nlos_ad`.
 
+Variants: ``*_mono``, ``*_rgb`` and ``*_spectral`` (geometry: mono and rgb); in spectral variants a path
+carries several wavelengths with different BSDF values, so ``A`` and ``S`` are kept per (channel,
+wavelength) (:data:`N_WL`, :func:`_values`); polarized variants are refused.
+
 Determinism: forward mode records tangents in per-lane histograms (same seed, same bytes); reverse mode
 accumulates each parameter's gradient with Dr.Jit's atomic adds across threads (same seed: equal to float
 rounding; the last bits of a gradient can change from run to run with more than one thread, as for an
@@ -70,10 +74,10 @@ def _check(integrator, sensor):
     if not hasattr(film, "is_transient"):
         raise PluginParameterError(f"{integrator.NAME}: the sensor's film is {type(film).__name__}; use a "
                                    "transient_film")
-    if mi.is_spectral or mi.is_polarized:
-        raise PluginParameterError(f"{integrator.NAME}: differentiable rendering supports *_mono and *_rgb variants, "
-                                   f"not {mi.variant()}")
-    if film.channel_names() is not None and not mi.is_rgb:
+    if mi.is_polarized:
+        raise PluginParameterError(f"{integrator.NAME}: differentiable rendering supports *_mono, *_rgb and "
+                                   f"*_spectral variants, not {mi.variant()}")
+    if film.channel_names() is not None and not (mi.is_rgb or mi.is_spectral):
         raise PluginParameterError(f"{integrator.NAME}: differentiable rendering of channels "
                                    f"{film.channel_names()} is not supported")
     return film
@@ -101,25 +105,52 @@ class _Adjoint:
         self.delta = mi.Float(delta.ravel())
         self.binner = binner
         self.K = K
+        #: spectral variants: the values are per (channel, wavelength), ``N_WL`` wavelengths per channel
+        self.per_channel = N_WL
 
     def weights(self, lane, opl, values, active) -> list:
-        """``[delta[pixel, bin(opl), c] * values[c] for c]`` (0 outside the padded range)."""
+        """``[delta[pixel, bin(opl), c] * values[c] for c]`` (0 outside the padded range); spectral: ``values``
+        per (channel, wavelength), channel ``c = i // N_WL``."""
         valid, _, b_ext, invalid = self.binner.bin_index(opl)
         ok = mi.Bool(active) & valid & ~invalid
         pixel = mi.UInt32(lane) // self.K
         base = (pixel * self.T_ext + mi.UInt32(dr.maximum(b_ext, 0))) * self.C
-        return [dr.gather(mi.Float, self.delta, base + c, ok) * dr.select(ok, v, 0) for c, v in enumerate(values)]
+        n = self.per_channel
+        return [dr.gather(mi.Float, self.delta, base + c // n, ok) * dr.select(ok, v, 0)
+                for c, v in enumerate(values)]
 
 
 def _as_list(values) -> list:
     return list(values) if isinstance(values, (list, tuple)) else [values]
 
 
-def _channel_ratio(f_att, f_det, ok) -> list:
-    """Per channel ``f_att / f_det`` (1 where the BSDF sample is invalid or a delta lobe)."""
+#: Wavelengths per path of a spectral variant (1 otherwise): the replay's adjoint sums and log-throughput
+#: derivatives are kept per (channel, wavelength), since a BSDF value's ratio differs per wavelength
+N_WL = dr.size_v(mi.Spectrum) if mi.is_spectral else 1
+
+
+def _values(value, wavelengths, channels, rotation) -> list:
+    """A contribution's recorded values: per channel (mono, rgb), or per (channel, wavelength) in spectral
+    variants (the recorded value of each wavelength alone; the channels are linear in the spectrum)."""
+    if not mi.is_spectral:
+        return _as_list(channel_values(value, wavelengths, channels, rotation))
+    s = mi.unpolarized_spectrum(value)
+    parts = []
+    for i in range(N_WL):
+        one = mi.Spectrum(*[s[j] if j == i else mi.Float(0) for j in range(N_WL)])
+        parts.append(_as_list(channel_values(one, wavelengths, channels, rotation)))
+    return [parts[i][c] for c in range(len(parts[0])) for i in range(N_WL)]
+
+
+def _channel_ratio(f_att, f_det, ok, n_values: int = 0) -> list:
+    """Per channel ``f_att / f_det`` (1 where the BSDF sample is invalid or a delta lobe); spectral: per
+    wavelength, repeated for each channel (``n_values`` = channels x wavelengths)."""
     a, d = mi.unpolarized_spectrum(f_att), mi.unpolarized_spectrum(f_det)
-    n = 3 if mi.is_rgb else 1
-    return [dr.select(ok & (d[c] > 0), a[c] / dr.select(d[c] > 0, d[c], 1), 1) for c in range(n)]
+    n = 3 if mi.is_rgb else N_WL if mi.is_spectral else 1
+    r = [dr.select(ok & (d[c] > 0), a[c] / dr.select(d[c] > 0, d[c], 1), 1) for c in range(n)]
+    if mi.is_spectral:
+        r = [r[i % N_WL] for i in range(n_values)]
+    return r
 
 
 def _setup(integrator, scene, sensor, spp):
@@ -249,12 +280,15 @@ def _backward_step(adj, lane, acc, opl, le, act_le, opl_em, lr, act_em, ratio, s
 
 def _forward_step(hist, lane, score, opl, le, act_le, opl_em, lr, act_em, ratio, mono):
     """Record the derivative of this vertex's terms, ``d c = (d c at fixed throughput) + c S``, and add the
-    derivative of this vertex's log BSDF value to ``S``."""
+    derivative of this vertex's log BSDF value to ``S`` (spectral: per wavelength, summed per channel)."""
     n = len(score)
     grads = dr.forward_to(*le, *lr, *ratio)
     grads = list(grads) if isinstance(grads, (list, tuple)) else [grads]
     out_le = [dr.detach(grads[c]) + dr.detach(le[c]) * score[c] for c in range(n)]
     out_lr = [dr.detach(grads[n + c]) + dr.detach(lr[c]) * score[c] for c in range(n)]
+    if N_WL > 1:
+        out_le = [sum(out_le[c:c + N_WL], mi.Float(0)) for c in range(0, n, N_WL)]
+        out_lr = [sum(out_lr[c:c + N_WL], mi.Float(0)) for c in range(0, n, N_WL)]
     hist.record(lane, opl, out_le[0] if mono else out_le, act_le)
     hist.record(lane, opl_em, out_lr[0] if mono else out_lr, act_em)
     return [score[c] + dr.detach(grads[2 * n + c]) for c in range(n)]
@@ -280,7 +314,7 @@ def _replay(integrator, scene, rng, lane, ray, throughput, origin, adj, mode: st
     prev_bsdf_delta = mi.Bool(True)
     si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
     opl = dr.select(si.is_valid(), dr.norm(si.p - origin), dr.inf)
-    n_ch = 1 if channels is None else len(channels)
+    n_ch = (1 if channels is None else len(channels)) * N_WL  # (spectral: per channel and wavelength)
     acc = [mi.Float(0) for _ in range(n_ch)]  # weight mode: A so far; backward mode: A still to come
     if dr.hint(mode == "backward", mode="scalar"):
         acc = [mi.Float(a) for a in extra]
@@ -295,7 +329,7 @@ def _replay(integrator, scene, rng, lane, ray, throughput, origin, adj, mode: st
             ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
             em_pdf = dr.detach(scene.pdf_emitter_direction(prev_si, ds, ~prev_bsdf_delta))
             Le = beta * _mis(prev_bsdf_pdf, em_pdf) * ds.emitter.eval(si, prev_bsdf_pdf > 0)
-            Le_v = _as_list(channel_values(Le, wavelengths, channels, rotation))
+            Le_v = _values(Le, wavelengths, channels, rotation)
             act_le = active & (ds.emitter != None)  # noqa: E711
 
             active_next = active & si.is_valid() & (depth + 1 < max_depth)
@@ -310,7 +344,7 @@ def _replay(integrator, scene, rng, lane, ray, throughput, origin, adj, mode: st
             bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
             mis_em = dr.select(ds.delta, 1, _mis(dr.detach(ds.pdf), dr.detach(bsdf_pdf)))
             Lr = beta * mis_em * bsdf_val * em_weight
-            Lr_v = _as_list(channel_values(Lr, wavelengths, channels, rotation))
+            Lr_v = _values(Lr, wavelengths, channels, rotation)
             opl_em = opl + segment_index(bsdf, si, wo, eta, active_em) * dr.detach(ds.dist)
 
             # ---- BSDF sampling (detached), and the attached value of the sampled direction
@@ -319,7 +353,7 @@ def _replay(integrator, scene, rng, lane, ray, throughput, origin, adj, mode: st
                                               mi.Point2f(rng.next_float32(), rng.next_float32()), active_next)
             smooth = active_next & ~mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
             f_att = bsdf.eval(ctx, si, bs.wo, smooth)
-            ratio = _channel_ratio(f_att, bsdf_weight * bs.pdf, smooth)
+            ratio = _channel_ratio(f_att, bsdf_weight * bs.pdf, smooth, n_ch)
             if dr.hint(mode == "weight", mode="scalar"):
                 acc = _accumulate(adj, lane, acc, opl, Le_v, act_le, opl_em, Lr_v, active_em)
             elif dr.hint(mode == "backward", mode="scalar"):

@@ -82,6 +82,10 @@ def geometry_keys(params) -> list[str]:
 def check_geometry(integrator, film, params) -> bool:
     """Whether shape geometry is being differentiated; refuses it without a temporal kernel (one line)."""
     keys = geometry_keys(params)
+    if keys and mi.is_spectral:
+        raise PluginParameterError(
+            f"{integrator.NAME}: {keys[0]} is differentiated; derivatives with respect to geometry support *_mono "
+            f"and *_rgb variants, not {mi.variant()}")
     if keys and not film.kernel_sigma_ps > 0:
         raise PluginParameterError(
             f"{integrator.NAME}: {keys[0]} is differentiated but the film's kernel_sigma_ps=0; derivatives with "
