@@ -80,7 +80,8 @@ def geometry_keys(params) -> list[str]:
 
 
 def check_geometry(integrator, film, params) -> bool:
-    """Whether shape geometry is being differentiated; refuses it without a temporal kernel (one line)."""
+    """Whether shape geometry is being differentiated (a grad-enabled parameter of :data:`GEOMETRY_KEYS`);
+    refuses it in one line in spectral variants and without a temporal kernel (``kernel_sigma_ps = 0``)."""
     keys = geometry_keys(params)
     if keys and mi.is_spectral:
         raise PluginParameterError(
@@ -131,6 +132,7 @@ class TimeTangent:
         self.data = dr.zeros(mi.Float, n_lanes * self.T * n_ch)
 
     def record(self, lane, opl, values, ds, active):
+        """Add ``values[c] * ds * dw_b/ds(opl)`` (``ds``: the path length's tangent, m) to ``lane``'s bins."""
         for b, w in self.kernel.weights(opl):
             inb = mi.Bool(active) & (b >= 0) & (b < self.T) & dr.isfinite(ds)
             base = (mi.UInt32(lane) * self.T + mi.UInt32(dr.maximum(b, 0))) * self.C
