@@ -7,7 +7,7 @@ import mitsuba as mi
 
 from transient_mi.integrators._lanes import channel_values
 from transient_mi.integrators._optical_path import segment_index
-from transient_mi.integrators._path_options import check_render_call, read_nlos_options, read_path_params
+from transient_mi.integrators._path_options import as_int, check_render_call, read_nlos_options, read_path_params
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
 from transient_mi.integrators.transient_nlos_path import render_nlos
 from transient_mi.integrators.transient_path import TransientPath, mis_weight
@@ -150,6 +150,37 @@ class TransientVolPath(TransientPath):
             return super().render_transient(scene, sensor, **kwargs)
         finally:
             self._sensor_medium = None
+
+    def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+        """Reverse-mode derivative through media (camera views): see
+        :mod:`transient_mi.integrators._ad_volpath` for what is differentiated and what is refused."""
+        from transient_mi.integrators._ad_volpath import render_backward
+
+        sensor = self._ad_sensor(scene, sensor, params)
+        try:
+            render_backward(self, scene, params, grad_in, sensor, as_int(seed), as_int(spp))
+        finally:
+            self._sensor_medium = None
+
+    def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+        """Forward-mode derivative of the histograms through media (``dr.forward``)."""
+        from transient_mi.integrators._ad_volpath import render_forward
+
+        sensor = self._ad_sensor(scene, sensor, params)
+        try:
+            return render_forward(self, scene, params, sensor, as_int(seed), as_int(spp))
+        finally:
+            self._sensor_medium = None
+
+    def _ad_sensor(self, scene, sensor, params):
+        from transient_mi.integrators._ad_volpath import check_volpath_ad
+
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        check_volpath_ad(self, sensor, params)
+        self._sensor_medium = sensor.get_medium()
+        self._heterogeneous = _has_heterogeneous_medium(scene, self._sensor_medium)
+        return sensor
 
     # ------------------------------------------------------------ tracing
 
