@@ -7,7 +7,8 @@ is all in the replay term: the derivative of the throughput of later contributio
 finite differences of the same renderer with common random numbers: AD over 8 seeds against finite
 differences over 8 seeds, Welch t, false-failure rate 1e-3 for the four comparisons together (Bonferroni,
 1e-3 / 4 each). Forward mode equals reverse mode on the same samples (deterministic: float rounding only).
-Refusals are one line.
+RGB variants (a subprocess): spectrally varying extinction, forward equals reverse and two gradients agree
+with central differences (false-failure rate 1e-3 for the two). Refusals are one line.
 """
 
 from __future__ import annotations
@@ -29,19 +30,25 @@ W, H, NB = 8, 8, 100
 SIGMA_T, ALBEDO, REFL = "fog.sigma_t.value.value", "fog.albedo.value.value", "plane.bsdf.reflectance.value"
 
 
-def _scene(fog_only=False, max_depth=6):
+def _scene(fog_only=False, max_depth=6, rgb=False, kernel_sigma_ps=0.0):
     """Fog fills the scene (the sensor's medium); the camera looks at a diffuse plane; a square area light
     faces the plane (``fog_only=False``) or faces away from it (``True``: the plane and the camera get only
-    light scattered in the fog)."""
+    light scattered in the fog). ``rgb`` (RGB variants): extinction and albedo varying per channel (one
+    channel sampled per path for the free flights)."""
     facing = [0.8, 0.0, 1.8] if fog_only else [0.8, 0.0, -1.0]
+    fog = {"type": "homogeneous", "sigma_t": 0.8, "albedo": 0.8, "phase": {"type": "hg", "g": 0.3}}
+    if rgb:
+        fog.update({"scale": 1.2, "sigma_t": {"type": "rgb", "value": [0.33, 0.67, 1.0]},
+                    "albedo": {"type": "rgb", "value": [0.9, 0.7, 0.5]}})
     return mi.load_dict({
         "type": "scene",
         "integrator": {"type": "transient_volpath", "max_depth": max_depth},
-        "fog": {"type": "homogeneous", "sigma_t": 0.8, "albedo": 0.8, "phase": {"type": "hg", "g": 0.3}},
+        "fog": fog,
         "sensor": {"type": "perspective", "fov": 30.0,
                    "to_world": T().look_at(origin=[0.0, 0.0, 2.0], target=[0, 0, 0], up=[0, 1, 0]),
                    "film": {"type": "transient_film", "width": W, "height": H, "n_bins": NB,
-                            "bin_width_ps": 150.0, "t0_ps": 5000.0, "rfilter": {"type": "box"}},
+                            "bin_width_ps": 150.0, "t0_ps": 5000.0, "rfilter": {"type": "box"},
+                            "kernel_sigma_ps": kernel_sigma_ps},
                    "sampler": {"type": "independent", "sample_count": 64},
                    "medium": {"type": "ref", "id": "fog"}},
         "light": {"type": "rectangle",
@@ -152,10 +159,12 @@ def test_heterogeneous_grid_values_agree_with_finite_differences():
            N_COMPARISONS, key)
 
 
-def test_forward_mode_equals_reverse_mode():
+@pytest.mark.parametrize("kernel_sigma_ps", [0.0, 200.0])
+def test_forward_mode_equals_reverse_mode(kernel_sigma_ps):
     """Same seed, same samples: ``<w, dh/dtheta>`` from forward mode equals the reverse-mode gradient for the
-    medium's coefficients, its phase function's ``g``, the reflectance and the emitter's radiance."""
-    scene, w = _scene(), _weights()
+    medium's coefficients, its phase function's ``g`` (checked only here), the reflectance and the emitter's
+    radiance; with a temporal kernel the adjoint goes through the kernel's taps."""
+    scene, w = _scene(kernel_sigma_ps=kernel_sigma_ps), _weights()
     for key in (SIGMA_T, ALBEDO, "fog.phase_function.g", REFL, "light.emitter.radiance.value"):
         rev = _ad_gradient(scene, key, w, seed=3, spp=64)
         params = mi.traverse(scene)
@@ -181,3 +190,96 @@ def test_geometry_is_refused_in_one_line():
                               "supported in media" in msg
     with pytest.raises(PluginParameterError, match="plane.to_world is differentiated"):
         scene.integrator().render_forward(scene, params, scene.sensors()[0], 1, 4)
+
+
+_RGB_SCRIPT = r"""
+import json, sys
+sys.path.insert(0, {tests!r})
+import numpy as np
+import transient_mi  # noqa: F401
+import drjit as dr
+import mitsuba as mi
+import test_volpath_differentiable as t
+
+scene = t._scene(rgb=True)
+w = mi.TensorXf(np.random.default_rng(0).random((t.H, t.W, t.NB, 3)).astype(np.float32))
+out = {{}}
+for key, d in ((t.SIGMA_T, (1.0, 0.0, 0.0)), (t.ALBEDO, (0.0, 1.0, 0.0))):
+    params = mi.traverse(scene)
+    x0 = mi.Color3f(params[key])
+    def grad(seed, mode, spp):
+        th = mi.Float(0.0)
+        dr.enable_grad(th)
+        params[key] = x0 + mi.Color3f(*d) * th  # one channel of the coefficient
+        params.update()
+        img = mi.render(scene, params, seed=seed, spp=spp)
+        if mode == "reverse":
+            dr.backward(dr.sum(img * w, axis=None))
+            g = float(dr.grad(th)[0])
+        else:
+            dr.forward(th)
+            g = float(np.sum(np.asarray(dr.grad(img), dtype=np.float64) * np.asarray(w)))
+        params[key] = mi.Color3f(dr.detach(x0))
+        params.update()
+        return g
+    def loss(c, seed):
+        params[key] = mi.Color3f(dr.detach(x0)) + mi.Color3f(*d) * c
+        params.update()
+        img = mi.render(scene, seed=seed, spp=2048)
+        params[key] = mi.Color3f(dr.detach(x0))
+        params.update()
+        return float(np.sum(np.asarray(img, dtype=np.float64) * np.asarray(w)))
+    h = 0.02
+    out[key] = {{"reverse": grad(3, "reverse", 64), "forward": grad(3, "forward", 64),
+                "ad": [grad(10 + s, "reverse", 256) for s in range(8)],
+                "fd": [(loss(h, 100 + s) - loss(-h, 100 + s)) / (2 * h) for s in range(8)]}}
+from transient_mi.props import PluginParameterError
+mono = t._scene(rgb=True)
+mono.sensors()[0].film().channels = "mono"  # (as channels="mono" in the scene description)
+try:
+    mono.integrator().render_backward(mono, None, mi.TensorXf(np.zeros((t.H, t.W, t.NB), np.float32)),
+                                      mono.sensors()[0], 1, 4)
+except PluginParameterError as e:
+    out["refused"] = str(e)
+print("JSON" + json.dumps(out))
+"""
+
+
+def test_rgb_variant_spectral_extinction_gradients():
+    """``llvm_ad_rgb`` (subprocess): extinction and albedo per channel, one channel sampled per path for the
+    free flights (the primal's weight is the transmittance over the sampled channel's pdf, per channel): the
+    red channel of ``sigma_t`` and the green channel of ``albedo``: forward equals reverse (relative 1e-4)
+    and reverse mode agrees with central differences (8 AD and 8 FD seeds with common random numbers, Welch
+    t, false-failure rate 1e-3 for the two)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    tests = str(Path(__file__).resolve().parent)
+    env = dict(os.environ, TRANSIENT_MI_VARIANT="llvm_ad_rgb")
+    out = subprocess.run([sys.executable, "-c", _RGB_SCRIPT.format(tests=tests)], env=env, capture_output=True,
+                         text=True, timeout=600, check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    res = json.loads([x for x in out.stdout.splitlines() if x.startswith("JSON")][-1][4:])
+    refused = res.pop("refused", "")
+    assert "\n" not in refused and "needs the film's RGB channels, not channels='mono'" in refused
+    for key, r in res.items():
+        assert r["reverse"] != 0 and r["forward"] == pytest.approx(r["reverse"], rel=1e-4), key
+        _welch(r["ad"], r["fd"], len(res), key)
+
+
+def test_nlos_captures_are_refused_in_one_line():
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from nlos_helpers import nlos_scene, square
+
+    scene = nlos_scene(hidden=[square((0, 0, 0.5), 0.2, 0.8)], n_bins=64, integrator="transient_volpath")
+    with pytest.raises(PluginParameterError) as e:
+        scene.integrator().render_backward(scene, None, mi.TensorXf(np.zeros((4, 4, 64), np.float32)),
+                                           scene.sensors()[0], 1, 4)
+    assert "\n" not in str(e.value) and "differentiable rendering of NLOS captures (spad_array) through media is " \
+                                       "not supported" in str(e.value)
