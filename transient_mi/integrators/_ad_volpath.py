@@ -93,8 +93,9 @@ def _shadow_tr(integrator, scene, rng, ref, si, ds, medium, channel, from_surfac
                n: int):
     """Transmittance of the shadow ray to ``ds.p`` (the primal's ratio tracking, same random numbers).
 
-    ``mode``: ``primal`` returns ``(tr, [])``; ``backward`` back-propagates ``sum_c adjoint[c] d log tr_c`` per
-    step; ``forward`` also returns ``[d log tr_c]`` (the tangent, per channel)."""
+    Returns ``(tr, score)``. ``mode``: ``primal`` (``score`` zeros); ``backward`` also back-propagates
+    ``sum_c adjoint[c] d log tr_c`` at each step (``adjoint``: the contribution's adjoint, per channel);
+    ``forward``: ``score`` is ``[d log tr_c]`` (the tangent, per channel)."""
     active = mi.Bool(active)  # (a copy: the loop narrows it)
     medium = dr.select(active, medium, dr.zeros(mi.MediumPtr))
     medium[from_surface & si.is_medium_transition()] = si.target_medium(ds.d)
