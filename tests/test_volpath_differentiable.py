@@ -241,6 +241,15 @@ try:
                                       mono.sensors()[0], 1, 4)
 except PluginParameterError as e:
     out["refused"] = str(e)
+# transient_path (surfaces) too: its replay's BSDF ratios are per colour channel as well
+mono = mi.load_dict({{"type": "scene", "integrator": {{"type": "transient_path"}},
+                     "sensor": {{"type": "perspective", "film": {{"type": "transient_film", "width": 4, "height": 4,
+                                                                "n_bins": 8, "channels": "mono"}}}},
+                     "plane": {{"type": "rectangle"}}, "light": {{"type": "constant"}}}})
+try:
+    mono.integrator().render_backward(mono, None, mi.TensorXf(np.zeros((4, 4, 8), np.float32)), mono.sensors()[0], 1, 4)
+except PluginParameterError as e:
+    out["refused_path"] = str(e)
 print("JSON" + json.dumps(out))
 """
 
@@ -265,6 +274,8 @@ def test_rgb_variant_spectral_extinction_gradients():
     res = json.loads([x for x in out.stdout.splitlines() if x.startswith("JSON")][-1][4:])
     refused = res.pop("refused", "")
     assert "\n" not in refused and "needs the film's RGB channels, not channels='mono'" in refused
+    refused = res.pop("refused_path", "")
+    assert "\n" not in refused and "needs the film's colour channels, not channels='mono'" in refused
     for key, r in res.items():
         assert r["reverse"] != 0 and r["forward"] == pytest.approx(r["reverse"], rel=1e-4), key
         _welch(r["ad"], r["fd"], len(res), key)

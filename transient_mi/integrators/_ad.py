@@ -77,6 +77,9 @@ def _check(integrator, sensor):
     if mi.is_polarized:
         raise PluginParameterError(f"{integrator.NAME}: differentiable rendering supports *_mono, *_rgb and "
                                    f"*_spectral variants, not {mi.variant()}")
+    if film.channel_names() is None and (mi.is_rgb or mi.is_spectral):  # (the replay's ratios are per colour)
+        raise PluginParameterError(f"{integrator.NAME}: differentiable rendering in {mi.variant()} needs the film's "
+                                   "colour channels, not channels='mono'")
     if film.channel_names() is not None and not (mi.is_rgb or mi.is_spectral):
         raise PluginParameterError(f"{integrator.NAME}: differentiable rendering of channels "
                                    f"{film.channel_names()} is not supported")
