@@ -178,6 +178,41 @@ def test_forward_mode_equals_reverse_mode(kernel_sigma_ps):
         assert rev != 0 and fwd == pytest.approx(rev, rel=1e-4), key
 
 
+def test_forward_mode_equals_reverse_mode_in_a_heterogeneous_medium():
+    """Null scattering and ratio tracking: the grid values along a random direction, the albedo and the
+    floor's reflectance (a medium inside a ``null``-BSDF cube: transitions on camera paths and shadow rays)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_transient_volpath import _cube_scene, _tfilm
+
+    scene = _cube_scene({"type": "transient_volpath", "max_depth": 6}, _tfilm(W, H, NB, 150.0, 5000.0), 64,
+                        medium="heterogeneous")
+    w = _weights()
+    for key in ("smoke.sigma_t.data", "smoke.albedo.value.value", "floor.bsdf.reflectance.value"):
+        params = mi.traverse(scene)
+        v = np.random.default_rng(1).random(np.asarray(params[key]).shape).astype(np.float32)
+        dr.enable_grad(params[key])
+        params.update()
+        img = mi.render(scene, params, seed=3, spp=64)
+        dr.backward(dr.sum(img * w, axis=None))
+        rev = float(np.sum(np.asarray(dr.grad(params[key]), dtype=np.float64) * v))
+        dr.disable_grad(params[key])
+        params.update()
+        params = mi.traverse(scene)
+        dr.enable_grad(params[key])
+        params.update()
+        img = mi.render(scene, params, seed=3, spp=64)
+        dr.set_grad(params[key], mi.TensorXf(v) if key.endswith(".data") else float(v.ravel()[0]))
+        dr.enqueue(dr.ADMode.Forward, params[key])
+        dr.traverse(dr.ADMode.Forward)
+        fwd = float(np.sum(np.asarray(dr.grad(img), dtype=np.float64) * np.asarray(w)))
+        dr.disable_grad(params[key])
+        params.update()
+        assert rev != 0 and fwd == pytest.approx(rev, rel=1e-4), key
+
+
 def test_geometry_is_refused_in_one_line():
     scene = _scene()
     params = mi.traverse(scene)
