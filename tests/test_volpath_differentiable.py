@@ -1,14 +1,17 @@
-"""Differentiable ``transient_volpath`` (camera views through a homogeneous medium): Mitsuba's AD interfaces.
+"""Differentiable ``transient_volpath`` (camera views through participating media): Mitsuba's AD interfaces.
 
-Reverse-mode gradients of ``sum(w * histogram)`` (``w`` fixed random weights per pixel and time bin) with
-respect to the medium's ``sigma_t`` and ``albedo``, a surface reflectance lit through the medium and the
-same reflectance in a scene where the surface is lit *only* by light scattered in the medium (its gradient
-is all in the replay term: the derivative of the throughput of later contributions) agree with central
-finite differences of the same renderer with common random numbers: AD over 8 seeds against finite
-differences over 8 seeds, Welch t, false-failure rate 1e-3 for the four comparisons together (Bonferroni,
-1e-3 / 4 each). Forward mode equals reverse mode on the same samples (deterministic: float rounding only).
-RGB variants (a subprocess): spectrally varying extinction, forward equals reverse and two gradients agree
-with central differences (false-failure rate 1e-3 for the two). Refusals are one line.
+Reverse-mode gradients of ``sum(w * histogram)`` (``w`` fixed random weights per pixel and time bin) in fog
+filling the scene, with respect to the medium's ``sigma_t`` and ``albedo``, a surface reflectance lit
+through the medium and the same reflectance in a scene where the surface is lit *only* by light scattered
+in the medium (its gradient is all in the replay term: the derivative of the throughput of later
+contributions), and a heterogeneous medium's grid values along one direction (the maximum voxel left out so
+that the majorant, and with it the delta-tracking sampling, stays fixed) agree with central finite
+differences of the same renderer with common random numbers: AD over 8 seeds against finite differences
+over 8 seeds, Welch t, false-failure rate 1e-3 for the five comparisons together (Bonferroni, 2e-4 each).
+Forward mode equals reverse mode on the same samples (deterministic: float rounding only), in the fog and in
+a heterogeneous medium. RGB variants (a subprocess): spectrally varying extinction, forward equals reverse
+and two gradients agree with central differences (false-failure rate 1e-3 for the two). Refusals are one
+line.
 """
 
 from __future__ import annotations
