@@ -217,8 +217,6 @@ def _replay(integrator, scene, rng, lane, ray, throughput, origin, adj, mode: st
     modes: ``weight`` returns ``A_c = sum_j delta[b_j, c] c_{j,c}`` (a list per channel); ``backward``
     (``extra`` that list) back-propagates; ``forward`` (``extra`` the derivative histogram) records
     ``d c_j``."""
-    from transient_mi.integrators.transient_path import mis_weight
-
     ctx = mi.BSDFContext()
     phase_ctx = mi.PhaseFunctionContext()
     wavelengths = ray.wavelengths
