@@ -29,7 +29,7 @@ def ground_truth(cfg: PaperConfig):
     from transient_mi.scenes.mannequin import make_mannequin
 
     return make_mannequin(pose=cfg.pose, rotation_deg=cfg.rotation_deg, position=(0.0, 0.0, cfg.distance_m),
-                          width_m=PAPER.mannequin_width_m, height_m=PAPER.mannequin_height_m)
+                          width_m=PAPER.mannequin_width_m, height_m=PAPER.mannequin_height_m, joints=cfg.joints)
 
 
 def write_ground_truth(cfg: PaperConfig, path) -> Path:
@@ -37,7 +37,7 @@ def write_ground_truth(cfg: PaperConfig, path) -> Path:
     from transient_mi.scenes.mannequin import write_mannequin
 
     return write_mannequin(path, pose=cfg.pose, rotation_deg=cfg.rotation_deg, position=(0.0, 0.0, cfg.distance_m),
-                           width_m=PAPER.mannequin_width_m, height_m=PAPER.mannequin_height_m)
+                           width_m=PAPER.mannequin_width_m, height_m=PAPER.mannequin_height_m, joints=cfg.joints)
 
 
 def render_ideal(cfg: PaperConfig, out_dir, *, seed: int = 0, resume: bool = False,

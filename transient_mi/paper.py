@@ -89,8 +89,10 @@ class PaperConfig:
         Laser scan grid side (spots spread over ``scan_extent_m`` of wall, default 2 x 2 over 1 m).
     scan_extent_m : float
         Side of the wall square the laser scan covers.
-    distance_m, pose, rotation_deg
-        The mannequin: depth of its centre (m), pose, rotation about y.
+    distance_m, pose, rotation_deg, joints
+        The mannequin: depth of its centre (m), pose, rotation about y, and joint angles overriding the
+        pose's (``"elbow_right=40,knee_left=20"``, degrees; empty: the pose's own;
+        :mod:`transient_mi.scenes.mannequin_skeleton`).
     power_w : float
         Laser average power (50 MHz, 1550 nm).
     spp : int
@@ -108,6 +110,7 @@ class PaperConfig:
     distance_m: float = PAPER.mannequin_distance_m
     pose: str = "arms_down"
     rotation_deg: float = 0.0
+    joints: str = ""
     power_w: float = 0.01
     spp: int = 1024
     t0_ps: float = 12500.0
@@ -122,7 +125,7 @@ class PaperConfig:
             "distance": repr(float(self.distance_m)), "pose": self.pose, "rotation": repr(float(self.rotation_deg)),
             "power_w": repr(float(self.power_w)), "spp": str(self.spp), "t0_ps": repr(float(self.t0_ps)),
             "n_bins": str(self.n_bins), "bin_width_ps": repr(float(self.bin_width_ps)),
-            "max_depth": str(self.max_depth),
+            "max_depth": str(self.max_depth), **({"joints": self.joints} if self.joints else {}),
         }
 
     def replace(self, **changes) -> "PaperConfig":
@@ -168,7 +171,7 @@ def scene_defaults() -> list[tuple[str, str]]:
         ("aperture_diameter_m", repr(PAPER.aperture_diameter_m)),
         ("wall_half_size", repr(PAPER.wall_size_m / 2)), ("wall_albedo", repr(PAPER.wall_albedo)),
         ("mannequin_width", repr(PAPER.mannequin_width_m)), ("mannequin_height", repr(PAPER.mannequin_height_m)),
-        ("mannequin_albedo", repr(PAPER.mannequin_albedo)),
+        ("mannequin_albedo", repr(PAPER.mannequin_albedo)), ("joints", ""),
     ]
 
 

@@ -30,6 +30,10 @@ def mannequin(
     rotation_deg: float = typer.Option(0.0, "--rotation-deg", help="Turn about the vertical axis (+y), degrees; 0 faces the wall (-z)."),
     position: str = typer.Option("0,0,0.5", "--position", help="Body centre x,y,z in metres (mid-line, mid-height, torso mid-depth)."),
     detail: int = typer.Option(20, "--detail", parser=whole_number("--detail"), metavar="<int>", help="Segments around each primitive, 8 to 128."),
+    joint: list[str] = typer.Option([], "--joint", metavar="NAME=DEG",
+                                    help="A joint angle overriding the pose's, degrees (repeatable), e.g. "
+                                         "--joint elbow_right=40; names: shoulder_abduction_*, shoulder_flexion_*, "
+                                         "elbow_*, hip_*, knee_* with * = right or left."),
     report: bool = typer.Option(False, "--report", help="Also print each part's depth and three-bounce arrival time from the wall centre."),
 ) -> None:
     """Write the procedural mannequin (watertight PLY, world frame: wall z = 0, hidden space z > 0).
@@ -39,8 +43,11 @@ def mannequin(
     """
     from transient_mi.scenes import mannequin as mq
 
+    from transient_mi.scenes.mannequin_skeleton import parse_joints
+
+    joints = parse_joints(",".join(joint))
     params = dict(height_m=height_m, width_m=width_m, pose=pose, rotation_deg=rotation_deg,
-                  position=_parse_position(position), detail=detail)
+                  position=_parse_position(position), detail=detail, joints=joints)
     path = mq.write_mannequin(output, **params)
     mesh = mq.make_mannequin(**params)
     lo, hi = mesh.bounds

@@ -57,14 +57,17 @@ from recon.ground_truth import ground_truth_depth_map, ground_truth_silhouette
 from transient_core.units import C_M_PER_PS
 
 from ._ply import ply_bytes, write_bytes_atomic
+from .mannequin_skeleton import JOINTS, parse_joints, resolve_joints, bone_transforms
 
 __all__ = [
     "POSES",
     "PARTS",
     "PART_GROUPS",
     "DEFAULTS",
+    "JOINTS",
     "make_mannequin",
     "mannequin_parts",
+    "posed_primitives",
     "mannequin_part_report",
     "write_mannequin",
     "rest_arm_angle_deg",
@@ -116,7 +119,6 @@ _PELVIS = ((0.0, 0.50, 0.0), (0.11, 0.065, 0.064))
 _SHOULDER = (0.14, 0.745, 0.0)  # right shoulder joint; the left one is mirrored
 _DELTOID_R = 0.04
 _ARM = ((0.0, 0.036), (0.19, 0.03), (0.35, 0.024), (0.385, 0.032))  # (distance along arm, radius)
-_ARM_FORWARD_DEG = 30.0
 _LEG = (((0.06, 0.47, 0.0), 0.056), ((0.07, 0.26, 0.0), 0.042), ((0.08, 0.055, 0.0), 0.03))
 _FOOT = (((0.08, 0.03, 0.01), 0.03), ((0.085, 0.026, -0.075), 0.026))  # sole at y = 0
 _MAX_REST_DEG = 80.0
@@ -158,35 +160,6 @@ def rest_arm_angle_deg(height_m: float, width_m: float) -> float:
     return math.degrees(math.asin(min(max(sin_t, 0.0), 1.0)))
 
 
-def _arm_directions(pose: str, rest_deg: float) -> tuple[np.ndarray, np.ndarray]:
-    """Unit directions (body frame) of the right (+x) and left arm, shoulder to hand."""
-
-    def down(theta_deg: float, forward_deg: float) -> np.ndarray:
-        t, f = math.radians(theta_deg), math.radians(forward_deg)
-        return np.array([math.sin(t), -math.cos(t) * math.cos(f), -math.cos(t) * math.sin(f)])
-
-    def up(alpha_deg: float, forward_deg: float) -> np.ndarray:
-        a, f = math.radians(alpha_deg), math.radians(forward_deg)
-        return np.array([math.sin(a), math.cos(a) * math.cos(f), -math.cos(a) * math.sin(f)])
-
-    rest = down(rest_deg, _ARM_FORWARD_DEG)
-    if pose == "arms_down":
-        right = left = rest
-    elif pose == "arms_raised":
-        right = left = up(25.0, 15.0)
-    elif pose == "one_arm_out":
-        right, left = np.array([1.0, 0.0, 0.0]), rest
-    elif pose == "arms_forward":
-        a = math.radians(5.0)
-        right = left = np.array([math.sin(a), 0.0, -math.cos(a)])
-    elif pose == "t_pose":
-        right = left = np.array([1.0, 0.0, 0.0])
-    else:  # pragma: no cover - validated before
-        raise AssertionError(pose)
-    mirror = np.array([-1.0, 1.0, 1.0])
-    return right, left * mirror
-
-
 Blob = tuple[tuple[float, float, float], tuple[float, float, float]]  # centre, semi-axes
 
 
@@ -194,28 +167,57 @@ def _sphere(c, r) -> Blob:
     return (tuple(float(v) for v in c), (float(r),) * 3)
 
 
-def _body_plan(height_m: float, width_m: float, pose: str) -> list[tuple[str, tuple[Blob, ...]]]:
-    """Primitives (part label, blobs to hull) in units of the height, body frame."""
-    rest = rest_arm_angle_deg(height_m, width_m)
-    d_right, d_left = _arm_directions(pose, rest)
-    plan: list[tuple[str, tuple[Blob, ...]]] = []
-    plan.append(("head", (_HEAD,)))
-    plan.append(("neck", tuple(_sphere(c, r) for c, r in _NECK)))
-    plan.append(("torso", (_CHEST, _WAIST)))
-    plan.append(("torso", (_WAIST, _PELVIS)))
-    for label, sign, d in (("arm_right", 1.0, d_right), ("arm_left", -1.0, d_left)):
-        j = np.array([sign * _SHOULDER[0], _SHOULDER[1], _SHOULDER[2]])
-        plan.append((label, (_sphere(j, _DELTOID_R),)))
-        pts = [(j + s * d, r) for s, r in _ARM]
-        for (p0, r0), (p1, r1) in zip(pts[:-1], pts[1:]):
-            plan.append((label, (_sphere(p0, r0), _sphere(p1, r1))))
-    for label, sign in (("leg_right", 1.0), ("leg_left", -1.0)):
-        m = np.array([sign, 1.0, 1.0])
-        pts = [(m * np.array(c), r) for c, r in _LEG]
-        for (p0, r0), (p1, r1) in zip(pts[:-1], pts[1:]):
-            plan.append((label, (_sphere(p0, r0), _sphere(p1, r1))))
-        plan.append((label, tuple(_sphere(m * np.array(c), r) for c, r in _FOOT)))
+def _rest_plan() -> list[tuple[str, str, tuple[Blob, ...]]]:
+    """Primitives ``(part label, bone, blobs to hull)`` of the root and the right limbs in the rest pose (arms
+    hanging straight down, legs straight), units of the height, body frame; the left limbs are their mirror
+    images (:func:`_rest_primitives`)."""
+    plan: list[tuple[str, str, tuple[Blob, ...]]] = []
+    plan.append(("head", "root", (_HEAD,)))
+    plan.append(("neck", "root", tuple(_sphere(c, r) for c, r in _NECK)))
+    plan.append(("torso", "root", (_CHEST, _WAIST)))
+    plan.append(("torso", "root", (_WAIST, _PELVIS)))
+    j = np.array(_SHOULDER)
+    down = np.array([0.0, -1.0, 0.0])
+    plan.append(("arm_right", "upper_arm_right", (_sphere(j, _DELTOID_R),)))
+    pts = [(j + s * down, r) for s, r in _ARM]
+    for k, ((p0, r0), (p1, r1)) in enumerate(zip(pts[:-1], pts[1:])):
+        bone = "upper_arm_right" if k == 0 else "forearm_right"
+        plan.append(("arm_right", bone, (_sphere(p0, r0), _sphere(p1, r1))))
+    legs = [(np.array(c), r) for c, r in _LEG]
+    plan.append(("leg_right", "thigh_right", (_sphere(*legs[0]), _sphere(*legs[1]))))
+    plan.append(("leg_right", "shin_right", (_sphere(*legs[1]), _sphere(*legs[2]))))
+    plan.append(("leg_right", "shin_right", tuple(_sphere(c, r) for c, r in _FOOT)))
     return plan
+
+
+@functools.lru_cache(maxsize=8)
+def _rest_primitives(detail: int) -> tuple[tuple[str, str, np.ndarray, np.ndarray], ...]:
+    """Every primitive as ``(part label, bone, vertices [V, 3] float64, faces [F, 3] int64)`` in the rest
+    pose (units of the height, body frame): the root's and the right limbs' convex hulls, then the left
+    limbs as exact mirror images of the right ones (x -> -x, winding reversed)."""
+    out = []
+    mirrored = []
+    for label, bone, blobs in _rest_plan():
+        v, f, _ = _mesh_arrays(_manifold_of(blobs, detail))
+        v, f, _ = _canonical(v, f)
+        out.append((label, bone, v, f))
+        if bone != "root":
+            mv = v * np.array([-1.0, 1.0, 1.0])
+            mirrored.append((label.replace("right", "left"), bone.replace("right", "left"), mv, f[:, ::-1].copy()))
+    for item in out + mirrored:
+        for arr in item[2:]:
+            arr.setflags(write=False)
+    return tuple(out + mirrored)
+
+
+def posed_primitives(angles: dict[str, float], detail: int) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """The primitives posed by the joint ``angles`` (every entry of
+    :data:`~transient_mi.scenes.mannequin_skeleton.JOINTS`, degrees): ``(part label, bone, vertices
+    [V, 3] float64 (units of the height, body frame), faces [F, 3])``. Each is its rest hull moved
+    rigidly by its bone (:func:`~transient_mi.scenes.mannequin_skeleton.bone_transforms`); the
+    differentiable twin (:mod:`transient_mi.fit.twin`) computes the same vertices."""
+    T = bone_transforms(angles)
+    return [(label, bone, v @ T[bone][0].T + T[bone][1], f) for label, bone, v, f in _rest_primitives(detail)]
 
 
 # --- validation ---------------------------------------------------------------
@@ -231,7 +233,7 @@ def _finite_positive(name: str, value) -> float:
     return v
 
 
-def _validate(height_m, width_m, pose, rotation_deg, position, detail):
+def _validate(height_m, width_m, pose, rotation_deg, position, detail, joints=None):
     h = _finite_positive("height_m", height_m)
     w = _finite_positive("width_m", width_m)
     if pose not in POSES:
@@ -250,8 +252,15 @@ def _validate(height_m, width_m, pose, rotation_deg, position, detail):
         raise UserInputError(f"position={position!r}: expected three finite numbers (x, y, z) in metres")
     if isinstance(detail, bool) or not isinstance(detail, (int, np.integer)) or not 8 <= int(detail) <= 128:
         raise UserInputError(f"detail={detail!r}: expected an integer number of segments around each primitive, 8 to 128")
-    rest_arm_angle_deg(h, w)  # raises for an impossible width
-    return h, w, pose, rot, pos, int(detail)
+    rest = rest_arm_angle_deg(h, w)  # raises for an impossible width
+    if joints is not None and not hasattr(joints, "items"):
+        if isinstance(joints, str):
+            joints = parse_joints(joints)
+        else:
+            raise UserInputError(f"joints={joints!r}: expected a mapping of joint name to degrees, e.g. "
+                                 "{'elbow_right': 40}")
+    angles = resolve_joints(pose, rest, joints)
+    return h, w, pose, rot, pos, int(detail), tuple(angles[j] for j in JOINTS)
 
 
 # --- construction -----------------------------------------------------------
@@ -310,13 +319,15 @@ def _mesh_arrays(man) -> tuple[np.ndarray, np.ndarray, object]:
 
 
 @functools.lru_cache(maxsize=16)
-def _build(height_m, width_m, pose, rotation_deg, position, detail) -> _Built:
+def _build(height_m, width_m, pose, rotation_deg, position, detail, angles) -> _Built:
     import manifold3d as m3d
 
-    plan = _body_plan(height_m, width_m, pose)
     prims, id_to_part = [], {}
-    for label, blobs in plan:
-        man = _manifold_of(blobs, detail).as_original()
+    for label, _, v, f in posed_primitives(dict(zip(JOINTS, angles)), detail):
+        man = m3d.Manifold(m3d.Mesh64(vert_properties=np.ascontiguousarray(v), tri_verts=f.astype(np.uint64)))
+        if man.status() != m3d.Error.NoError:
+            raise RuntimeError(f"mannequin: a posed part is not a closed solid ({man.status()}; please report this)")
+        man = man.as_original()
         id_to_part[man.original_id()] = PARTS.index(label)
         prims.append((label, man))
     union = m3d.Manifold.batch_boolean([p for _, p in prims], m3d.OpType.Add)
@@ -348,8 +359,8 @@ def _build(height_m, width_m, pose, rotation_deg, position, detail) -> _Built:
 
 def _built(height_m=DEFAULTS["height_m"], width_m=DEFAULTS["width_m"], pose=DEFAULTS["pose"],
            rotation_deg=DEFAULTS["rotation_deg"], position=DEFAULTS["position"],
-           detail=DEFAULTS["detail"]) -> _Built:
-    return _build(*_validate(height_m, width_m, pose, rotation_deg, position, detail))
+           detail=DEFAULTS["detail"], joints=None) -> _Built:
+    return _build(*_validate(height_m, width_m, pose, rotation_deg, position, detail, joints))
 
 
 def _trimesh(v: np.ndarray, f: np.ndarray) -> trimesh.Trimesh:
@@ -357,7 +368,8 @@ def _trimesh(v: np.ndarray, f: np.ndarray) -> trimesh.Trimesh:
 
 
 def make_mannequin(height_m: float = 0.70, width_m: float = 0.60, pose: str = "arms_down",
-                   rotation_deg: float = 0.0, position=(0.0, 0.0, 0.5), detail: int = 20) -> trimesh.Trimesh:
+                   rotation_deg: float = 0.0, position=(0.0, 0.0, 0.5), detail: int = 20,
+                   joints=None) -> trimesh.Trimesh:
     """Build the mannequin as one watertight triangle mesh.
 
     Parameters
@@ -381,6 +393,13 @@ def make_mannequin(height_m: float = 0.70, width_m: float = 0.60, pose: str = "a
     detail : int
         Segments around each sphere (rounded up to a multiple of 4), 8 to
         128. Default 20 gives about 3000 faces.
+    joints : mapping or str, optional
+        Joint angles in degrees that override the pose's
+        (:data:`~transient_mi.scenes.mannequin_skeleton.JOINTS`: shoulder
+        abduction and flexion, elbow, hip and knee of each side), e.g.
+        ``{"elbow_right": 40, "knee_left": 20}`` or ``"elbow_right=40,knee_left=20"``.
+        Every limb is a rigid bone posed about its joint
+        (:mod:`~transient_mi.scenes.mannequin_skeleton`).
 
     Returns
     -------
@@ -398,17 +417,18 @@ def make_mannequin(height_m: float = 0.70, width_m: float = 0.60, pose: str = "a
         For a non-positive or non-finite size, an impossible ``width_m``, an
         unknown pose, a bad rotation, position or detail.
     """
-    b = _built(height_m, width_m, pose, rotation_deg, position, detail)
+    b = _built(height_m, width_m, pose, rotation_deg, position, detail, joints)
     mesh = _trimesh(b.vertices, b.faces)
     mesh.metadata["face_part"] = np.asarray(PARTS, dtype=object)[b.face_part]
-    h, w, p, r, pos, d = _validate(height_m, width_m, pose, rotation_deg, position, detail)
-    mesh.metadata["params"] = dict(height_m=h, width_m=w, pose=p, rotation_deg=r, position=pos, detail=d)
+    h, w, p, r, pos, d, angles = _validate(height_m, width_m, pose, rotation_deg, position, detail, joints)
+    mesh.metadata["params"] = dict(height_m=h, width_m=w, pose=p, rotation_deg=r, position=pos, detail=d,
+                                   joints=dict(zip(JOINTS, angles)))
     return mesh
 
 
 def mannequin_parts(height_m: float = 0.70, width_m: float = 0.60, pose: str = "arms_down",
                     rotation_deg: float = 0.0, position=(0.0, 0.0, 0.5), detail: int = 20,
-                    surface: bool = False) -> dict[str, trimesh.Trimesh]:
+                    surface: bool = False, joints=None) -> dict[str, trimesh.Trimesh]:
     """The mannequin's parts, by label (:data:`PARTS`), in the world frame.
 
     Parameters
@@ -428,7 +448,7 @@ def mannequin_parts(height_m: float = 0.70, width_m: float = 0.60, pose: str = "
         Keys in the order of :data:`PARTS`; group them with
         :data:`PART_GROUPS` (head, neck, torso, arms, legs).
     """
-    b = _built(height_m, width_m, pose, rotation_deg, position, detail)
+    b = _built(height_m, width_m, pose, rotation_deg, position, detail, joints)
     if not surface:
         return {label: _trimesh(v, f) for label, (v, f) in zip(PARTS, b.part_solids)}
     out = {}

@@ -39,6 +39,11 @@ def make_mannequin_shape(props: mi.Properties):
          - point
          - Body centre, metres (default 0, 0, 0.5: 50 cm in front of a
            relay wall in the plane z = 0).
+       * - ``joints``
+         - string
+         - Joint angles overriding the pose's, degrees, e.g.
+           ``elbow_right=40,knee_left=20`` (default: none;
+           :mod:`transient_mi.scenes.mannequin_skeleton`).
        * - ``detail``
          - integer
          - Tessellation level (default 20, ~3000 faces).
@@ -59,10 +64,11 @@ def make_mannequin_shape(props: mi.Properties):
         rotation_deg=get_float(props, name, "rotation_deg", DEFAULTS["rotation_deg"]),
         position=get_vector3(props, name, "position", DEFAULTS["position"]),
         detail=get_int(props, name, "detail", DEFAULTS["detail"], min_value=4, max_value=200),
+        joints=props.get("joints", "") if "joints" in props else "",
     )
     try:
         tm = make_mannequin(**kw)
-    except ValueError as e:
+    except ValueError as e:  # (UserInputError included)
         raise PluginParameterError(f"{name}: {e}") from None
     v = np.ascontiguousarray(tm.vertices, dtype=np.float32)
     f = np.ascontiguousarray(tm.faces, dtype=np.uint32)
