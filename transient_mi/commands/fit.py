@@ -1,0 +1,64 @@
+"""``transient-mi fit``: fit the hidden scene's model to a counts capture (analysis by synthesis).
+
+The work is done by :func:`transient_mi.fit.fit_capture`; this module only parses the command line.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from ._options import whole_number
+
+
+def fit_command(
+    capture: Path = typer.Argument(..., help="Counts capture (transient-mi detect, or the demo's "
+                                             "captures/array_NN/counts) of an NLOS scene."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output directory: fit.json, fitted.ply, loss.png, fit.png, "
+                                                      "checkpoint.json."),
+    model: str = typer.Option("mannequin", "--model", help="mannequin (joint angles, position, rotation, height, "
+                                                          "reflectance) or patches (square patches)."),
+    iterations: int = typer.Option(200, "--iterations", parser=whole_number("--iterations"), metavar="<int>",
+                                   help="Adam iterations."),
+    spp: int = typer.Option(0, "--spp", parser=whole_number("--spp"), metavar="<int>",
+                            help="Samples per pixel of the derivative render per iteration (0: 4096 per laser spot "
+                                 "spread over the pixels, at least 4: 16 at 16x16, 4 at 32x32)."),
+    spp_residual: int = typer.Option(0, "--spp-residual", parser=whole_number("--spp-residual"), metavar="<int>",
+                                     help="Samples per pixel of the residual render per iteration (0: 4 x --spp)."),
+    sigma_start_ps: float = typer.Option(250.0, "--sigma-start-ps", help="Temporal blur at the start (coarse to "
+                                                                         "fine; ends at the detector's jitter), ps."),
+    sigma_end_ps: float = typer.Option(30.0, "--sigma-end-ps", help="Temporal blur at the end (not below the "
+                                                                     "detector's jitter), ps."),
+    bin_width_ps: float = typer.Option(10.0, "--bin-width-ps", help="The fit's time bins (a whole multiple of the "
+                                                                    "capture's), ps."),
+    patches: int = typer.Option(3, "--patches", parser=whole_number("--patches"), metavar="<int>",
+                                help="--model patches: how many."),
+    patch_side_m: float = typer.Option(0.2, "--patch-side-m", help="--model patches: side of each patch, metres."),
+    seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the fit in OUT from its checkpoint."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier fit in OUT."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress."),
+) -> None:
+    """Fit a parametric model of the hidden object to detected counts, by gradient descent through the
+    differentiable renderer and the detector model (see docs/fit.md)."""
+    from transient_mi.fit import FitSettings, fit_capture
+
+    settings = FitSettings(iterations=iterations, spp=spp, spp_residual=spp_residual, sigma_start_ps=sigma_start_ps,
+                           sigma_end_ps=sigma_end_ps, seed=seed)
+    result = fit_capture(capture, out, model=model, settings=settings, bin_width_ps=bin_width_ps, n_patches=patches,
+                         patch_side_m=patch_side_m, resume=resume, overwrite=overwrite, progress=progress,
+                         log=typer.echo)
+    m = result["metrics"]
+    if "fit" in m:
+        f, b = m["fit"], m["backprojection"]
+        typer.echo(f"against the scene's hidden shapes: fit Chamfer {100 * f['chamfer_m']:.2f} cm, IoU {f['iou']:.2f} "
+                   f"(backprojection {100 * b['chamfer_m']:.2f} cm, {b['iou']:.2f}); surface-to-surface Chamfer "
+                   f"{100 * f['chamfer_mesh_m']:.2f} cm")
+    if "joint_error_max_deg" in m:
+        typer.echo(f"pose: joint angles within {m['joint_error_max_deg']:.1f} deg (mean {m['joint_error_mean_deg']:.1f}), "
+                   f"position within {100 * m['position_error_m']:.2f} cm")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("fit")(fit_command)

@@ -1,0 +1,391 @@
+"""``fit_capture``: analysis by synthesis of an NLOS counts capture (what ``transient-mi fit`` runs).
+
+1. Backprojection of the counts (the paper's filter) gives the starting position (and, for
+   ``--model patches``, the patches' centres: the strongest regions of the volume).
+2. Adam on the objective of :mod:`transient_mi.fit.capture_model` (:mod:`transient_mi.fit.optimize`),
+   with a checkpoint every few iterations (``--resume`` continues from it).
+3. Outputs in the output directory (each file written atomically, ``fit.json`` last):
+
+   ``fit.json``       parameters (start, fitted, truth where known), settings, the objective per iteration,
+                      time, the Poisson NLL of the counts under the start and the fit, metrics
+   ``fitted.ply``     the fitted mesh (the mannequin as ``transient-mi mannequin`` builds it: watertight)
+   ``loss.png``       the objective per iteration and the temporal blur
+   ``fit.png``        front views (depth maps) of ground truth, backprojection and fit
+   ``checkpoint.json`` the optimiser's state (parameters, Adam moments, history)
+
+Metrics against ground truth (the capture's hidden shapes, rendered again from its scene file):
+``chamfer_mesh_m`` (symmetric mean distance between the fitted and true surfaces, area-uniform samples),
+and the voxel metrics the demo reports for backprojection (:func:`recon.metrics.compute_metrics`:
+``chamfer_m``, ``iou``, ``depth_mae_m``, ...) of the fitted surface voxelised on the backprojection's
+grid, next to the backprojection's own. For the paper's scene the true pose is known (its ``-D`` values):
+per-parameter errors.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from transient_core.atomic import atomic_file
+from transient_core.errors import UserInputError
+from transient_core.lock import output_lock
+
+from .optimize import FitSettings, FitState, run_adam
+
+__all__ = ["fit_capture", "FitSettings"]
+
+_OUTPUTS = ("fit.json", "fitted.ply", "loss.png", "fit.png", "checkpoint.json", "config.json")
+
+
+def _write_text(path: Path, text: str) -> None:
+    with atomic_file(path) as tmp:
+        Path(tmp).write_text(text)
+
+
+def _check_settings(model: str, settings: FitSettings, n_patches: int, patch_side_m: float) -> None:
+    from .models import MODELS
+
+    if model not in MODELS:
+        raise UserInputError(f"--model {model!r} is not known; allowed: {', '.join(MODELS)}")
+    for name, v, lo in (("iterations", settings.iterations, 1), ("spp", settings.spp, 0),
+                        ("spp_residual", settings.spp_residual, 0), ("checkpoint_every", settings.checkpoint_every, 1)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise UserInputError(f"{name}={v!r}: expected a whole number >= {lo}")
+    for name in ("sigma_start_ps", "sigma_end_ps"):
+        v = getattr(settings, name)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise UserInputError(f"{name}={v!r}: expected a finite number of ps >= 0")
+    if not (isinstance(n_patches, (int, np.integer)) and 1 <= n_patches <= 16):
+        raise UserInputError(f"n_patches={n_patches!r}: expected a whole number from 1 to 16")
+    if not (math.isfinite(patch_side_m) and 0 < patch_side_m <= 2.0):
+        raise UserInputError(f"patch_side_m={patch_side_m!r}: expected a side in metres, > 0 and <= 2")
+
+
+def _bounds(manifest: dict) -> tuple:
+    """Reconstruction bounds: the wall patch the pixels cover, depths from the detector's automatic gate
+    (the hidden space the capture was gated for), else 0.1 to 1.5 m."""
+    pc = np.asarray(manifest["geometry"]["pixel_centers"], dtype=np.float64).reshape(-1, 3)
+    det = manifest.get("detector") or {}
+    z0 = float(det.get("auto_gate_depth_min_m") or 0.1)
+    z1 = float(det.get("auto_gate_depth_max_m") or 1.5)
+    pad = 0.5 * (np.ptp(pc[:, 0]) / max(int(manifest["width"]) - 1, 1))
+    return (float(pc[:, 0].min() - pad), float(pc[:, 0].max() + pad), float(pc[:, 1].min() - pad),
+            float(pc[:, 1].max() + pad), z0, z1)
+
+
+def _backprojection(capture: Path, bounds, voxels=(64, 64, 32)):
+    import recon
+
+    cap = recon.load_capture(capture)
+    return recon.reconstruct(cap, "bp", bounds=bounds, voxels=voxels, filter="paper", threshold="rel:0.3")
+
+
+def _strongest_regions(rec, k: int) -> np.ndarray:
+    """``k`` centres: weighted k-means (a few Lloyd steps, deterministic start) of the occupied voxels."""
+    occ = rec.volume > 0
+    pts = rec.grid.centers()[occ]
+    w = rec.volume[occ].astype(np.float64)
+    if len(pts) < k:
+        raise UserInputError(f"the backprojection holds {len(pts)} occupied voxels, fewer than the {k} patches asked "
+                             "for: nothing to start from")
+    order = np.argsort(-w)
+    centres = [pts[order[0]]]
+    for _ in range(1, k):  # farthest-point start among the strong voxels
+        strong = pts[order[: max(k, len(pts) // 4)]]
+        d = np.min(np.linalg.norm(strong[:, None, :] - np.array(centres)[None], axis=-1), axis=1)
+        centres.append(strong[int(np.argmax(d))])
+    c = np.array(centres)
+    for _ in range(20):
+        lab = np.argmin(np.linalg.norm(pts[:, None, :] - c[None], axis=-1), axis=1)
+        c = np.array([np.average(pts[lab == j], axis=0, weights=w[lab == j]) if np.any(lab == j) else c[j]
+                      for j in range(k)])
+    return c
+
+
+def _start_position(rec) -> tuple[float, float, float]:
+    """Body centre from the backprojection: the occupied voxels' weighted centroid in x and y; in z their
+    weighted depth plus 5 cm (the volume holds the front surface; the body's centre lies behind it)."""
+    occ = rec.volume > 0
+    if not occ.any():
+        raise UserInputError("the backprojection of the capture is empty: nothing to start the fit from")
+    pts = rec.grid.centers()[occ]
+    w = rec.volume[occ].astype(np.float64)
+    x, y, z = np.average(pts, axis=0, weights=w)
+    return float(x), float(y), float(z + 0.05)
+
+
+def _ground_truth(manifest: dict):
+    """``(mesh, truth parameters or None)`` from the capture's scene (None, None when it cannot be loaded)."""
+    import trimesh
+
+    from transient_mi.scene_mesh import hidden_mesh
+
+    render = manifest.get("render") or {}
+    defines = dict(render.get("defines") or {})
+    try:
+        v, f, _ = hidden_mesh(render["scene_file"], defines)
+    except Exception:  # noqa: BLE001 (a scene without hidden shapes, or that no longer loads: no ground truth)
+        return None, None
+    mesh = trimesh.Trimesh(vertices=v, faces=f, process=False)
+    truth = None
+    if Path(render["scene_file"]).name == "paper_mannequin.xml":
+        from transient_mi.paper import scene_defaults
+        from transient_mi.scenes.mannequin import rest_arm_angle_deg
+        from transient_mi.scenes.mannequin_skeleton import JOINTS, parse_joints, resolve_joints
+
+        d = dict(scene_defaults())
+        d.update(defines)
+        h, w = float(d["mannequin_height"]), float(d["mannequin_width"])
+        joints = resolve_joints(d["pose"], rest_arm_angle_deg(h, w), parse_joints(d.get("joints", "")))
+        truth = {**joints, "x_m": 0.0, "y_m": 0.0, "z_m": float(d["distance"]), "rotation_deg": float(d["rotation"]),
+                 "height_m": h, "albedo": float(d["mannequin_albedo"])}
+        truth = {k: truth[k] for k in list(JOINTS) + ["x_m", "y_m", "z_m", "rotation_deg", "height_m", "albedo"]}
+    return mesh, truth
+
+
+def _surface_chamfer(a, b, n: int = 20000, seed: int = 0) -> dict:
+    from scipy.spatial import cKDTree
+    from trimesh.sample import sample_surface
+
+    pa, _ = sample_surface(a, n, seed=seed)
+    pb, _ = sample_surface(b, n, seed=seed + 1)
+    acc = float(np.mean(cKDTree(pb).query(pa)[0]))
+    comp = float(np.mean(cKDTree(pa).query(pb)[0]))
+    return {"chamfer_mesh_m": 0.5 * (acc + comp), "accuracy_mesh_m": acc, "completeness_mesh_m": comp}
+
+
+def _voxel_metrics(mesh, rec_bp, gt_mesh) -> dict:
+    from recon.metrics import GroundTruth, compute_metrics, mesh_occupancy
+    from recon.result import Reconstruction
+
+    occ = mesh_occupancy(mesh, rec_bp.grid).astype(np.float32)
+    rec = Reconstruction(raw=occ, grid=rec_bp.grid, method="fit")
+    m = compute_metrics(rec, GroundTruth(mesh=gt_mesh, source="capture scene"))
+    keys = ("chamfer_m", "accuracy_m", "completeness_m", "iou", "depth_mae_m", "silhouette_iou", "visible_chamfer_m")
+    return {k: m.get(k) for k in keys}
+
+
+def _fitted_mesh(model, theta):
+    if model.name == "mannequin":
+        from transient_mi.scenes.mannequin import make_mannequin
+
+        return make_mannequin(**model.mesh_kwargs(theta))
+    return model.mesh(theta)
+
+
+def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSettings | None = None,
+                bin_width_ps: float = 10.0, n_patches: int = 3, patch_side_m: float = 0.2, detail: int = 20,
+                resume: bool = False, overwrite: bool = False, progress: bool | None = None, log=print) -> dict:
+    """Fit a model of the hidden scene to a counts capture; returns the content of ``fit.json``.
+
+    Parameters
+    ----------
+    capture : path
+        Counts capture (``transient-mi detect`` / ``demo`` output) of an NLOS scene.
+    out_dir : path
+        Output directory (see the module docstring); one writer at a time.
+    model : str
+        ``mannequin`` or ``patches`` (:mod:`transient_mi.fit.models`).
+    settings : FitSettings
+        Iterations, samples per pixel, temporal blur, seed (default :class:`FitSettings`).
+    bin_width_ps : float
+        The fit's time bins (a whole multiple of the capture's), ps.
+    n_patches, patch_side_m : int, float
+        ``patches``: how many, and their side (m).
+    detail : int
+        ``mannequin``: tessellation of the twin (as ``transient-mi mannequin --detail``).
+    resume : bool
+        Continue from ``out_dir/checkpoint.json`` (same capture and settings).
+    overwrite : bool
+        Replace an existing output directory.
+    """
+    from transient_core.progress import progress_bar
+    from transient_core.stack import read_manifest
+
+    from .capture_model import CaptureModel
+    from .models import MannequinModel, PatchesModel
+
+    settings = settings or FitSettings()
+    _check_settings(model, settings, n_patches, patch_side_m)
+    capture = Path(capture)
+    if not (capture / "manifest.json").is_file():
+        raise UserInputError(f"capture {str(capture)!r} is not a capture directory (no manifest.json)")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise UserInputError(f"-o {out}: exists and is not a directory")
+    config = {"capture": str(capture.resolve()), "model": model, "settings": asdict(settings),
+              "bin_width_ps": float(bin_width_ps), "n_patches": int(n_patches), "patch_side_m": float(patch_side_m),
+              "detail": int(detail)}
+    with output_lock(out):
+        existing = out.is_dir() and any(out.iterdir())
+        if existing:
+            if resume:
+                try:
+                    old = json.loads((out / "config.json").read_text())
+                except (OSError, ValueError):
+                    raise UserInputError(f"--resume: {out} holds no fit to resume (config.json missing)") from None
+                if old != config:
+                    raise UserInputError(f"--resume: {out} holds a fit of other settings or another capture; "
+                                         "resume with the same options, or --overwrite")
+            elif overwrite:
+                if not (out / "config.json").is_file():
+                    raise UserInputError(f"-o {out}: --overwrite replaces an earlier fit only; this directory holds "
+                                         "something else")
+            else:
+                raise UserInputError(f"-o {out}: directory exists and is not empty (pass --overwrite to replace an "
+                                     "earlier fit, or --resume to continue it)")
+        t_start = time.perf_counter()
+        manifest = read_manifest(capture)
+        mdl = MannequinModel(detail) if model == "mannequin" else PatchesModel(n_patches, patch_side_m)
+        cap = CaptureModel(capture, mdl.faces, mdl.n_vertices, bin_width_ps=bin_width_ps)
+        bounds = _bounds(manifest)
+        rec_bp = _backprojection(capture, bounds)
+        # (everything checked: only now is anything written)
+        if existing and overwrite and not resume:
+            for name in _OUTPUTS + ("start.json",):
+                (out / name).unlink(missing_ok=True)
+        out.mkdir(parents=True, exist_ok=True)
+        ckpt = out / "checkpoint.json"
+        if resume and ckpt.is_file():
+            state = FitState.load(ckpt)
+            theta0 = np.asarray(json.loads((out / "start.json").read_text())["theta"])
+        else:
+            if model == "mannequin":
+                theta0 = mdl.initial(_start_position(rec_bp))
+            else:
+                theta0 = mdl.initial(_strongest_regions(rec_bp, n_patches))
+            theta0 = _match_brightness(mdl, cap, theta0, settings)
+            _write_text(out / "start.json", json.dumps({"theta": theta0.tolist()}) + "\n")
+            _write_text(out / "config.json", json.dumps(config, indent=1) + "\n")
+            state = FitState(theta=theta0.tolist())
+        with progress_bar(f"fit {model}", settings.iterations,
+                          disable=None if progress is None else not progress) as advance:
+            if state.iteration:
+                advance(state.iteration)
+            run_adam(mdl, cap, state, settings, progress=lambda i, n, obj: advance(1),
+                     checkpoint=lambda s: s.save(ckpt))
+        fit_s = time.perf_counter() - t_start
+        theta = state.result()
+        result = _finish(out, mdl, cap, manifest, rec_bp, theta0, theta, state, settings, config, fit_s)
+        log(f"fit {model}: {settings.iterations} iterations in {state.elapsed_s:.0f} s of optimisation "
+            f"({fit_s:.0f} s in all); wrote {out}/fit.json, fitted.ply, loss.png, fit.png")
+        return result
+
+
+def _match_brightness(mdl, cap, theta0: np.ndarray, settings: FitSettings) -> np.ndarray:
+    """Start with the reflectance that gives the model as many counts as the capture holds."""
+    theta = theta0.copy()
+    cap.set_mesh(mdl.vertices(theta), mdl.albedo(theta))
+    from .optimize import resolve_spp
+
+    spp = resolve_spp(settings, cap.width * cap.height)[1]
+    mu = cap.expected_counts(cap.ideal(settings.seed + 7919, spp, cap.jitter_sigma_ps))
+    total = float(mu.sum())
+    if total > 0:
+        theta[-1] = float(np.clip(theta[-1] * cap.counts.sum() / total, mdl.lower[-1], mdl.upper[-1]))
+    return theta
+
+
+def _finish(out, mdl, cap, manifest, rec_bp, theta0, theta, state, settings, config, fit_s) -> dict:
+    from transient_mi.scenes._ply import write_ply
+
+    from .optimize import resolve_spp
+
+    spp_eval = 4 * resolve_spp(settings, cap.width * cap.height)[1]
+    nll = {}
+    for label, th in (("start", theta0), ("fit", theta)):
+        cap.set_mesh(mdl.vertices(th), mdl.albedo(th))
+        mu = cap.expected_counts(cap.ideal(settings.seed + 104729, spp_eval, cap.jitter_sigma_ps))
+        nll[label] = cap.poisson_nll(mu)
+    mesh = _fitted_mesh(mdl, theta)
+    write_ply(out / "fitted.ply", mesh.vertices, mesh.faces)
+    gt_mesh, truth = _ground_truth(manifest)
+    metrics = {}
+    if gt_mesh is not None:
+        from recon.metrics import GroundTruth, compute_metrics
+
+        bp = compute_metrics(rec_bp, GroundTruth(mesh=gt_mesh, source="capture scene"))
+        keys = ("chamfer_m", "accuracy_m", "completeness_m", "iou", "depth_mae_m", "silhouette_iou",
+                "visible_chamfer_m")
+        metrics = {"fit": {**_voxel_metrics(mesh, rec_bp, gt_mesh), **_surface_chamfer(mesh, gt_mesh)},
+                   "backprojection": {k: bp.get(k) for k in keys}}
+    errors = None
+    if truth is not None and mdl.name == "mannequin":
+        fitted = mdl.as_dict(theta)
+        errors = {k: fitted[k] - truth[k] for k in truth}
+        joints = [abs(errors[k]) for k in truth if k.endswith(("_right", "_left"))]
+        metrics["joint_error_max_deg"] = float(max(joints))
+        metrics["joint_error_mean_deg"] = float(np.mean(joints))
+        metrics["position_error_m"] = float(np.linalg.norm([errors["x_m"], errors["y_m"], errors["z_m"]]))
+    _loss_figure(out / "loss.png", state)
+    _front_figure(out / "fit.png", rec_bp, gt_mesh, mesh, metrics)
+    result = {
+        "status": "complete", "format": "transient-mi-fit", "format_version": 1, "config": config,
+        "parameters": {"names": mdl.names, "start": mdl.as_dict(theta0), "fit": mdl.as_dict(theta),
+                       "truth": truth, "error": errors},
+        "poisson_nll": {**nll, "spp": spp_eval, "counts": float(cap.counts.sum())},
+        "metrics": metrics,
+        "history": {"objective": [h[0] for h in state.history], "sigma_ps": [h[1] for h in state.history],
+                    "seconds": [h[2] for h in state.history],
+                    "objective_end_blur": [h[3] for h in state.history]},
+        "time_s": {"optimisation": state.elapsed_s, "total": fit_s},
+        "bounds": list(_bounds(manifest)),
+    }
+    _write_text(out / "fit.json", json.dumps(result, indent=1) + "\n")
+    return result
+
+
+def _loss_figure(path: Path, state: FitState) -> None:
+    from transient_mi.reporting import save_figure, subplots
+
+    h = np.asarray(state.history, dtype=np.float64).reshape(-1, 4)
+    fig, ax = subplots(1, 1, figsize=(6.4, 3.4))
+    it = np.arange(1, len(h) + 1)
+    ax.semilogy(it, h[:, 3], lw=0.6, color="C0", label=f"objective at the final blur ({h[-1, 1]:.0f} ps)")
+    if len(h) >= 10:
+        k = max(5, len(h) // 20)
+        smooth = np.convolve(h[:, 3], np.ones(k) / k, mode="valid")
+        ax.semilogy(it[k - 1:], smooth, lw=1.5, color="C3", label=f"running mean ({k} iterations)")
+    ax.semilogy(it, h[:, 0], lw=0.8, color="C2", alpha=0.7, label="objective descended (current blur)")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("objective (one Monte Carlo estimate)")
+    ax2 = ax.twinx()
+    ax2.plot(it, h[:, 1], color="0.5", lw=1, ls="--")
+    ax2.set_ylabel("temporal blur sigma (ps)", color="0.4")
+    ax.legend(loc="upper right", fontsize=8)
+    save_figure(fig, path, dpi=100)
+
+
+def _front_figure(path: Path, rec_bp, gt_mesh, mesh, metrics) -> None:
+    from recon.metrics import mesh_depth_map
+    from recon.filters import depth_map
+    from transient_mi.reporting import save_figure, subplots
+
+    g = rec_bp.grid
+    panels = []
+    if gt_mesh is not None:
+        panels.append(("ground truth", mesh_depth_map(gt_mesh, g)))
+    bp = depth_map(rec_bp.volume, g)
+    panels.append(("backprojection (paper's filter)", bp))
+    panels.append(("fit", mesh_depth_map(mesh, g)))
+    fig, axes = subplots(1, len(panels), figsize=(3.2 * len(panels), 3.4))
+    axes = np.atleast_1d(axes)
+    ext = (g.x_m[0], g.x_m[-1], g.y_m[0], g.y_m[-1])
+    z0, z1 = g.z_m[0], g.z_m[-1]
+    for ax, (title, d) in zip(axes, panels):
+        im = ax.imshow(d, origin="lower", extent=ext, vmin=z0, vmax=z1, cmap="viridis")
+        key = {"fit": "fit", "backprojection (paper's filter)": "backprojection"}.get(title)
+        if key and key in metrics:
+            m = metrics[key]
+            title += f"\nChamfer {100 * m['chamfer_m']:.1f} cm, IoU {m['iou']:.2f}"
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("x (m)")
+    axes[0].set_ylabel("y (m)")
+    fig.colorbar(im, ax=list(axes), shrink=0.8, label="depth z (m)")
+    save_figure(fig, path, dpi=100)

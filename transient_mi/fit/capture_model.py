@@ -1,0 +1,303 @@
+"""The forward model a fit compares with a counts capture: render a model mesh in the capture's own scene,
+pass it through the capture's detector, and score it against the detected counts.
+
+A counts capture's manifest names its scene file, the ``-D`` values it was rendered with, the detector
+and its photon budget (``render`` and ``detector`` entries). :class:`CaptureModel` loads that scene
+again, removes its hidden objects (every shape but the relay wall) and puts one triangle mesh in their
+place whose vertex positions and reflectance the fit sets (``set_mesh``); relay wall, laser, SPAD array
+and detector stay the capture's.
+
+Time axis and temporal blur
+---------------------------
+The counts are summed into bins of ``bin_width_ps`` (an integer multiple of the capture's: the sum of
+Poisson counts is Poisson, so nothing is lost but sub-bin timing). The renderer carries the arrival-time
+derivative through its continuous Gaussian kernel (the film's ``kernel_sigma_ps``, see
+``docs/differentiable.md``), so the detector's timing jitter is applied there instead of in the detector
+layer, and the counts are blurred by the rest, ``sqrt(sigma^2 - sigma_jitter^2)``, so that model and
+data are always blurred alike (:meth:`CaptureModel.counts_blurred`). The optimiser renders at one
+``sigma`` (its final blur) and reaches coarser ones by convolving the expected counts
+(:meth:`CaptureModel.blur`).
+
+Objective
+---------
+The weighted squared difference ``0.5 sum w (mu - k)^2`` over spots, pixels and bins (``mu``: expected
+counts, ``k``: counts, both blurred alike) with weights ``w = 1 / (k + k_floor)`` that depend on the data
+only: ``k_floor`` is the mean count of the bins holding counts. Near ``mu = k`` and where counts are
+many this is the Gaussian approximation of the Poisson negative log-likelihood (``w = 1/k``); the floor
+keeps light the model puts where no counts are from dominating (the Poisson cost there grows linearly,
+``1/(k + 1)`` weights would make it quadratic and heavy, and the reflectance then absorbs any misfit).
+Its minimum is ``mu = k`` whatever the weights, so a model that can reproduce the counts is fitted
+without bias. The Poisson NLL itself is reported (:meth:`CaptureModel.poisson_nll`) but not descended:
+with a Monte Carlo ``mu`` its gradient ``1 - k / mu`` is biased (Jensen) and unbounded where a bin
+happens to get no sample; so is every objective whose weights depend on ``mu``. The gradient
+``w (mu_a - k) dmu_b`` with ``mu_a`` and ``dmu_b`` from independent renders (different seeds) is an
+unbiased estimate of the objective's gradient.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from transient_core.errors import UserInputError
+from transient_core.stack import read_manifest, read_spot
+
+__all__ = ["CaptureModel"]
+
+
+def _blur_time(x: np.ndarray, sigma_bins: float) -> np.ndarray:
+    if sigma_bins <= 1e-3:
+        return x
+    from scipy.ndimage import gaussian_filter1d
+
+    return gaussian_filter1d(x, sigma_bins, axis=-1, mode="constant", truncate=4.0)
+
+
+class CaptureModel:
+    """A counts capture and the forward model that fits it.
+
+    Parameters
+    ----------
+    capture_dir : path
+        A counts capture (``transient-mi detect`` or ``demo`` output) whose manifest records the scene it
+        was rendered from (``array`` or ``confocal``).
+    n_faces, n_vertices : int
+        Size of the model mesh (fixed for the fit).
+    bin_width_ps : float
+        The fit's time bins, ps; an integer multiple of the capture's that divides its number of bins
+        (default 10 ps).
+
+    Attributes
+    ----------
+    counts : numpy.ndarray
+        ``[G, P, T]`` float64 counts summed into the fit's bins (``G`` spots, ``P = height * width`` pixels,
+        row-major, ``T`` bins).
+    """
+
+    def __init__(self, capture_dir, faces: np.ndarray, n_vertices: int, *, bin_width_ps: float = 10.0,
+                 albedo: float = 0.5):
+        self.capture_dir = Path(capture_dir)
+        m = read_manifest(self.capture_dir)
+        if m.get("kind") != "counts":
+            raise UserInputError(f"capture {str(self.capture_dir)!r} holds {m.get('kind')!r} data; fit needs a "
+                                 "counts capture (transient-mi detect, or the demo's captures/array_NN/counts)")
+        if m.get("capture") not in ("array", "confocal"):
+            raise UserInputError(f"capture {str(self.capture_dir)!r} is a {m.get('capture')!r} capture; fit needs an "
+                                 "NLOS capture (array or confocal)")
+        render = m.get("render") or {}
+        scene_file = render.get("scene_file")
+        if not scene_file or not Path(scene_file).is_file():
+            raise UserInputError(f"capture {str(self.capture_dir)!r}: its scene file {scene_file!r} is not there; fit "
+                                 "renders the capture's own scene (relay wall, laser, SPAD array) again")
+        self.manifest = m
+        t = m["time"]
+        factor = float(bin_width_ps) / float(t["bin_width_ps"])
+        if not (math.isfinite(factor) and factor >= 1 and abs(factor - round(factor)) < 1e-9
+                and int(t["n_bins"]) % int(round(factor)) == 0):
+            raise UserInputError(
+                f"bin_width_ps={bin_width_ps!r}: must be a whole multiple of the capture's {t['bin_width_ps']:g} ps "
+                f"that divides its {t['n_bins']} bins")
+        self.factor = int(round(factor))
+        self.bin_width_ps = float(bin_width_ps)
+        self.t0_ps = float(t["t0_ps"])
+        self.n_bins = int(t["n_bins"]) // self.factor
+        self.width, self.height = int(m["width"]), int(m["height"])
+        self.n_spots = int(m.get("n_files", 1))
+        G, P, T = self.n_spots, self.width * self.height, self.n_bins
+        counts = np.zeros((G, P, T))
+        for g in range(G):
+            c = read_spot(self.capture_dir, g, m).astype(np.float64).reshape(P, -1)
+            counts[g] = c.reshape(P, T, self.factor).sum(axis=-1)
+        self.counts = counts
+        held = counts[counts >= 1]
+        #: Mean count of the bins that hold at least one count (the objective's weight floor).
+        self.k_floor = float(held.mean()) if held.size else 1.0
+        self._detector_setup(m)
+        self._scene_setup(render, faces, n_vertices, albedo)
+        self._blurred = {}
+        self._keep = None
+
+    # --- detector ---------------------------------------------------------------------------------------
+
+    def _detector_setup(self, m: dict) -> None:
+        from spad_detector.likelihood import ExpectedCounts
+        from spad_detector.model import build_model
+        from spad_detector.params import DetectorParams
+
+        det = dict(m["detector"])
+        resolved = det.get("resolved") or {}
+        pulses = det.get("pulses")
+        keep = {k: v for k, v in det.items() if k not in ("resolved", "pulses", "exposure_s", "pulses_requested",
+                                                            "exposure_s_requested", "seed", "engine",
+                                                            "model", "model_version")}
+        params = DetectorParams.from_dict(keep)
+        self.jitter_sigma_ps = float(params.jitter_sigma_ps)
+        opens = resolved.get("gate_open_ps_per_spot") or [resolved.get("gate_open_ps")] * self.n_spots
+        closes = resolved.get("gate_close_ps_per_spot") or [resolved.get("gate_close_ps")] * self.n_spots
+        self.layers = []
+        for g in range(self.n_spots):
+            p = params.replace(auto_gate=False, gate_open_ps=opens[g], gate_close_ps=closes[g], jitter_ps=0.0,
+                               irf_tail_fraction=0.0)
+            model = build_model(p, bin_width_ps=self.bin_width_ps, n_bins=self.n_bins, t0_ps=self.t0_ps,
+                                repetition_rate_hz=resolved.get("repetition_rate_hz"))
+            self.layers.append(ExpectedCounts(model, int(pulses)))
+        self.detector = params
+
+    def dead_time_factor(self, ideal: np.ndarray) -> np.ndarray:
+        """``[G, P, 1]`` share of cycles in which the detector is ready: ``1 / (1 + p D)``, with ``p`` a pixel's
+        probability of an event per cycle and ``D`` the dead time in laser periods beyond the first
+        (nonparalyzable, SPAD or TCSPC, whichever is longer).
+
+        :class:`~spad_detector.likelihood.ExpectedCounts` is exact when the detector is ready at each cycle's
+        start; the paper's TCSPC dead time (50 ns at a 20 ns laser period) spans 2.5 periods, ``D = 1.5`` beyond
+        the cycle of the event, which removes about ``D p`` of the counts (without the factor the model
+        overestimates the demo's counts by 3.7 %, with it by 0.9 %). The fit treats the factor as a constant in the gradient (its own derivative
+        changes the gradient by a relative ``p D``, a few per cent)."""
+        m = self.layers[0].model
+        D = max(m.spad_dead_time_ps, m.tcspc_dead_time_ps) / m.grid.period_ps - 1.0
+        if D <= 0:
+            return np.ones((ideal.shape[0], ideal.shape[1], 1))
+        out = []
+        for g in range(self.n_spots):
+            _, _, prob = self.layers[g]._probabilities(ideal[g])
+            out.append(1.0 / (1.0 + prob.sum(axis=-1, keepdims=True) * D))
+        return np.stack(out)
+
+    def expected_counts(self, ideal: np.ndarray, factor: np.ndarray | None = None) -> np.ndarray:
+        """``[G, P, T]`` expected counts of an ideal capture (photons per pulse) in the fit's bins."""
+        f = self.dead_time_factor(ideal) if factor is None else factor
+        return np.stack([self.layers[g](ideal[g]) for g in range(self.n_spots)]) * f
+
+    def counts_blurred(self, sigma_ps: float) -> np.ndarray:
+        """The counts blurred to a total temporal spread ``sigma_ps`` (>= the jitter's)."""
+        key = round(float(sigma_ps), 6)
+        if key not in self._blurred:
+            extra = math.sqrt(max(sigma_ps ** 2 - self.jitter_sigma_ps ** 2, 0.0)) / self.bin_width_ps
+            if len(self._blurred) >= 2:  # (the fixed end blur and the current one)
+                self._blurred.pop(next(k for k in self._blurred if k != self._keep))
+            self._blurred[key] = _blur_time(self.counts, extra)
+        return self._blurred[key]
+
+    def keep_blur(self, sigma_ps: float) -> None:
+        """Keep the counts blurred to ``sigma_ps`` cached (the blur every iteration also evaluates)."""
+        self._keep = round(float(sigma_ps), 6)
+
+    def blur(self, x: np.ndarray, from_ps: float, to_ps: float) -> np.ndarray:
+        """``x [..., T]`` (a render or expected counts at temporal spread ``from_ps``) blurred to ``to_ps``."""
+        return _blur_time(x, math.sqrt(max(to_ps ** 2 - from_ps ** 2, 0.0)) / self.bin_width_ps)
+
+    # --- scene ------------------------------------------------------------------------------------------
+
+    def _scene_setup(self, render: dict, faces: np.ndarray, n_vertices: int, albedo: float) -> None:
+        from transient_mi.scene_io import load_scene
+
+        defines = dict(render.get("defines") or {})
+        defines.update({"n_bins": str(self.n_bins), "bin_width_ps": repr(self.bin_width_ps),
+                        "t0_ps": repr(self.t0_ps), "max_depth": "4"})
+        src = load_scene(render["scene_file"], defines)
+        sensor = src.sensors()[0]
+        if not hasattr(sensor, "nlos_setup"):
+            raise UserInputError(f"capture {str(self.capture_dir)!r}: its scene has no spad_array sensor")
+        wall = [s for s in src.shapes() if s.id() == "relay_wall"]
+        if not wall:
+            raise UserInputError(f"capture {str(self.capture_dir)!r}: its scene has no shape with id relay_wall")
+        self.mesh = mi.Mesh("model", int(n_vertices), len(faces), has_vertex_normals=False,
+                            props=self._mesh_props(albedo))
+        mp = mi.traverse(self.mesh)
+        mp["faces"] = mi.UInt32(np.asarray(faces, dtype=np.uint32).ravel())
+        mp["vertex_positions"] = dr.zeros(mi.Float, 3 * int(n_vertices))
+        mp.update()
+        scene_dict = {"type": "scene", "integrator": src.integrator(), "sensor": sensor, "relay_wall": wall[0],
+                      "model": self.mesh}
+        for k, e in enumerate(src.emitters()):
+            scene_dict[f"emitter_{k}"] = e
+        self.scene = mi.load_dict(scene_dict)
+        del src
+        self.sensor = self.scene.sensors()[0]
+        self.integrator = self.scene.integrator()
+        self.integrator.nlos_options["hidden_geometry_prob"] = 1.0
+        self.params = mi.traverse(self.scene)
+        self.vkey = "model.vertex_positions"
+        self.rkey = [k for k in self.params.keys() if k.startswith("model.bsdf.reflectance")][0]
+        self.spots = list(range(self.n_spots)) if self.manifest["capture"] == "array" else [0]
+
+    @staticmethod
+    def _mesh_props(albedo: float) -> mi.Properties:
+        props = mi.Properties()
+        props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": float(albedo)}})
+        return props
+
+    def set_mesh(self, vertices: np.ndarray, albedo: float) -> None:
+        """Model mesh vertices ``[V, 3]`` (metres, world frame) and reflectance."""
+        self.params[self.vkey] = mi.Float(np.asarray(vertices, dtype=np.float32).ravel())
+        self.params[self.rkey] = type(self.params[self.rkey])(float(albedo))
+        self.params.update()
+
+    def _set_sigma(self, sigma_ps: float) -> None:
+        self.sensor.film().kernel_sigma_ps = float(sigma_ps)
+
+    def _render(self, seed: int, spp: int) -> np.ndarray:
+        # the mesh moved: the sensor's cached scene analysis (hidden shapes' total area) is rebuilt
+        self.sensor.forget_nlos_setup()
+        res = self.integrator.render_transient(self.scene, self.sensor, seed=int(seed), spp=int(spp),
+                                               spots=self.spots)
+        return np.stack([np.asarray(r.histogram if hasattr(r, "histogram") else r, dtype=np.float64)
+                         .reshape(self.width * self.height, self.n_bins) for r in res])
+
+    def ideal(self, seed: int, spp: int, sigma_ps: float) -> np.ndarray:
+        """``[G, P, T]`` ideal capture (photons per pulse) of the current mesh: its three-bounce light and the
+        relay wall's direct return (closed form, as in the capture)."""
+        self._set_sigma(sigma_ps)
+        return self._render(seed, spp)
+
+    def weights(self, sigma_ps: float) -> np.ndarray:
+        """``1 / (k + k_floor)`` per bin (see the module docstring)."""
+        k = self.counts_blurred(sigma_ps)
+        return 1.0 / (k + self.k_floor)
+
+
+    def objective(self, mu: np.ndarray, sigma_ps: float) -> tuple[float, np.ndarray]:
+        """Objective ``0.5 sum w (mu - k)^2`` and its gradient ``w (mu - k)`` with respect to ``mu``."""
+        k = self.counts_blurred(sigma_ps)
+        r = (mu - k) * self.weights(sigma_ps)
+        return 0.5 * float(np.sum((mu - k) * r)), r
+
+    def poisson_nll(self, mu: np.ndarray) -> float:
+        """Poisson negative log-likelihood of the (unblurred) counts for means ``mu`` (floored at 1e-12)."""
+        from spad_detector.likelihood import poisson_nll
+
+        return poisson_nll(np.maximum(mu, 1e-12), self.counts)
+
+    def backward(self, grad_mu: np.ndarray, ideal_ref: np.ndarray, seed: int, spp: int,
+                 sigma_ps: float) -> tuple[np.ndarray, float]:
+        """Gradient of ``<grad_mu, mu>`` with respect to the mesh vertices ``[V, 3]`` and the reflectance.
+
+        ``ideal_ref`` is the ideal capture the detector layer is linearised at (pile-up); the render runs
+        with ``seed`` (use one independent of the render that gave ``grad_mu``)."""
+        from transient_mi.integrators._nlos_ad import nlos_backward
+
+        f = self.dead_time_factor(ideal_ref)
+        g_ideal = np.stack([self.layers[g].vjp(ideal_ref[g], grad_mu[g] * f[g]) for g in range(self.n_spots)])
+        self._set_sigma(sigma_ps)
+        v, r = self.params[self.vkey], self.params[self.rkey]
+        dr.enable_grad(v)
+        dr.enable_grad(r)
+        self.params.update()
+        shape = (len(self.spots), self.height, self.width, self.n_bins) if len(self.spots) > 1 \
+            else (self.height, self.width, self.n_bins)
+        try:
+            nlos_backward(self.integrator, self.scene, self.params, g_ideal.astype(np.float32).reshape(shape),
+                          self.sensor, int(seed), int(spp), spots=self.spots)
+            gv = np.asarray(dr.grad(self.params[self.vkey]), dtype=np.float64).reshape(-1, 3)
+            gr = float(np.sum(np.asarray(dr.grad(self.params[self.rkey]), dtype=np.float64)))
+        finally:
+            dr.disable_grad(self.params[self.vkey])
+            dr.disable_grad(self.params[self.rkey])
+            self.params[self.vkey] = dr.detach(self.params[self.vkey])
+            self.params[self.rkey] = dr.detach(self.params[self.rkey])
+            self.params.update()
+        return gv, gr
