@@ -19,11 +19,11 @@ def fit_command(
                                                       "checkpoint.json."),
     model: str = typer.Option("mannequin", "--model", help="mannequin (joint angles, position, rotation, height, "
                                                           "reflectance) or patches (square patches)."),
-    iterations: int = typer.Option(200, "--iterations", parser=whole_number("--iterations"), metavar="<int>",
+    iterations: int = typer.Option(300, "--iterations", parser=whole_number("--iterations"), metavar="<int>",
                                    help="Adam iterations."),
     spp: int = typer.Option(0, "--spp", parser=whole_number("--spp"), metavar="<int>",
-                            help="Samples per pixel of the derivative render per iteration (0: 4096 per laser spot "
-                                 "spread over the pixels, at least 4: 16 at 16x16, 4 at 32x32)."),
+                            help="Samples per pixel of the derivative render per iteration (0: 8192 per laser spot "
+                                 "spread over the pixels, 4 to 64: 32 at 16x16, 8 at 32x32)."),
     spp_residual: int = typer.Option(0, "--spp-residual", parser=whole_number("--spp-residual"), metavar="<int>",
                                      help="Samples per pixel of the residual render per iteration (0: 4 x --spp)."),
     sigma_start_ps: float = typer.Option(250.0, "--sigma-start-ps", help="Temporal blur at the start (coarse to "

@@ -34,8 +34,8 @@ __all__ = ["FitSettings", "FitState", "run_adam"]
 class FitSettings:
     """Optimiser settings (defaults: the paper's capture in about 10 minutes on 2 cores)."""
 
-    iterations: int = 200
-    spp: int = 0  # the derivative render's samples per pixel (0: 4096 per spot spread over the pixels, >= 4)
+    iterations: int = 300
+    spp: int = 0  # the derivative render's samples per pixel (0: 8192 per spot spread over the pixels, 4 to 64)
     spp_residual: int = 0  # the residual render's (0: 4 x spp; cheaper, no derivative)
     sigma_start_ps: float = 250.0
     sigma_end_ps: float = 30.0  # (at least the detector's jitter)
@@ -76,7 +76,7 @@ class FitState:
 
 def resolve_spp(settings: FitSettings, n_pixels: int) -> tuple[int, int]:
     """``(spp, spp_residual)`` for a capture of ``n_pixels`` pixels (the settings' zeros chosen)."""
-    spp = settings.spp or max(4, min(64, 4096 // max(1, n_pixels)))
+    spp = settings.spp or max(4, min(64, 8192 // max(1, n_pixels)))
     return spp, settings.spp_residual or 4 * spp
 
 
