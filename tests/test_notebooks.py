@@ -42,7 +42,7 @@ def _errors(nb) -> list[str]:
 def test_every_notebook_has_a_source():
     names = [p.stem for p in SOURCES]
     assert names == ["01_quickstart", "02_nlos_capture", "03_detector_model", "04_reconstruction_methods",
-                     "05_photon_budget"]
+                     "05_photon_budget", "06_inverse_nlos"]
 
 
 @pytest.mark.parametrize("src", SOURCES, ids=[p.stem for p in SOURCES])

@@ -35,6 +35,20 @@ from transient_mi.scenes.mannequin_skeleton import JOINT_RANGES_DEG, JOINTS, pos
 __all__ = ["MannequinModel", "PatchesModel", "MODELS"]
 
 
+def _chain(vertices, theta, grad_vertices: np.ndarray, grad_albedo: float) -> np.ndarray:
+    """``dL/dtheta``: the vertex gradient ``[V, 3]`` pulled back through ``vertices(theta) -> mi.Point3f`` (Dr.Jit
+    reverse mode); the last parameter (the reflectance) takes ``grad_albedo``."""
+    t = [mi.Float(float(x)) for x in theta]
+    for x in t:
+        dr.enable_grad(x)
+    v = vertices(t)
+    g = np.asarray(grad_vertices, dtype=np.float32)
+    dr.backward_from(dr.sum(v.x * mi.Float(g[:, 0]) + v.y * mi.Float(g[:, 1]) + v.z * mi.Float(g[:, 2])))
+    out = np.array([float(dr.grad(x)[0]) for x in t])
+    out[-1] = grad_albedo
+    return out
+
+
 class MannequinModel:
     """Pose, placement, size and reflectance of the procedural mannequin (see the module docstring)."""
 
@@ -84,14 +98,7 @@ class MannequinModel:
 
     def gradient(self, theta, grad_vertices: np.ndarray, grad_albedo: float) -> np.ndarray:
         """``dL/dtheta`` from the gradient with respect to the vertices ``[V, 3]`` and the reflectance."""
-        t = [mi.Float(float(x)) for x in theta]
-        for x in t:
-            dr.enable_grad(x)
-        v = self._vertices(t)
-        g = np.asarray(grad_vertices, dtype=np.float32)
-        dr.backward_from(dr.sum(v.x * mi.Float(g[:, 0]) + v.y * mi.Float(g[:, 1]) + v.z * mi.Float(g[:, 2])))
-        out = np.array([float(dr.grad(x)[0]) for x in t])
-        out[-1] = grad_albedo
+        out = _chain(self._vertices, theta, grad_vertices, grad_albedo)
         # the hidden area's share of a change of size (see the module docstring)
         out[-2] += 2.0 * float(theta[-1]) / float(theta[-2]) * grad_albedo
         return out
@@ -147,18 +154,8 @@ class PatchesModel:
         return float(theta[-1])
 
     def gradient(self, theta, grad_vertices: np.ndarray, grad_albedo: float) -> np.ndarray:
-        t = [mi.Float(float(x)) for x in theta]
-        for x in t:
-            dr.enable_grad(x)
-        xs, ys, zs = self._vertices(t)
-        g = np.asarray(grad_vertices, dtype=np.float64)
-        obj = mi.Float(0.0)
-        for i, (x, y, z) in enumerate(zip(xs, ys, zs)):
-            obj += x * float(g[i, 0]) + y * float(g[i, 1]) + z * float(g[i, 2])
-        dr.backward_from(obj)
-        out = np.array([float(dr.grad(x)[0]) for x in t])
-        out[-1] = grad_albedo
-        return out
+        return _chain(lambda t: mi.Point3f(*(dr.concat(list(c)) for c in self._vertices(t))), theta, grad_vertices,
+                      grad_albedo)
 
     def mesh(self, theta):
         import trimesh

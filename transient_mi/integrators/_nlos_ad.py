@@ -82,31 +82,19 @@ MAX_AD_DEPTH = 4
 #: Longest path (segments) the differentiable NLOS estimator records (BSDF parameters and the laser power,
 #: mono variants); the vertices beyond the hidden one are unrolled.
 MAX_UNROLLED_DEPTH = 16
-#: Parameter names (last key component) of a shape that move it.
-GEOMETRY_KEYS = ("to_world", "vertex_positions", "vertex_normals", "center", "radius")
+from transient_mi.integrators._ad_geometry import GEOMETRY_KEYS, geometry_keys  # noqa: E402,F401
 
 
 def _geometry_params(params, setup, name: str) -> bool:
     """Whether ``params`` holds a grad-enabled hidden-shape geometry parameter; refuses the relay wall's."""
-    if params is None:
-        return False
-    found = False
-    for key in params.keys():
-        _, _, node, _ = params.properties[key]
-        if not isinstance(node, mi.Shape) or key.rsplit(".", 1)[-1] not in GEOMETRY_KEYS:
-            continue
-        try:
-            on = dr.grad_enabled(params[key])
-        except Exception:  # noqa: BLE001 (a value without AD support is not a parameter being differentiated)
-            on = False
-        if not on:
-            continue
+    keys = geometry_keys(params)
+    for key in keys:
+        node = params.properties[key][2]
         if node == setup.relay_wall or (hasattr(node, "ptr") and node.ptr == setup.relay_wall.ptr):
             raise PluginParameterError(
                 f"{name}: {key} moves the relay wall; differentiable NLOS captures support the geometry of "
                 "hidden shapes only")
-        found = True
-    return found
+    return bool(keys)
 
 
 def check(integrator, scene, sensor, params):
