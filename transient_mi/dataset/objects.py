@@ -12,7 +12,9 @@ Kinds
     ``height_m``, ``width_m``, ``pose``, ``rotation_deg``, ``position``
     (``[x, y, z]`` metres), ``position_x`` / ``position_y`` / ``position_z``
     (one component each, overriding ``position``; handy to draw one at a
-    time) and ``detail``. Defaults: those of the ``mannequin`` command.
+    time), ``detail`` and ``joints`` (joint angles overriding the pose's, degrees: a mapping such as
+    ``{elbow_right: 40}`` or ``"elbow_right=40,knee_left=20"``). Defaults: those of the ``mannequin``
+    command.
 """
 
 from __future__ import annotations
@@ -51,10 +53,16 @@ def _mannequin_resolve(given: dict[str, Any]) -> dict[str, Any]:
         if f"position_{axis}" in given:
             pos[i] = given[f"position_{axis}"]
     p["position"] = pos
-    h, w, pose, rot, position, detail = mq._validate(p["height_m"], p["width_m"], p["pose"], p["rotation_deg"],
-                                                     p["position"], p["detail"])
-    return {"height_m": h, "width_m": w, "pose": pose, "rotation_deg": rot, "position": list(position),
-            "detail": detail}
+    joints = p.get("joints")
+    h, w, pose, rot, position, detail, _ = mq._validate(p["height_m"], p["width_m"], p["pose"], p["rotation_deg"],
+                                                        p["position"], p["detail"], joints)
+    out = {"height_m": h, "width_m": w, "pose": pose, "rotation_deg": rot, "position": list(position),
+           "detail": detail}
+    if joints:  # (only when given: items without joints keep their bytes)
+        from transient_mi.scenes.mannequin_skeleton import parse_joints
+
+        out["joints"] = {k: float(v) for k, v in (parse_joints(joints) if isinstance(joints, str) else joints).items()}
+    return out
 
 
 def _mannequin_write(path: Path, params: dict[str, Any]) -> Path:
@@ -69,7 +77,8 @@ def _mannequin_command(params: dict[str, Any], out: str) -> str:
     x, y, z = params["position"]
     return (f"transient-mi mannequin -o {out} --height-m {params['height_m']!r} --width-m {params['width_m']!r} "
             f"--pose {params['pose']} --rotation-deg {params['rotation_deg']!r} --position {x!r},{y!r},{z!r} "
-            f"--detail {params['detail']}")
+            f"--detail {params['detail']}"
+            + "".join(f" --joint {k}={v!r}" for k, v in params.get("joints", {}).items()))
 
 
 @dataclass(frozen=True)
@@ -87,6 +96,6 @@ OBJECT_KINDS: dict[str, ObjectKind] = {
     "mannequin": ObjectKind(
         "mannequin",
         ("height_m", "width_m", "pose", "rotation_deg", "position", "position_x", "position_y", "position_z",
-         "detail"),
+         "detail", "joints"),
         _mannequin_resolve, _mannequin_write, _mannequin_command),
 }
