@@ -45,6 +45,8 @@ emitter's ``intensity`` here before geometry was added).
 
 from __future__ import annotations
 
+import contextlib
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -171,8 +173,11 @@ def _setup(integrator, scene, sensor, spp):
     return film, layout, axis, taps, pad, channels, n_ch
 
 
-def render_backward(integrator, scene, params, grad_in, sensor, seed, spp) -> None:
-    """Reverse mode: propagate ``grad_in`` (the adjoint of the histogram tensor) to the scene parameters."""
+def render_backward(integrator, scene, params, grad_in, sensor, seed, spp, replay=None, detached=False) -> None:
+    """Reverse mode: propagate ``grad_in`` (the adjoint of the histogram tensor) to the scene parameters.
+
+    ``replay`` is the path replay (default :func:`_replay`; ``transient_volpath`` passes its own, which runs
+    under ``dr.suspend_grad`` (``detached``) and resumes gradients for the factors it re-evaluates)."""
     film, layout, axis, taps, pad, channels, n_ch = _setup(integrator, scene, sensor, spp)
     delta = _adjoint_ext(grad_in, film, n_ch)
     binner = LaneHistogram(LaneLayout(1, 1, 1), axis, pad)
@@ -180,16 +185,20 @@ def render_backward(integrator, scene, params, grad_in, sensor, seed, spp) -> No
     rng = seed_rng(seed, layout.n_lanes)
     origin, pixel_filter = TimeOrigin(sensor), PixelFilter(film.rfilter(), film.sample_border())
     scale = 1.0 / layout.spp
-    if check_geometry(integrator, film, params):
-        return _geometry_backward(integrator, scene, sensor, film, layout, grad_in, n_ch, adj, rng, origin,
-                                  pixel_filter, scale)
+    if replay is None:
+        if check_geometry(integrator, film, params):
+            return _geometry_backward(integrator, scene, sensor, film, layout, grad_in, n_ch, adj, rng, origin,
+                                      pixel_filter, scale)
+        replay = _replay
 
     def trace(scene_, rng_, _hist, lane, ray, weight, org):
         state = (mi.UInt64(rng_.state), mi.UInt64(rng_.inc))
-        A = _replay(integrator, scene_, rng_, lane, ray, weight, org, adj, "weight", None, scale)  # [A_c]
+        with _detached(detached):
+            A = replay(integrator, scene_, rng_, lane, ray, weight, org, adj, "weight", None, scale)  # [A_c]
         replay_rng = mi.PCG32()
         replay_rng.state, replay_rng.inc = state
-        _replay(integrator, scene_, replay_rng, lane, ray, weight, org, adj, "backward", A, scale)
+        with _detached(detached):
+            replay(integrator, scene_, replay_rng, lane, ray, weight, org, adj, "backward", A, scale)
 
     for j0, j1 in layout.passes():
         rng = integrator._camera_pass(scene, sensor, None, rng, layout, j0, j1, film.width, film.height, origin,
@@ -197,18 +206,22 @@ def render_backward(integrator, scene, params, grad_in, sensor, seed, spp) -> No
         dr.eval(rng.state)
 
 
-def render_forward(integrator, scene, params, sensor, seed, spp) -> mi.TensorXf:
-    """Forward mode: the derivative of the histogram tensor along the parameters' tangents."""
+def render_forward(integrator, scene, params, sensor, seed, spp, replay=None, detached=False) -> mi.TensorXf:
+    """Forward mode: the derivative of the histogram tensor along the parameters' tangents (``replay``,
+    ``detached``: as in :func:`render_backward`)."""
     film, layout, axis, taps, pad, channels, n_ch = _setup(integrator, scene, sensor, spp)
     hist = LaneHistogram(layout, axis, pad) if channels is None else ChannelHistogram(layout, axis, pad, n_ch)
     rng = seed_rng(seed, layout.n_lanes)
     origin, pixel_filter = TimeOrigin(sensor), PixelFilter(film.rfilter(), film.sample_border())
-    if check_geometry(integrator, film, params):
-        return _geometry_forward(integrator, scene, sensor, film, layout, axis, taps, channels, n_ch, hist, rng,
-                                 origin, pixel_filter)
+    if replay is None:
+        if check_geometry(integrator, film, params):
+            return _geometry_forward(integrator, scene, sensor, film, layout, axis, taps, channels, n_ch, hist, rng,
+                                     origin, pixel_filter)
+        replay = _replay
 
     def trace(scene_, rng_, hist_, lane, ray, weight, org):
-        _replay(integrator, scene_, rng_, lane, ray, weight, org, None, "forward", hist_, 1.0)
+        with _detached(detached):
+            replay(integrator, scene_, rng_, lane, ray, weight, org, None, "forward", hist_, 1.0)
 
     for j0, j1 in layout.passes():
         rng = integrator._camera_pass(scene, sensor, hist, rng, layout, j0, j1, film.width, film.height, origin,
@@ -217,6 +230,11 @@ def render_forward(integrator, scene, params, sensor, seed, spp) -> mi.TensorXf:
     h, _, _, _ = hist.collect(taps)
     H, W = film.height, film.width
     return mi.TensorXf(h.reshape((H, W, axis.n_bins) + h.shape[2:]))
+
+
+def _detached(on: bool):
+    """``dr.suspend_grad()`` when ``on`` (a replay that detaches its sampling itself), else no change."""
+    return dr.suspend_grad() if on else contextlib.nullcontext()
 
 
 def _geometry_backward(integrator, scene, sensor, film, layout, grad_in, n_ch, adj, rng, origin, pixel_filter,

@@ -32,12 +32,10 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from transient_mi.integrators._ad import _Adjoint, _adjoint_ext, _mis, _setup, _values
+from transient_mi.integrators import _ad
+from transient_mi.integrators._ad import _mis, _values
 from transient_mi.integrators._ad_geometry import geometry_keys
-from transient_mi.integrators._lanes import ChannelHistogram, LaneHistogram, LaneLayout, seed_rng
 from transient_mi.integrators._optical_path import segment_index
-from transient_mi.integrators._pixel_filter import PixelFilter
-from transient_mi.integrators._time_origin import TimeOrigin
 from transient_mi.props import PluginParameterError
 
 
@@ -392,43 +390,11 @@ def _replay(integrator, scene, rng, lane, ray, throughput, origin, adj, mode: st
 
 
 def render_backward(integrator, scene, params, grad_in, sensor, seed, spp) -> None:
-    """Reverse mode: propagate ``grad_in`` (the adjoint of the histogram tensor) to the scene parameters."""
-    film, layout, axis, taps, pad, channels, n_ch = _setup(integrator, scene, sensor, spp)
-    delta = _adjoint_ext(grad_in, film, n_ch)
-    adj = _Adjoint(delta, LaneHistogram(LaneLayout(1, 1, 1), axis, pad), layout.streams)
-    rng = seed_rng(seed, layout.n_lanes)
-    origin, pixel_filter = TimeOrigin(sensor), PixelFilter(film.rfilter(), film.sample_border())
-    scale = 1.0 / layout.spp
-
-    def trace(scene_, rng_, _hist, lane, ray, weight, org):
-        state = (mi.UInt64(rng_.state), mi.UInt64(rng_.inc))
-        with dr.suspend_grad():
-            A = _replay(integrator, scene_, rng_, lane, ray, weight, org, adj, "weight", None, scale)
-        replay_rng = mi.PCG32()
-        replay_rng.state, replay_rng.inc = state
-        with dr.suspend_grad():  # detached sampling; the attached factors resume gradients
-            _replay(integrator, scene_, replay_rng, lane, ray, weight, org, adj, "backward", A, scale)
-
-    for j0, j1 in layout.passes():
-        rng = integrator._camera_pass(scene, sensor, None, rng, layout, j0, j1, film.width, film.height, origin,
-                                      pixel_filter, trace=trace)
-        dr.eval(rng.state)
+    """Reverse mode: propagate ``grad_in`` (the adjoint of the histogram tensor) to the scene parameters
+    (:func:`transient_mi.integrators._ad.render_backward` with this module's replay, detached sampling)."""
+    _ad.render_backward(integrator, scene, params, grad_in, sensor, seed, spp, replay=_replay, detached=True)
 
 
 def render_forward(integrator, scene, params, sensor, seed, spp) -> mi.TensorXf:
     """Forward mode: the derivative of the histogram tensor along the parameters' tangents."""
-    film, layout, axis, taps, pad, channels, n_ch = _setup(integrator, scene, sensor, spp)
-    hist = LaneHistogram(layout, axis, pad) if channels is None else ChannelHistogram(layout, axis, pad, n_ch)
-    rng = seed_rng(seed, layout.n_lanes)
-    origin, pixel_filter = TimeOrigin(sensor), PixelFilter(film.rfilter(), film.sample_border())
-
-    def trace(scene_, rng_, hist_, lane, ray, weight, org):
-        with dr.suspend_grad():
-            _replay(integrator, scene_, rng_, lane, ray, weight, org, None, "forward", hist_, 1.0)
-
-    for j0, j1 in layout.passes():
-        rng = integrator._camera_pass(scene, sensor, hist, rng, layout, j0, j1, film.width, film.height, origin,
-                                      pixel_filter, trace=trace)
-        hist.evaluate(rng)
-    h, _, _, _ = hist.collect(taps)
-    return mi.TensorXf(h.reshape((film.height, film.width, axis.n_bins) + h.shape[2:]))
+    return _ad.render_forward(integrator, scene, params, sensor, seed, spp, replay=_replay, detached=True)
