@@ -81,7 +81,7 @@ def test_size_derivative_includes_the_hidden_area(capture):
         return float(np.sum(w * cap.ideal(seed, spp, sigma)))
 
     cap.set_mesh(model.vertices(theta), model.albedo(theta))
-    ideal = cap.ideal(seed, spp, sigma)
+    cap.ideal(seed, spp, sigma)  # the primal first: it builds the sensor's scene analysis the adjoint reads
     # the gradient of <w, ideal>: pass w through the detector layer's adjoint as the identity
     from transient_mi.integrators._nlos_ad import nlos_backward
     import drjit as dr

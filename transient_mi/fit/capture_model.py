@@ -245,8 +245,8 @@ class CaptureModel:
         self.sensor.forget_nlos_setup()
         res = self.integrator.render_transient(self.scene, self.sensor, seed=int(seed), spp=int(spp),
                                                spots=self.spots)
-        return np.stack([np.asarray(r.histogram if hasattr(r, "histogram") else r, dtype=np.float64)
-                         .reshape(self.width * self.height, self.n_bins) for r in res])
+        return np.stack([np.asarray(r.histogram, dtype=np.float64).reshape(self.width * self.height, self.n_bins)
+                         for r in res])
 
     def ideal(self, seed: int, spp: int, sigma_ps: float) -> np.ndarray:
         """``[G, P, T]`` ideal capture (photons per pulse) of the current mesh: its three-bounce light and the
@@ -273,14 +273,15 @@ class CaptureModel:
         return poisson_nll(np.maximum(mu, 1e-12), self.counts)
 
     def backward(self, grad_mu: np.ndarray, ideal_ref: np.ndarray, seed: int, spp: int,
-                 sigma_ps: float) -> tuple[np.ndarray, float]:
+                 sigma_ps: float, factor: np.ndarray | None = None) -> tuple[np.ndarray, float]:
         """Gradient of ``<grad_mu, mu>`` with respect to the mesh vertices ``[V, 3]`` and the reflectance.
 
-        ``ideal_ref`` is the ideal capture the detector layer is linearised at (pile-up); the render runs
-        with ``seed`` (use one independent of the render that gave ``grad_mu``)."""
+        ``ideal_ref`` is the ideal capture the detector layer is linearised at (pile-up; ``factor``: its
+        :meth:`dead_time_factor`, if already computed); the render runs with ``seed`` (use one independent of
+        the render that gave ``grad_mu``)."""
         from transient_mi.integrators._nlos_ad import nlos_backward
 
-        f = self.dead_time_factor(ideal_ref)
+        f = self.dead_time_factor(ideal_ref) if factor is None else factor
         g_ideal = np.stack([self.layers[g].vjp(ideal_ref[g], grad_mu[g] * f[g]) for g in range(self.n_spots)])
         self._set_sigma(sigma_ps)
         v, r = self.params[self.vkey], self.params[self.rkey]

@@ -116,10 +116,11 @@ def run_adam(model, capture, state: FitState, settings: FitSettings, *, progress
         # derivative, of the residual: the blur is its own adjoint). One residual render gives the objective
         # at the final blur (comparable across iterations: loss.png) and the residual at this iteration's.
         ideal_end = capture.ideal(seed, spp_residual, end)
-        mu_end = capture.expected_counts(ideal_end)
+        factor = capture.dead_time_factor(ideal_end)
+        mu_end = capture.expected_counts(ideal_end, factor)
         obj_end, _ = capture.objective(mu_end, end)
         obj, resid = capture.objective(capture.blur(mu_end, end, sigma), sigma)
-        gv, ga = capture.backward(capture.blur(resid, end, sigma), ideal_end, seed + 1, spp, end)
+        gv, ga = capture.backward(capture.blur(resid, end, sigma), ideal_end, seed + 1, spp, end, factor)
         g = model.gradient(theta, gv, ga)
         g = np.where(np.isfinite(g), g, 0.0)
         m = b1 * m + (1 - b1) * g
