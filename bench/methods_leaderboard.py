@@ -35,13 +35,13 @@ START, END = "<!-- methods-leaderboard:start -->", "<!-- methods-leaderboard:end
 #: scene -> study settings. The paper scene: 4 ps bins (the demo's 1 ps bins are finer than any voxel) at
 #: 16384 spp, so Monte Carlo noise is small next to the detector's at the paper's budget.
 RUNS = {
-    "paper_mannequin": dict(arrays=(8, 16, 32), exposures_s=(0.001, 0.01),
+    "paper_mannequin": dict(arrays=(8, 16, 32), exposures_s=(0.001, 0.01), complete="auto",
                             defines={"spp": 16384, "bin_width_ps": 4, "n_bins": 2875}),
     # the NLOS scenes: a 16x16 array of 5 cm patches (0.8 m of wall) and 4x4 laser spots 0.2 m apart (a wider
     # array and scan than the scenes' defaults, 3 cm patches and 0.1 m); volume around the objects at 0.5 m
-    "nlos_letter": dict(arrays=(8, 16), exposures_s=(0.01,), bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
+    "nlos_letter": dict(arrays=(8, 16), exposures_s=(0.01,), complete="auto", bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
                         defines={"spp": 4096, "pixel_footprint_m": 0.05, "spot_spacing_m": 0.2}),
-    "nlos_tilted_plane": dict(arrays=(8, 16), exposures_s=(0.01,), bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
+    "nlos_tilted_plane": dict(arrays=(8, 16), exposures_s=(0.01,), complete="auto", bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
                               defines={"spp": 4096, "pixel_footprint_m": 0.05, "spot_spacing_m": 0.2}),
 }
 
@@ -75,6 +75,10 @@ def _cm(v):
     return "-" if v is None else f"{100 * v:.2f}"
 
 
+def _f3(v):
+    return "-" if v is None else f"{v:.3f}"
+
+
 def table() -> str:
     """The README table: per scene, the largest array at the largest exposure, ranked by Chamfer; and the
     64^3 timings of bench/results/recon_methods.json."""
@@ -91,12 +95,12 @@ def table() -> str:
         lines.append(f"**{doc['settings']['scene_file']}**, {n}x{n} array, {e * 1e3:g} ms per laser spot, "
                      f"{spp} spp (`{path.relative_to(ROOT)}`, {doc['date_utc']}):\n")
         lines.append("| method | Chamfer (cm) | completeness (cm) | IoU | depth MAE (cm) | visible Chamfer (cm) | "
-                     "silhouette IoU | normal error (deg) | time (s) |")
-        lines.append("|---|---|---|---|---|---|---|---|---|")
+                     "visible IoU | silhouette IoU | normal error (deg) | time (s) |")
+        lines.append("|---|---|---|---|---|---|---|---|---|---|")
         for r in sel:
             lines.append(f"| {r['method']} | {_cm(r['chamfer_m'])} | {_cm(r['completeness_m'])} | "
                          f"{r['iou']:.3f} | {_cm(r['depth_mae_m'])} | {_cm(r['visible_chamfer_m'])} | "
-                         f"{r['silhouette_iou']:.3f} | {r['normal_error_deg']:.1f} | {r['reconstruct_s']:.2f} |")
+                         f"{_f3(r.get('visible_iou'))} | {r['silhouette_iou']:.3f} | {r['normal_error_deg']:.1f} | {r['reconstruct_s']:.2f} |")
         lines.append("")
     bench = RESULTS / "recon_methods.json"
     if bench.is_file():

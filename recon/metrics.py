@@ -32,6 +32,10 @@ Definitions (all distances in metres; "occupied" voxels are those with
     ``completeness_m`` of even a perfect front-surface reconstruction is
     about half the object's thickness. (The visible surface is sampled per
     projected area: steep parts count less than in ``completeness_m``.)
+``visible_iou``
+    Occupancy intersection over union against the voxels that contain
+    points of the visible surface (the points of ``visible_chamfer_m``): the
+    IoU a perfect front-surface reconstruction can bring to 1.
 ``silhouette_iou``
     Intersection over union of the columns ``[y, x]`` holding any occupied
     voxel and the columns whose line along +z meets the mesh inside the z
@@ -275,8 +279,12 @@ def compute_metrics(rec: Reconstruction, ground_truth: GroundTruth, seed: int = 
         sil_rec = occ.any(axis=0)
         u = np.count_nonzero(sil_gt | sil_rec)
         out["silhouette_iou"] = float(np.count_nonzero(sil_gt & sil_rec) / u) if u else None
-        vis = chamfer(centres, visible_surface_points(mesh, g))
+        vis_points = visible_surface_points(mesh, g)
+        vis = chamfer(centres, vis_points)
         out.update({f"visible_{k}": v for k, v in vis.items()})
+        vis_occ = mesh_occupancy(mesh, g, samples=vis_points)
+        union = np.count_nonzero(vis_occ | occ)
+        out["visible_iou"] = float(np.count_nonzero(vis_occ & occ) / union) if union else None
         from .surface import normal_map, reconstruction_surface
 
         n_rec = normal_map(rec_depth, g)

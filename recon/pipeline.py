@@ -39,7 +39,7 @@ def default_threshold(method: str) -> str:
 
 def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = None, *,
                 bounds=None, voxels=None, voxel_size_m=None, filter: str | None = None, sigma_m: float | None = None,
-                threshold=None, **options) -> Reconstruction:
+                threshold=None, complete=None, **options) -> Reconstruction:
     """Reconstruct ``capture`` with ``method`` and filter the result.
 
     Parameters
@@ -63,6 +63,12 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
     threshold : str, optional
         Threshold spec (default :func:`default_threshold`: ``rel:0.3``, except ``rel:0.1`` for midpoint-fk;
         ``none`` when ``filter="none"`` is asked for explicitly).
+    complete : "auto" or float, optional
+        Close the filtered front surface behind itself under a stated prior
+        (elliptical cross-sections of aspect ``complete``, or estimated from the
+        front with ``"auto"``; :func:`recon.completion.complete_surface`). The back
+        of an object is not in three-bounce data: this is an assumption, recorded in
+        ``params["completion"]``. Default None: the measured front only.
     **options
         Method options: ``voxel_integration`` (bp), ``fbp_sigma_m`` (fbp),
         ``snr`` (lct, midpoint-lct), ``wavelength_m``, ``pulse_sigma_m``, ``phasor_method`` (phasor),
@@ -74,6 +80,10 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
         filter = DEFAULT_FILTER[method]
         if threshold is None:
             threshold = default_threshold(method)  # occupancy for metrics and pictures, whichever filter
+    if complete is not None:
+        from .completion import check_aspect
+
+        check_aspect(complete)
     if filter not in FILTERS:
         raise UserInputError(f"--filter {filter!r}: allowed {', '.join(FILTERS)}")
     if method in CONFOCAL_ONLY and capture.mode != "confocal":
@@ -117,8 +127,14 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
         rec = phasor_fields(capture, grid, wavelength_m=opts.get("wavelength_m"),
                             pulse_sigma_m=opts.get("pulse_sigma_m"), method=opts.get("phasor_method", "auto"))
     if filter == "paper":
-        return paper_filter(rec, sigma_m=sigma_m, threshold=default_threshold(method) if threshold is None else threshold)
-    return no_filter(rec, threshold="none" if threshold is None else threshold)
+        rec = paper_filter(rec, sigma_m=sigma_m, threshold=default_threshold(method) if threshold is None else threshold)
+    else:
+        rec = no_filter(rec, threshold="none" if threshold is None else threshold)
+    if complete is not None:
+        from .completion import complete_surface
+
+        rec = complete_surface(rec, complete)
+    return rec
 
 
 def _midpoint(capture: Capture, grid: VoxelGrid, method: str, opts: dict) -> Reconstruction:
@@ -151,7 +167,8 @@ def _midpoint(capture: Capture, grid: VoxelGrid, method: str, opts: dict) -> Rec
 
 
 def run(capture_path, out_dir, method: str = "bp", *, bounds=None, voxels=None, voxel_size_m=None,
-        filter: str | None = None, sigma_m=None, threshold=None, ground_truth=None, pileup_correction: bool = False,
+        filter: str | None = None, sigma_m=None, threshold=None, complete=None, ground_truth=None,
+        pileup_correction: bool = False,
         pulses=None, blind_cycles=None, time_crop_ps=None, time_downsample: int | None = None, overwrite: bool = False,
         plots: bool = True, seed: int = 0, **options) -> tuple[Reconstruction, dict | None, Path]:
     """Load, preprocess, reconstruct, filter, score and write (the ``recon`` command).
@@ -165,14 +182,15 @@ def run(capture_path, out_dir, method: str = "bp", *, bounds=None, voxels=None, 
     check_output_dir(out_dir, overwrite)  # fail before any work (and before taking the lock)
     with output_lock(out_dir):
         return _run_locked(capture_path, out_dir, method, bounds=bounds, voxels=voxels, voxel_size_m=voxel_size_m,
-                           filter=filter, sigma_m=sigma_m, threshold=threshold, ground_truth=ground_truth,
+                           filter=filter, sigma_m=sigma_m, threshold=threshold, complete=complete,
+                           ground_truth=ground_truth,
                            pileup_correction=pileup_correction, pulses=pulses, blind_cycles=blind_cycles,
                            time_crop_ps=time_crop_ps, time_downsample=time_downsample, overwrite=overwrite,
                            plots=plots, seed=seed, **options)
 
 
 def _run_locked(capture_path, out_dir, method, *, bounds, voxels, voxel_size_m, filter, sigma_m, threshold,
-                ground_truth, pileup_correction, pulses, blind_cycles, time_crop_ps, time_downsample, overwrite,
+                complete, ground_truth, pileup_correction, pulses, blind_cycles, time_crop_ps, time_downsample, overwrite,
                 plots, seed, **options):
     from . import preprocess
     from .metrics import compute_metrics, load_ground_truth
@@ -192,7 +210,7 @@ def _run_locked(capture_path, out_dir, method, *, bounds, voxels, voxel_size_m, 
         cap = preprocess.downsample_time(cap, int(time_downsample))
     t_load = time.perf_counter()
     rec = reconstruct(cap, method, bounds=bounds, voxels=voxels, voxel_size_m=voxel_size_m, filter=filter,
-                      sigma_m=sigma_m, threshold=threshold, **options)
+                      sigma_m=sigma_m, threshold=threshold, complete=complete, **options)
     t_rec = time.perf_counter()
     metrics = compute_metrics(rec, gt, seed=seed) if gt is not None else None
     t_metrics = time.perf_counter()

@@ -133,9 +133,14 @@ def reconstruction_surface(rec, level: float | None = None) -> tuple[np.ndarray,
 
     Default level: half the smallest positive value of ``volume`` (the filter's
     threshold keeps voxels at or above it and zeroes the rest, so this level
-    encloses exactly the kept voxels).
+    encloses exactly the kept voxels). A completed reconstruction
+    (:func:`recon.completion.complete_surface`) gives the surface of the solid its shell encloses.
     """
     vol = rec.volume
+    if "completion" in (rec.params or {}):   # a completed shell: the surface of the solid it encloses
+        from scipy.ndimage import binary_fill_holes
+
+        return isosurface(binary_fill_holes(vol > 0).astype(np.float32), rec.grid, 0.5 if level is None else level)
     if level is None:
         pos = vol[vol > 0]
         if pos.size == 0:

@@ -10,10 +10,12 @@ import sys
 import numpy as np
 import pytest
 
-#: 4x4 and 8x8 arrays, 2x2 laser spots, 8 ps bins, 64 spp, 1 ms per spot; 32x32x16 voxels; two methods.
+#: 4x4 and 8x8 arrays, 2x2 laser spots, 8 ps bins, 64 spp, 1 ms per spot; 32x32x16 voxels; two methods, each
+#: also completed behind its front.
 TINY = dict(arrays=(4, 8), exposures_s=(1e-3,), methods=("bp", "midpoint-fk"), defines={"spp": 64}, quick=True,
-            voxels=(32, 32, 16), progress=False)
-METRICS = ("chamfer_m", "completeness_m", "iou", "depth_mae_m", "visible_completeness_m", "silhouette_iou")
+            voxels=(32, 32, 16), progress=False, complete="auto")
+METRICS = ("chamfer_m", "completeness_m", "iou", "depth_mae_m", "visible_completeness_m", "visible_iou",
+           "silhouette_iou")
 
 
 @pytest.fixture(scope="module")
@@ -33,17 +35,26 @@ def test_outputs_rows_and_figures(study):
                  "ground_truth.ply"):
         assert (out / name).is_file(), name
     assert mpimg.imread(out / "leaderboard.png").shape[0] > 100
-    assert [(r["array"], r["method"]) for r in rows] == [(4, "bp"), (4, "midpoint-fk"), (8, "bp"), (8, "midpoint-fk")]
+    names = ["bp", "bp+completion", "midpoint-fk", "midpoint-fk+completion"]
+    assert [(r["array"], r["method"]) for r in rows] == [(n, m) for n in (4, 8) for m in names]
     for r in rows:
         assert r["scene"] == "paper_mannequin" and r["exposure_s"] == 1e-3 and r["counts_per_pixel_per_spot"] > 0
         for k in ("chamfer_m", "completeness_m", "depth_mae_m", "visible_completeness_m"):
             assert 0 < r[k] < 0.5, (k, r[k])
-        assert 0 < r["iou"] <= 1 and 0 < r["silhouette_iou"] <= 1
+        assert 0 < r["iou"] <= 1 and 0 < r["silhouette_iou"] <= 1 and 0 <= r["visible_iou"] <= 1
         assert r["reconstruct_s"] > 0 and r["peak_traced_mb"] > 0
+    for plain, done in zip(rows[0::2], rows[1::2]):
+        # completion adds a back behind the same front: same columns, more of the whole surface reached
+        assert done["silhouette_iou"] == plain["silhouette_iou"]
+        assert done["completeness_m"] <= plain["completeness_m"]   # it only adds voxels
+        if plain["method"] == "midpoint-fk":   # bp's blobs have no measurable front recession (aspect 0)
+            assert done["completeness_m"] < plain["completeness_m"]
+        assert done["reconstruct_s"] > plain["reconstruct_s"] and len(done["completion_aspects"]) >= 1
     with open(out / "leaderboard.csv") as f:
-        assert len(list(csv.DictReader(f))) == 4
+        assert len(list(csv.DictReader(f))) == 8
     data = json.loads((out / "leaderboard.json").read_text())
     assert data["settings"]["methods"] == ["bp", "midpoint-fk"] and data["settings"]["detection_seed"] == 1
+    assert data["settings"]["completion"] == "auto"
     text = (out / "summary.md").read_text()
     assert "| paper_mannequin | 8x8 | 1 | midpoint-fk |" in text
 

@@ -61,6 +61,10 @@ def recon_command(
     threshold: Optional[str] = typer.Option(
         None, "--threshold", help="none | otsu | rel:F | abs:V (default rel:0.3, rel:0.1 for midpoint-fk; none with "
                                   "an explicit --filter none)."),
+    complete: Optional[str] = typer.Option(
+        None, "--complete", help="Close the surface behind the reconstructed front under a stated prior: "
+                                 "elliptical cross-sections of aspect auto (estimated from the front) or a number "
+                                 "in [0, 2] (1: round). The back is not in the data (docs/recon.md)."),
     ground_truth: Optional[Path] = typer.Option(
         None, "--ground-truth", help="Mesh (.obj/.ply/.stl/...) or points (.json/.npy/.csv) for metrics.json."),
     pileup_correction: bool = typer.Option(False, "--pileup-correction",
@@ -97,8 +101,8 @@ def recon_command(
                "voxel_integration": False if no_voxel_integration else None}
     rec, metrics, path = run(
         capture, out, method, bounds=parse_bounds(bounds) if bounds is not None else None, voxels=_voxels(voxels),
-        voxel_size_m=voxel_size_m, filter=filter, sigma_m=sigma_m, threshold=threshold, ground_truth=ground_truth,
-        pileup_correction=pileup_correction, pulses=pulses, blind_cycles=blind_cycles,
+        voxel_size_m=voxel_size_m, filter=filter, sigma_m=sigma_m, threshold=threshold, complete=complete,
+        ground_truth=ground_truth, pileup_correction=pileup_correction, pulses=pulses, blind_cycles=blind_cycles,
         time_crop_ps=_pair(time_crop_ps, "--time-crop-ps"),
         time_downsample=time_downsample, overwrite=overwrite, plots=not no_plots, seed=seed, **options)
     g = rec.grid

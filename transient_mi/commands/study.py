@@ -189,6 +189,9 @@ def methods(
         None, "--bounds", help="xmin,xmax,ymin,ymax,zmin,zmax in metres (default: the paper's volume for the paper "
                                "scene, else recon's default from the first capture)."),
     voxels: Optional[str] = VOXELS_OPT,
+    complete: Optional[str] = typer.Option(
+        None, "--complete", help="Also score each reconstruction closed behind its front under a stated prior "
+                                 "(elliptical cross-sections; auto or an aspect in [0, 2]), as <method>+completion."),
     seed: int = SEED_OPT,
     ground_truth: Optional[Path] = GT_OPT,
     quick: bool = QUICK_OPT,
@@ -217,7 +220,8 @@ def methods(
         kw["bounds"] = parse_bounds(bounds)
     names = tuple(m.strip() for m in methods.split(",") if m.strip())
     path, rows = run_methods_study(scene, out, arrays=sizes, methods=names, defines=defines, seed=seed, quick=quick,
-                                   ground_truth=ground_truth, overwrite=overwrite, log=_log, **kw)
+                                   ground_truth=ground_truth, complete=complete, overwrite=overwrite, log=_log,
+                                   **kw)
     typer.echo(f"wrote {path}: {len(rows)} reconstructions; summary {path / 'summary.md'}")
 
 

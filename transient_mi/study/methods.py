@@ -49,7 +49,10 @@ DEFAULT_ARRAYS = (8, 16, 32)
 #: Per laser spot: a tenth of the paper's budget, the paper's (10 ms = 5e5 pulses at 50 MHz).
 DEFAULT_EXPOSURES_S = (0.001, 0.01)
 LEADERBOARD_METRICS = ("chamfer_m", "accuracy_m", "completeness_m", "iou", "depth_mae_m", "visible_chamfer_m",
-                       "visible_completeness_m", "silhouette_iou", "normal_error_deg", "surface_chamfer_m")
+                       "visible_completeness_m", "visible_iou", "silhouette_iou", "normal_error_deg",
+                       "surface_chamfer_m")
+#: Suffix of the method name in rows of completed reconstructions (``complete=...``).
+COMPLETION_SUFFIX = "+completion"
 ROW_COLUMNS = ("scene", "array", "exposure_s", "method", "counts_per_pixel_per_spot") + LEADERBOARD_METRICS + (
     "reconstruct_s", "peak_traced_mb")
 
@@ -87,7 +90,7 @@ def scene_ground_truth(scene) -> object:
 def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, arrays=DEFAULT_ARRAYS,
                       exposures_s=DEFAULT_EXPOSURES_S, methods=DEFAULT_METHODS, defines=None, voxels=(64, 64, 32),
                       seed: int = 0, quick: bool = False, progress: bool | None = None, ground_truth=None,
-                      bounds=None, threshold: str | None = None, overwrite: bool = False, log=None):
+                      bounds=None, threshold: str | None = None, complete=None, overwrite: bool = False, log=None):
     """Run the methods study (see the module docstring); returns ``(out_dir, rows)``.
 
     Parameters
@@ -105,6 +108,10 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
     threshold : str, optional
         Threshold of the paper's filter for every method; default each method's
         own (:func:`recon.pipeline.default_threshold`).
+    complete : "auto" or float, optional
+        Also score every reconstruction closed behind its front under the
+        completion prior (:func:`recon.completion.complete_surface`), as rows
+        named ``<method>+completion`` whose time includes the completion's.
     voxels, seed, quick, progress, ground_truth, bounds, overwrite, log
         As for :func:`~transient_mi.study.run_array_size_study`.
     """
@@ -121,6 +128,10 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         raise UserInputError(f"methods: {', '.join(bad)} need confocal captures; the study renders array captures "
                              f"(use midpoint-{bad[0]})")
     vox = V.voxels(voxels)
+    if complete is not None:
+        from recon.completion import check_aspect
+
+        check_aspect(complete)
     seed = V.integer(seed, "seed", 0, 2**32)
     progress = V.progress(progress)
     sc = study_scene(scene, defines, quick=V.flag(quick, "quick"))
@@ -166,6 +177,8 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                                      "reconstruct_s": dt, "peak_traced_mb": peak / 2**20})
                         if n == arrays[-1] and e == exposures[-1]:
                             previews.append((m, front_view(rec)))
+                        if complete is not None:
+                            rows.append(_completed_row(rows[-1], rec, complete, gt, seed))
                         advance(1)
                 shutil.rmtree(tmp / "captures" / f"array_{n:02d}")
         shutil.rmtree(tmp / "captures", ignore_errors=True)
@@ -173,6 +186,7 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                     "spp": sc.spp, "arrays": list(arrays), "exposures_s": list(exposures), "methods": list(methods),
                     "voxels": list(vox), "bounds_m": list(bnds) if bnds is not None else None,
                     "threshold": threshold or "each method's default (recon.pipeline.default_threshold)",
+                    "completion": None if complete is None else str(complete),
                     "render_seed": seed, "detection_seed": seed + 1,
                     "detector": params.to_dict(), "ground_truth": gt_desc,
                     "total_s": time.perf_counter() - t_start}
@@ -215,6 +229,19 @@ def _reconstruct(cap, method: str, bounds, voxels, threshold: str):
     return rec, dt, peak
 
 
+def _completed_row(row: dict, rec, complete, gt, seed: int) -> dict:
+    """The row of ``rec`` closed behind its front (:func:`recon.completion.complete_surface`)."""
+    from recon.completion import complete_surface
+
+    t0 = time.perf_counter()
+    done = complete_surface(rec, complete)
+    dt = time.perf_counter() - t0
+    metrics = _metrics(done, gt, seed)
+    aspects = [a["aspect"] for a in done.params["completion"]["aspects"]]
+    return {**row, "method": row["method"] + COMPLETION_SUFFIX, **{k: metrics.get(k) for k in LEADERBOARD_METRICS},
+            "reconstruct_s": row["reconstruct_s"] + dt, "completion_aspects": aspects}
+
+
 def _metrics(rec, gt, seed: int) -> dict:
     if gt is None:
         return {}
@@ -240,13 +267,15 @@ def summary_markdown(rows: list[dict], settings: dict) -> str:
         return "-" if v is None else f"{v:.3f}"
 
     headers = ["scene", "array", "ms/spot", "method", "Chamfer (cm)", "completeness (cm)", "IoU", "depth MAE (cm)",
-               "visible Chamfer (cm)", "visible compl. (cm)", "silhouette IoU", "normal err (deg)", "time (s)",
+               "visible Chamfer (cm)", "visible compl. (cm)", "visible IoU", "silhouette IoU", "normal err (deg)",
+               "time (s)",
                "peak MB"]
     table = []
     for r in ranked(rows):
         table.append([r["scene"], f"{r['array']}x{r['array']}", f"{r['exposure_s'] * 1e3:g}", r["method"],
                       cm(r["chamfer_m"]), cm(r["completeness_m"]), f3(r["iou"]), cm(r["depth_mae_m"]),
-                      cm(r["visible_chamfer_m"]), cm(r["visible_completeness_m"]), f3(r["silhouette_iou"]),
+                      cm(r["visible_chamfer_m"]), cm(r["visible_completeness_m"]), f3(r.get("visible_iou")),
+                      f3(r["silhouette_iou"]),
                       "-" if r["normal_error_deg"] is None else f"{r['normal_error_deg']:.1f}",
                       f"{r['reconstruct_s']:.2f}", f"{r['peak_traced_mb']:.0f}"])
     s = settings
@@ -259,7 +288,8 @@ per laser spot, methods {', '.join(s['methods'])}; {s['voxels'][0]}x{s['voxels']
 Total {s['total_s']:.0f} s.
 
 Ranked by Chamfer distance. "visible" distances use only the surface the relay wall sees (the back of an
-object sends no three-bounce light; definitions in `recon/metrics.py`). Time: wall clock of reconstruction +
+object sends no three-bounce light; definitions in `recon/metrics.py`). Rows `<method>+completion` are closed
+behind the front under a stated prior (elliptical cross-sections, `recon/completion.py`), not measured. Time: wall clock of reconstruction +
 filter in this process; peak MB: numpy allocations traced by tracemalloc (a lower bound of the process's peak).
 
 {markdown_table(headers, table)}
