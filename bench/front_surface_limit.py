@@ -7,7 +7,10 @@ with :func:`recon.metrics.compute_metrics`:
 
 - ``front_surface``: per voxel column, the voxel holding the mesh's first
   hit along +z (the exact visible surface, one voxel per column);
-- ``all_surface``: every voxel holding mesh surface samples (front and back).
+- ``all_surface``: every voxel holding mesh surface samples (front and back);
+- ``front_surface_completed``: ``front_surface`` closed behind itself by
+  :func:`recon.completion.complete_surface` (aspect estimated from the front):
+  what the completion prior gives an exact, voxel-quantised front.
 
 Writes ``bench/results/front_surface_limit.json`` (``--out``) with the
 command, machine and date.
@@ -28,7 +31,7 @@ import _record  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = ("chamfer_m", "accuracy_m", "completeness_m", "iou", "depth_mae_m", "visible_chamfer_m",
-        "visible_completeness_m", "silhouette_iou", "normal_error_deg")
+        "visible_completeness_m", "visible_iou", "silhouette_iou", "normal_error_deg")
 
 
 def main(argv=None) -> int:
@@ -40,6 +43,7 @@ def main(argv=None) -> int:
 
     import transient_mi  # noqa: F401
     from transient_core.atomic import atomic_file
+    from recon.completion import complete_surface
     from recon.grid import VoxelGrid
     from recon.metrics import GroundTruth, compute_metrics, mesh_depth_map, mesh_occupancy
     from recon.result import Reconstruction
@@ -58,6 +62,10 @@ def main(argv=None) -> int:
     for name, vol in (("front_surface", front), ("all_surface", allv)):
         m = compute_metrics(Reconstruction(raw=vol, grid=g, method=name), gt, seed=0)
         res[name] = {k: m.get(k) for k in KEYS}
+    done = complete_surface(Reconstruction(raw=front, grid=g, method="front_surface"), "auto")
+    m = compute_metrics(done, gt, seed=0)
+    res["front_surface_completed"] = {**{k: m.get(k) for k in KEYS},
+                                      "aspects": [p["aspect"] for p in done.params["completion"]["aspects"]]}
     doc = {"benchmark": "front_surface_limit",
            "command": "python bench/front_surface_limit.py " + " ".join(argv if argv is not None else sys.argv[1:]),
            "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),

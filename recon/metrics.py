@@ -34,8 +34,9 @@ Definitions (all distances in metres; "occupied" voxels are those with
     projected area: steep parts count less than in ``completeness_m``.)
 ``visible_iou``
     Occupancy intersection over union against the voxels that contain
-    points of the visible surface (the points of ``visible_chamfer_m``): the
-    IoU a perfect front-surface reconstruction can bring to 1.
+    points of the visible surface (the points of ``visible_chamfer_m``): 1
+    for a reconstruction holding exactly the voxels the visible surface passes
+    through (on steep parts, several per column).
 ``silhouette_iou``
     Intersection over union of the columns ``[y, x]`` holding any occupied
     voxel and the columns whose line along +z meets the mesh inside the z

@@ -163,9 +163,16 @@ def test_demo_shows_the_best_array_method_beside_the_paper_pipeline(quick_demo):
     img = mpimg.imread(quick_demo / "fig6_methods.png")
     assert img.ndim == 3 and img.shape[0] > 200 and img.std() > 0.01
     table = json.loads((quick_demo / "methods.json").read_text())
-    assert table["array"] == 32 and set(table["metrics"]) == {"bp", BEST_ARRAY_METHOD}
+    completed = BEST_ARRAY_METHOD + "+completion"
+    assert table["array"] == 32 and set(table["metrics"]) == {"bp", BEST_ARRAY_METHOD, completed}
     for m in table["metrics"].values():
         assert 0 < m["chamfer_m"] < 0.5 and 0 < m["iou"] <= 1
     rec = json.loads((quick_demo / table["recon"][BEST_ARRAY_METHOD] / "recon.json").read_text())
     assert rec["method"] == BEST_ARRAY_METHOD
+    # the completion only adds voxels behind the same front: the same columns, a closer whole surface
+    front, closed = table["metrics"][BEST_ARRAY_METHOD], table["metrics"][completed]
+    assert closed["silhouette_iou"] == front["silhouette_iou"]
+    assert closed["completeness_m"] <= front["completeness_m"]
+    done = json.loads((quick_demo / table["recon"][completed] / "recon.json").read_text())
+    assert done["params"]["completion"]["prior"] == "elliptical cross-sections"
     assert "fig6_methods.png" in (quick_demo / "summary.md").read_text()

@@ -165,32 +165,51 @@ BEST_ARRAY_METHOD = "midpoint-fk"
 
 def _figure_best_array_method(root: Path, results: list[ArrayResult], mesh, s: DemoSettings) -> None:
     """``fig6_methods.png`` and ``methods.json``: the largest array's counts reconstructed with
-    :data:`BEST_ARRAY_METHOD` (its default filter) beside the paper's backprojection, both scored."""
+    :data:`BEST_ARRAY_METHOD` (its default filter) beside the paper's backprojection, both scored, and the same
+    reconstruction closed behind its front under the completion prior (:mod:`recon.completion`), scored too."""
     import recon
+    from recon.completion import complete_surface
     from recon.filters import depth_map
     from recon.ground_truth import ground_truth_silhouette
-    from recon.metrics import GroundTruth, compute_metrics
+    from recon.metrics import GroundTruth, compute_metrics, mesh_occupancy
     from recon.output import load_volume, write_outputs
+    from transient_mi.study.methods import COMPLETION_SUFFIX
 
     r = results[-1]
+    gt = GroundTruth(mesh=mesh, source="mannequin")
     cap = recon.load_capture(root / r.files["counts"])
     rec = recon.reconstruct(cap, BEST_ARRAY_METHOD, bounds=PAPER_BOUNDS_M, voxels=s.voxels)
-    metrics = compute_metrics(rec, GroundTruth(mesh=mesh, source="mannequin"), seed=s.seed)
+    metrics = compute_metrics(rec, gt, seed=s.seed)
     name = f"recon/array_{r.array:02d}_{BEST_ARRAY_METHOD}"
     write_outputs(root / name, rec, meta={"capture": {"source": r.files["counts"]}}, metrics=metrics)
+    done = complete_surface(rec, "auto")
+    done_metrics = compute_metrics(done, gt, seed=s.seed)
+    done_name = f"{name}_completed"
+    write_outputs(root / done_name, done, meta={"capture": {"source": r.files["counts"]}}, metrics=done_metrics)
     bp = load_volume(root / r.files["recon"])
-    keys = ("chamfer_m", "completeness_m", "iou", "depth_mae_m", "silhouette_iou", "normal_error_deg")
-    bp_metrics = compute_metrics(bp, GroundTruth(mesh=mesh, source="mannequin"), seed=s.seed)
-    table = {"array": r.array, "recon": {"bp": r.files["recon"], BEST_ARRAY_METHOD: name},
+    keys = ("chamfer_m", "completeness_m", "iou", "depth_mae_m", "visible_chamfer_m", "visible_completeness_m",
+            "visible_iou", "silhouette_iou", "normal_error_deg")
+    bp_metrics = compute_metrics(bp, gt, seed=s.seed)
+    completed = f"{BEST_ARRAY_METHOD}{COMPLETION_SUFFIX}"
+    table = {"array": r.array, "recon": {"bp": r.files["recon"], BEST_ARRAY_METHOD: name, completed: done_name},
              "metrics": {"bp": {k: bp_metrics.get(k) for k in keys},
-                         BEST_ARRAY_METHOD: {k: metrics.get(k) for k in keys}}}
+                         BEST_ARRAY_METHOD: {k: metrics.get(k) for k in keys},
+                         completed: {k: done_metrics.get(k) for k in keys}},
+             "completion": done.params["completion"]}
     (root / "methods.json").write_text(json.dumps(table, indent=1) + "\n")
     g = rec.grid
     ext = [g.x_m[0], g.x_m[-1], g.y_m[0], g.y_m[-1]]
-    fig, axes = subplots(2, 3, figsize=(11, 7.2))
+    side_ext = [g.z_m[0], g.z_m[-1], g.y_m[0], g.y_m[-1]]
+
+    def side(ax, occupancy, title):   # the view from the side (+x): depth z across, height y up
+        ax.imshow(occupancy.any(axis=2).T, origin="lower", extent=side_ext, cmap="gray", aspect="auto")
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("z (m)")
+
+    fig, axes = subplots(2, 4, figsize=(14, 7.2))
     axes[0, 0].imshow(ground_truth_silhouette(mesh, g.x_m, g.y_m), origin="lower", extent=ext, cmap="gray")
     axes[0, 0].set_title("ground-truth silhouette")
-    axes[1, 0].axis("off")
+    side(axes[1, 0], mesh_occupancy(mesh, g, seed=s.seed), "ground truth, side view")
     for col, (label, vol, mt) in enumerate((("bp (the paper's pipeline)", bp.volume, bp_metrics),
                                             (BEST_ARRAY_METHOD, rec.volume, metrics)), start=1):
         axes[0, col].imshow(vol.max(axis=0), origin="lower", extent=ext, cmap="inferno")
@@ -202,8 +221,16 @@ def _figure_best_array_method(root: Path, results: list[ArrayResult], mesh, s: D
                                f"depth MAE {_fmt(mt.get('depth_mae_m'), 100, '.2f')} cm, "
                                f"normals {_fmt(mt.get('normal_error_deg'), 1, '.0f')} deg", fontsize=8)
         fig.colorbar(im, ax=axes[1, col], fraction=0.046, label="z (m)")
+    side(axes[0, 3], rec.volume > 0, f"{BEST_ARRAY_METHOD}, side view: the front only\n"
+                                     f"(visible Chamfer {_fmt(metrics.get('visible_chamfer_m'), 100, '.2f')} cm)")
+    aspects = ", ".join(f"{a['aspect']:.2f}" for a in done.params["completion"]["aspects"][:3])
+    side(axes[1, 3], done.volume > 0,
+         f"closed behind the front (a prior, aspect {aspects}):\n"
+         f"Chamfer {_fmt(done_metrics.get('chamfer_m'), 100, '.2f')} cm, "
+         f"completeness {_fmt(done_metrics.get('completeness_m'), 100, '.2f')} cm, "
+         f"IoU {_fmt(done_metrics.get('iou'), 1, '.2f')}")
     fig.suptitle(f"{r.array}x{r.array} array, same counts: the paper's backprojection and {BEST_ARRAY_METHOD} "
-                 "(midpoint conversion + f-k migration)", fontsize=10)
+                 "(midpoint conversion + f-k migration), and its completion behind the front", fontsize=10)
     fig.tight_layout()
     _savefig(fig, root / "fig6_methods.png")
 
@@ -381,7 +408,9 @@ counts), and on per-pixel totals; `detect` computes it from the variance every i
 - [fig5_reconstructions.png](fig5_reconstructions.png): raw and filtered reconstructions per array size
   next to the ground-truth silhouette (the paper's Fig. 5).
 - [fig6_methods.png](fig6_methods.png), `methods.json`: the largest array's counts reconstructed with
-  {BEST_ARRAY_METHOD} beside the paper's backprojection.
+  {BEST_ARRAY_METHOD} beside the paper's backprojection, and closed behind its front under a stated prior
+  (elliptical cross-sections, `recon/completion.py`: the back sends no three-bounce light, so it is assumed,
+  not measured).
 
 ![histograms](fig4_histograms.png)
 
