@@ -33,10 +33,13 @@ The front depth per column is the z of the column's maximum of ``volume``,
 refined to sub-voxel precision by a parabola through it and its two
 neighbours along z (clipped to half a voxel).
 
-Output: the reconstruction's own occupied voxels (values unchanged: nothing
-measured is removed) plus the voxels on the boundary of the completed solid
-(a closed shell, 6-connected) that it lacked, at the smallest positive value
-of its volume, so the depth map (the column's maximum) is unchanged.
+Output: the voxels the closed surface passes through
+(:func:`rasterise_height`): the front (the height field through each
+column's refined maximum), the back, and the side walls at the silhouette's
+edge columns (4-connected), from front to back. Voxels the reconstruction
+kept keep their values, new ones get half its smallest kept value (so the depth
+map, the column's maximum, is unchanged); kept voxels off the surface (the
+filter's blur around the front) are dropped, and counted.
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from numba import njit
 from transient_core.errors import UserInputError
 from .result import Reconstruction
 
-__all__ = ["complete_surface", "check_aspect", "local_thickness", "front_depth", "estimate_aspect", "ASPECT_WINDOW"]
+__all__ = ["complete_surface", "check_aspect", "rasterise_height", "local_thickness", "front_depth", "estimate_aspect", "ASPECT_WINDOW"]
 
 #: Range of ``u / R`` whose front recession estimates the aspect (see the module docstring).
 ASPECT_WINDOW = (0.4, 0.95)
@@ -163,6 +166,37 @@ def estimate_aspect(front_m: np.ndarray, radius: np.ndarray, dist: np.ndarray, c
     return float(np.clip(np.sum(x * recession) / den, *ASPECT_RANGE))
 
 
+def rasterise_height(height_m: np.ndarray, columns: np.ndarray, z_m: np.ndarray) -> np.ndarray:
+    """Voxels ``[z, y, x]`` that a height field passes through over each column's footprint.
+
+    Over a column's square footprint the surface runs from its centre value to
+    the midpoints with its eight neighbours (those in ``columns``; the centre
+    value toward the others), so a column's voxels are those whose z interval
+    meets ``[min, max]`` of these values: a continuous surface leaves no gaps
+    between neighbouring columns however steep it is.
+
+    height_m : (ny, nx) metres; columns : (ny, nx) bool; z_m : (nz,) voxel centres (regular)
+    """
+    h = np.asarray(height_m, dtype=np.float64)
+    cols = np.asarray(columns, dtype=bool)
+    lo, hi = h.copy(), h.copy()
+    pad_h = np.pad(h, 1, mode="edge")
+    pad_c = np.pad(cols, 1, constant_values=False)
+    ny, nx = h.shape
+    for sy in (-1, 0, 1):
+        for sx in (-1, 0, 1):
+            if sy == 0 and sx == 0:
+                continue
+            nh = pad_h[1 + sy:1 + sy + ny, 1 + sx:1 + sx + nx]
+            nc = pad_c[1 + sy:1 + sy + ny, 1 + sx:1 + sx + nx]
+            mid = np.where(nc, 0.5 * (h + nh), h)
+            np.minimum(lo, mid, out=lo)
+            np.maximum(hi, mid, out=hi)
+    z = np.asarray(z_m, dtype=np.float64)[:, None, None]
+    half = 0.5 * (z_m[1] - z_m[0]) if len(z_m) > 1 else np.inf
+    return cols[None] & (z + half > lo[None]) & (z - half <= hi[None])
+
+
 def check_aspect(aspect) -> float | None:
     """The aspect as a float, or None for ``"auto"``; one-line refusal of anything else."""
     if isinstance(aspect, str) and aspect.strip() == "auto":
@@ -193,8 +227,8 @@ def complete_surface(rec: Reconstruction, aspect: float | str = "auto") -> Recon
     Returns
     -------
     Reconstruction
-        Same ``raw`` and grid; ``volume`` holds the occupied voxels and the completed shell;
-        ``params["completion"]`` records the aspects, the columns and the voxels added.
+        Same ``raw`` and grid; ``volume`` holds the voxels of the closed surface;
+        ``params["completion"]`` records the aspects, the columns and the voxels added and dropped.
     """
     from scipy import ndimage as ndi
 
@@ -222,14 +256,16 @@ def complete_surface(rec: Reconstruction, aspect: float | str = "auto") -> Recon
         aspect_map[part] = a
         aspects.append({"part": i, "columns": int(np.count_nonzero(part)), "aspect": a})
     half = np.sqrt(np.maximum(radius ** 2 - (radius - dist) ** 2, 0.0))
+    front = np.where(sil, front, 0.0)
     back = front + 2.0 * aspect_map * half
     z = np.asarray(g.z_m)[:, None, None]
-    solid = sil[None] & (z >= (front - dz / 2)[None]) & (z <= (back + dz / 2)[None])
-    inner = ndi.binary_erosion(solid, structure=ndi.generate_binary_structure(3, 1), border_value=0)
-    shell = solid & ~inner
-    fill = float(vol[occ].min())
-    completed = np.where(occ, vol, np.where(shell, fill, 0.0)).astype(np.float32)
+    edge = sil & ~ndi.binary_erosion(sil, structure=ndi.generate_binary_structure(2, 1), border_value=0)
+    walls = edge[None] & (z + dz / 2 > front[None]) & (z - dz / 2 <= back[None])
+    shell = rasterise_height(front, sil, g.z_m) | rasterise_height(back, sil, g.z_m) | walls
+    fill = 0.5 * float(vol[occ].min())   # below every kept value: the column's maximum stays where it was
+    completed = np.where(shell, np.where(occ, vol, fill), 0.0).astype(np.float32)
     params.update({"aspects": aspects, "added_voxels": int(np.count_nonzero(shell & ~occ)),
-                   "max_thickness_m": float(np.nanmax(np.where(sil, back - front, np.nan)))})
+                   "dropped_voxels": int(np.count_nonzero(occ & ~shell)),
+                   "max_thickness_m": float(np.max(np.where(sil, back - front, 0.0)))})
     return Reconstruction(raw=rec.raw, grid=g, method=rec.method, params={**rec.params, "completion": params},
                           volume=completed, filter=dict(rec.filter))

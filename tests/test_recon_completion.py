@@ -151,3 +151,21 @@ def test_reconstruct_records_the_prior_and_the_cli_refuses_in_one_line(tmp_path)
                         str(tmp_path / "o"), "--complete", "3"], capture_output=True, text=True)
     assert r.returncode != 0 and "Traceback" not in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_rasterised_height_field_is_gap_free_and_exact_on_a_plane():
+    """A plane's voxels are those it passes through; a steep ramp leaves no z gap between neighbouring columns."""
+    from recon.completion import rasterise_height
+
+    g = _grid()
+    cols = np.ones((len(g.y_m), len(g.x_m)), bool)
+    flat = rasterise_height(np.full(cols.shape, 0.4551), cols, g.z_m)
+    iz = int(np.floor((0.4551 - g.bounds[4]) / VOX))
+    assert np.array_equal(np.nonzero(flat.any(axis=(1, 2)))[0], [iz])   # the one voxel holding z = 0.4551
+    X = np.meshgrid(g.x_m, g.y_m, indexing="xy")[0]
+    ramp = rasterise_height(0.5 + 1.5 * X, cols & (np.abs(X) < 0.1), g.z_m)   # slope 1.5: 1.5 voxels per column
+    for ix in np.nonzero(np.abs(g.x_m) < 0.09)[0]:
+        z = np.nonzero(ramp[:, 20, ix])[0]
+        assert len(z) >= 2 and np.all(np.diff(z) == 1)   # contiguous in z
+        nxt = np.nonzero(ramp[:, 20, ix + 1])[0]
+        assert nxt.min() <= z.max() + 1                  # and touching the next column's voxels
