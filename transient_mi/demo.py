@@ -202,11 +202,11 @@ def _figure_best_array_method(root: Path, results: list[ArrayResult], mesh, s: D
     side_ext = [g.z_m[0], g.z_m[-1], g.y_m[0], g.y_m[-1]]
 
     def side(ax, occupancy, title):   # the view from the side (+x): depth z across, height y up
-        ax.imshow(occupancy.any(axis=2).T, origin="lower", extent=side_ext, cmap="gray", aspect="auto")
+        ax.imshow(occupancy.any(axis=2).T, origin="lower", extent=side_ext, cmap="gray")
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("z (m)")
 
-    fig, axes = subplots(2, 4, figsize=(14, 7.2))
+    fig, axes = subplots(2, 4, figsize=(14, 7.8))
     axes[0, 0].imshow(ground_truth_silhouette(mesh, g.x_m, g.y_m), origin="lower", extent=ext, cmap="gray")
     axes[0, 0].set_title("ground-truth silhouette")
     side(axes[1, 0], mesh_occupancy(mesh, g, seed=s.seed), "ground truth, side view")
@@ -225,10 +225,10 @@ def _figure_best_array_method(root: Path, results: list[ArrayResult], mesh, s: D
                                      f"(visible Chamfer {_fmt(metrics.get('visible_chamfer_m'), 100, '.2f')} cm)")
     aspects = ", ".join(f"{a['aspect']:.2f}" for a in done.params["completion"]["aspects"][:3])
     side(axes[1, 3], done.volume > 0,
-         f"closed behind the front (a prior, aspect {aspects}):\n"
+         f"closed behind the front\n(a prior: elliptical sections, aspect {aspects}):\n"
          f"Chamfer {_fmt(done_metrics.get('chamfer_m'), 100, '.2f')} cm, "
-         f"completeness {_fmt(done_metrics.get('completeness_m'), 100, '.2f')} cm, "
-         f"IoU {_fmt(done_metrics.get('iou'), 1, '.2f')}")
+         f"completeness {_fmt(done_metrics.get('completeness_m'), 100, '.2f')} cm,\n"
+         f"IoU {_fmt(done_metrics.get('iou'), 1, '.2f')} (whole mesh)")
     fig.suptitle(f"{r.array}x{r.array} array, same counts: the paper's backprojection and {BEST_ARRAY_METHOD} "
                  "(midpoint conversion + f-k migration), and its completion behind the front", fontsize=10)
     fig.tight_layout()
