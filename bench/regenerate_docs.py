@@ -746,6 +746,42 @@ def recon_quality_para(R) -> str:
             f"({provenance(R('front_surface_limit'), short=True)}, `python bench/front_surface_limit.py`).\n")
 
 
+def methods_trend_para(R) -> str:
+    """docs/studies.md: Chamfer per array size and method at the paper's budget, and a tenth of that budget."""
+    rec = R("study_methods_paper_mannequin")
+    rows = rec["result"]["rows"]
+    arrays = sorted({r["array"] for r in rows})
+    exps = sorted({r["exposure_s"] for r in rows})
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+
+    def get(m, a, ex):
+        return next((r for r in rows if r["method"] == m and r["array"] == a and r["exposure_s"] == ex), None)
+
+    parts = []
+    for m in methods:
+        rs = [get(m, a, exps[-1]) for a in arrays]
+        if any(r is None or r["chamfer_m"] is None for r in rs):
+            continue
+        cham = " / ".join(f"{100 * r['chamfer_m']:.2f}" for r in rs)
+        secs = " / ".join(f"{r['reconstruct_s']:.2f}" for r in rs)
+        parts.append(f"{m} {cham} cm ({secs} s)")
+    sizes = " / ".join(f"{a}x{a}" for a in arrays)
+    text = (f"Measured ({provenance(rec, short=True)}: {rec['result']['settings']['spp']} spp, "
+            f"{exps[-1] * 1e3:g} ms per spot), Chamfer for {sizes} (reconstruction time): " + "; ".join(parts) + ".")
+    if len(exps) > 1:
+        diffs = []
+        for m in methods:
+            for a in arrays:
+                lo, hi = get(m, a, exps[0]), get(m, a, exps[-1])
+                if lo and hi and lo["chamfer_m"] is not None and hi["chamfer_m"] is not None:
+                    diffs.append((abs(lo["chamfer_m"] - hi["chamfer_m"]), m, a))
+        if diffs:
+            d, m, a = max(diffs)
+            text += (f" {exps[0] * 1e3:g} ms per spot instead changes every Chamfer by at most {100 * d:.2f} cm "
+                     f"({m} at {a}x{a}).")
+    return text + "\n"
+
+
 GENERATORS = {
     "demo_wall": (demo_wall_inline, ["demo"], True),
     "demo_quick": (demo_quick_inline, ["demo_quick"], True),
@@ -784,6 +820,7 @@ GENERATORS = {
     "completion_limit": (completion_limit_inline, ["front_surface_limit"], True),
     "recon_quality": (recon_quality_para, ["mannequin_features", "study_methods_nlos_letter",
                                            "front_surface_limit"], False),
+    "methods_trend": (methods_trend_para, ["study_methods_paper_mannequin"], False),
     "recon_targets": (recon_targets_table, ["study_methods_paper_mannequin", "study_methods_nlos_letter",
                                             "mannequin_features", "recon_methods"], False),
 }
