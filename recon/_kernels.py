@@ -104,25 +104,67 @@ def bp_paired(hist, ck, dxp, dyp, dzp, dxs, dys, dzs, inv_w, out):  # pragma: no
             out[iz, iy, ix] += acc[ix]
 
 
-@njit(parallel=True, cache=True, fastmath=True, nogil=True)
-def rsd_kernels(rho2, z2, freqs, factor, out):  # pragma: no cover - compiled
-    """Phase-only Rayleigh-Sommerfeld kernels ``exp(i 2 pi f factor sqrt(rho2 + z2))``.
+@njit(parallel=True, cache=True, nogil=True)
+def rsd_kernels(rho2, z2, f0, df, factor, out):  # pragma: no cover - compiled
+    """Phase-only Rayleigh-Sommerfeld kernels ``exp(i 2 pi f_n factor sqrt(rho2 + z2))``, ``f_n = f0 + n df``.
 
-    rho2 : (Ly, Lx) float64 squared lateral offsets
-    z2 : float, squared depth
-    freqs : (F,) float64 cycles per metre of path
+    rho2 : (Ly, Lx) float64 squared lateral offsets (m^2)
+    z2 : float, squared depth (m^2)
+    f0, df : first frequency and frequency step (cycles per metre of path); ``n = 0 .. F-1``
     factor : 1 (one wall-voxel leg) or 2 (confocal: there and back)
     out : (F, Ly, Lx) complex64
+
+    The frequencies are evenly spaced, so ``exp(i 2 pi f_n d) = exp(i 2 pi f0 d) exp(i 2 pi df d)^n``:
+    two sin/cos per lateral offset and one complex128 product per frequency (relative error about
+    ``F`` units of 1e-16, far below the complex64 output's 6e-8), instead of a sin/cos per frequency.
     """
-    F = freqs.shape[0]
-    Ly, Lx = rho2.shape
-    for i in prange(F * Ly):
-        f = i // Ly
-        y = i - f * Ly
-        w = 2.0 * math.pi * freqs[f] * factor
+    F, Ly, Lx = out.shape
+    for y in prange(Ly):
+        cur = np.empty(Lx, dtype=np.complex128)
+        step = np.empty(Lx, dtype=np.complex128)
         for x in range(Lx):
-            ph = w * math.sqrt(rho2[y, x] + z2)
-            out[f, y, x] = complex(math.cos(ph), math.sin(ph))
+            d = factor * math.sqrt(rho2[y, x] + z2)
+            a = 2.0 * math.pi * f0 * d
+            b = 2.0 * math.pi * df * d
+            cur[x] = complex(math.cos(a), math.sin(a))
+            step[x] = complex(math.cos(b), math.sin(b))
+        for f in range(F):
+            for x in range(Lx):
+                out[f, y, x] = cur[x]
+                cur[x] = cur[x] * step[x]
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def spot_leg_sum(field, wts, dS, f0, df, plane):  # pragma: no cover - compiled
+    """``plane[y, x] += sum_n field[n, y, x] wts[n] exp(i 2 pi f_n dS[y, x])``, ``f_n = f0 + n df``.
+
+    field : (F, Ny, Nx) complex64, the wall-to-voxel field of one laser spot at one depth (any strides)
+    wts : (F,) float64 frequency weights
+    dS : (Ny, Nx) float64 spot-to-voxel distances (m)
+    f0, df : first frequency and step (cycles per metre of path)
+    plane : (Ny, Nx) complex64, accumulated in place
+
+    The phase factors follow the recurrence of :func:`rsd_kernels`; the sum over
+    frequencies is accumulated in complex128 and rounded once to complex64.
+    """
+    F, Ny, Nx = field.shape
+    for y in prange(Ny):
+        cur = np.empty(Nx, dtype=np.complex128)
+        step = np.empty(Nx, dtype=np.complex128)
+        acc = np.zeros(Nx, dtype=np.complex128)
+        for x in range(Nx):
+            a = 2.0 * math.pi * f0 * dS[y, x]
+            b = 2.0 * math.pi * df * dS[y, x]
+            cur[x] = complex(math.cos(a), math.sin(a))
+            step[x] = complex(math.cos(b), math.sin(b))
+        for f in range(F):
+            w = wts[f]
+            for x in range(Nx):
+                v = field[f, y, x]
+                acc[x] += complex(v.real, v.imag) * (w * cur[x])
+                cur[x] = cur[x] * step[x]
+        for x in range(Nx):
+            plane[y, x] += acc[x]
 
 
 @njit(parallel=True, cache=True, nogil=True)

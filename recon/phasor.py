@@ -252,6 +252,12 @@ def _rsd(capture, grid, wall, freqs, weights) -> np.ndarray:
     yo = grid.y_m[0] + np.arange(nyo) * hy
     F = len(freqs)
     wts = weights.astype(np.complex64)
+    # evenly spaced (virtual_wave): the kernels' phases follow a recurrence over n (f_n = f0 + n df)
+    f0 = float(freqs[0])
+    df = float(freqs[-1] - freqs[0]) / (F - 1) if F > 1 else 0.0
+    if F > 2 and not np.allclose(np.diff(freqs), df, rtol=1e-9, atol=0.0):
+        raise ValueError("phasor RSD: the frequencies must be evenly spaced")
+    w64 = np.ascontiguousarray(weights, dtype=np.float64)
     factor = 2.0 if confocal else 1.0
     workers = max(1, __import__("os").cpu_count() or 1)
     nz = len(grid.z_m)
@@ -264,6 +270,7 @@ def _rsd(capture, grid, wall, freqs, weights) -> np.ndarray:
     chunk = max(1, _SPOT_CHUNK_BYTES // spot_bytes)
     files = list(range(capture.n_files))
     Kf = np.empty((F, Ly, Lx), dtype=np.complex64)
+    prod = np.empty((F, Ly, Lx), dtype=np.complex64)
     with progress_bar("phasor fields", capture.n_files * nz) as advance:
         for c0 in range(0, len(files), chunk):
             js = files[c0: c0 + chunk]
@@ -276,20 +283,22 @@ def _rsd(capture, grid, wall, freqs, weights) -> np.ndarray:
                 fine[:, 0:nyi:my, 0:nxi:mx] = P
                 spectra.append(sfft.fft2(fine, workers=workers, overwrite_x=True))
             for iz, z in enumerate(grid.z_m):
-                _kernels.rsd_kernels(rho2, float(z * z), freqs, factor, Kf)
-                Kspec = sfft.fft2(Kf, workers=workers)
+                _kernels.rsd_kernels(rho2, float(z * z), f0, df, factor, Kf)
+                Kspec = sfft.fft2(Kf, workers=workers, overwrite_x=False)
                 if confocal:
                     spec = np.einsum("fyx,fyx->yx", spectra[0], Kspec)
                     plane = sfft.ifft2(spec, workers=workers, overwrite_x=True)[:nyo, :nxo]
                 else:
                     plane = np.zeros((nyo, nxo), dtype=np.complex64)
                     for jj, j in enumerate(js):
-                        field = sfft.ifft2(spectra[jj] * Kspec, workers=workers, overwrite_x=True)[:, :nyo, :nxo]
+                        np.multiply(spectra[jj], Kspec, out=prod)
+                        # pruned inverse FFT: only the first nyo x nxo outputs are kept, so transform x on
+                        # every row, keep nxo columns, then transform y on those columns only
+                        field = sfft.ifft(prod, axis=-1, workers=workers, overwrite_x=True)[:, :, :nxo]
+                        field = sfft.ifft(field, axis=-2, workers=workers)[:, :nyo]
                         S = capture.spots[j]
                         dS = np.sqrt((xo[None, :] - S[0]) ** 2 + (yo[:, None] - S[1]) ** 2 + (z - S[2]) ** 2)
-                        ph = np.exp(2j * np.pi * freqs[:, None, None] * dS[None]).astype(np.complex64)
-                        ph *= wts[:, None, None]
-                        plane += np.einsum("fyx,fyx->yx", field, ph)
+                        _kernels.spot_leg_sum(field, w64, dS, f0, df, plane)
                 U[iz] += plane if exact else _bilinear(plane, iy, fy, ix, fx)
                 advance(len(js))
     return U
