@@ -44,13 +44,44 @@ _TABLE_BYTES = 64 * 2 ** 20
 _SLAB_WORK = 2e9
 
 
-def _tables(points: np.ndarray, grid: VoxelGrid):
-    """Squared coordinate differences ``(K, nx), (K, ny), (K, nz)`` between points (K, 3) and the grid."""
+def _tables(points: np.ndarray, grid: VoxelGrid, scale: float = 1.0, dtype=np.float64):
+    """Squared coordinate differences ``(K, nx), (K, ny), (K, nz)`` between points (K, 3) and the grid.
+
+    Differences are multiplied by ``scale`` before squaring (``1 / bin width``: squared distances in
+    bins^2), computed in float64 and returned as ``dtype``.
+    """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    dx = (grid.x_m[None, :] - p[:, 0:1]) ** 2
-    dy = (grid.y_m[None, :] - p[:, 1:2]) ** 2
-    dz = (grid.z_m[None, :] - p[:, 2:3]) ** 2
-    return np.ascontiguousarray(dx), np.ascontiguousarray(dy), np.ascontiguousarray(dz)
+    dx = ((grid.x_m[None, :] - p[:, 0:1]) * scale) ** 2
+    dy = ((grid.y_m[None, :] - p[:, 1:2]) * scale) ** 2
+    dz = ((grid.z_m[None, :] - p[:, 2:3]) * scale) ** 2
+    return tuple(np.ascontiguousarray(t, dtype=dtype) for t in (dx, dy, dz))
+
+
+def _distance_range_m(points: np.ndarray, grid: VoxelGrid) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest and farthest distance (metres) from each point (K, 3) to the box of the grid's voxel centres."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    lo = np.array([grid.x_m.min(), grid.y_m.min(), grid.z_m.min()])
+    hi = np.array([grid.x_m.max(), grid.y_m.max(), grid.z_m.max()])
+    near = np.linalg.norm(p - np.clip(p, lo, hi), axis=-1)
+    far = np.linalg.norm(np.maximum(np.abs(p - lo), np.abs(p - hi)), axis=-1)
+    return near, far
+
+
+#: Zero bins added beyond the computed index range on each side: float32 path lengths in bins
+#: (below 2^16 bins: absolute error under 0.01 bin) can round across the bounds by far less than this.
+_PAD_MARGIN = 2
+
+
+def _bin_range(capture, grid: VoxelGrid, j: int, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lowest and highest fractional bin index (K,) that any voxel of ``grid`` reaches for the pairs of file ``j``."""
+    inv_w = 1.0 / capture.bin_width_m
+    ck = (capture.path_offsets_m(j).reshape(-1) - capture.t0_m) * inv_w
+    pn, pf = _distance_range_m(P, grid)
+    if capture.mode == "confocal":
+        sn, sf = _distance_range_m(capture.spots, grid)
+    else:
+        sn, sf = (np.full(len(P), v[0]) for v in _distance_range_m(capture.spots[j][None], grid))
+    return (sn + pn) * inv_w + ck, (sf + pf) * inv_w + ck
 
 
 def backproject(capture, grid: VoxelGrid, transform: Callable[[int, np.ndarray], np.ndarray] | None = None,
@@ -72,6 +103,11 @@ def backproject(capture, grid: VoxelGrid, transform: Callable[[int, np.ndarray],
     -------
     ndarray, shape (nz, ny, nx), float64 (complex128 with ``complex_values``)
         Sum over pairs of the bin containing each voxel's path length.
+
+    Each chunk of histograms is copied into a zero-padded float32 (complex64) array whose time axis
+    covers every bin index a voxel of ``grid`` can produce (nearest and farthest voxel of the box from
+    each spot and pixel), so the kernels need no bounds check: bins outside the capture read zeros,
+    exactly as skipping them. Path lengths are computed in float32 bin units (see :mod:`recon._kernels`).
     """
     from . import _kernels
 
@@ -81,44 +117,51 @@ def backproject(capture, grid: VoxelGrid, transform: Callable[[int, np.ndarray],
     out = np.zeros(grid.shape, dtype=np.complex128 if complex_values else np.float64)
     nz = grid.shape[0]
     inv_w = 1.0 / capture.bin_width_m
-    t0c = capture.t0_m
-    per_pixel = 8 * (len(grid.x_m) + len(grid.y_m) + len(grid.z_m))
+    P = capture.pixel_centers.reshape(K, 3)
     paired = capture.mode == "confocal"
-    chunk = max(1, _TABLE_BYTES // (per_pixel * (2 if paired else 1)))
+    # padded time axis: index b + pad for bin b, every reachable index of every file within [0, Tp)
+    ranges = [_bin_range(capture, grid, j, P) for j in range(capture.n_files)]
+    lo_b = min(int(math.floor(r[0].min())) for r in ranges)
+    hi_b = max(int(math.floor(r[1].max())) for r in ranges)
+    pad = max(0, -lo_b) + _PAD_MARGIN
+    Tp = pad + max(T, hi_b + 1) + _PAD_MARGIN
+    per_pixel = 4 * (len(grid.x_m) + len(grid.y_m) + len(grid.z_m)) * (2 if paired else 1) \
+        + Tp * np.dtype(hdtype).itemsize
+    chunk = max(1, _TABLE_BYTES // per_pixel)
     n_chunks = math.ceil(K / chunk)
     # z slabs: progress ticks of about _SLAB_WORK voxel-pair updates each
     n_slabs = int(min(nz, max(1, round(min(K, chunk) * out.size / _SLAB_WORK))))
     slabs = np.linspace(0, nz, n_slabs + 1).round().astype(int)
-    P = capture.pixel_centers.reshape(K, 3)
     with progress_bar(description, capture.n_files * n_chunks * n_slabs) as advance:
-        pix_tables = _tables(P, grid) if (n_chunks == 1) else None
+        pix_tables = _tables(P, grid, inv_w, np.float32) if (n_chunks == 1) else None
+        if paired:
+            S = capture.spots
+            same = bool(np.max(np.abs(S - P)) <= SAME_SPOT_TOLERANCE_M)
         for j in range(capture.n_files):
             hist = capture.spot(j)
             if transform is not None:
                 hist = transform(j, hist)
             hist = np.asarray(hist).reshape(K, T)
-            ck = capture.path_offsets_m(j).reshape(K) - t0c
-            if paired:
-                S = capture.spots
-                same = bool(np.max(np.abs(S - P)) <= SAME_SPOT_TOLERANCE_M)
-            else:
-                dxs, dys, dzs = (t[0] for t in _tables(capture.spots[j][None], grid))
+            ck = (capture.path_offsets_m(j).reshape(K) - capture.t0_m) * inv_w + pad
+            if not paired:
+                dxs, dys, dzs = (t[0] for t in _tables(capture.spots[j][None], grid, inv_w, np.float32))
             for k0 in range(0, K, chunk):
                 sl = slice(k0, min(K, k0 + chunk))
-                h = np.ascontiguousarray(hist[sl], dtype=hdtype)
-                c = np.ascontiguousarray(ck[sl], dtype=np.float64)
-                dxp, dyp, dzp = pix_tables if pix_tables is not None else _tables(P[sl], grid)
+                h = np.zeros((sl.stop - sl.start, Tp), dtype=hdtype)
+                h[:, pad:pad + T] = hist[sl]
+                c = np.ascontiguousarray(ck[sl], dtype=np.float32)
+                dxp, dyp, dzp = pix_tables if pix_tables is not None else _tables(P[sl], grid, inv_w, np.float32)
                 if paired and not same:
-                    sx, sy, sz = _tables(S[sl], grid)
+                    sx, sy, sz = _tables(S[sl], grid, inv_w, np.float32)
                 for z0, z1 in zip(slabs[:-1], slabs[1:]):
                     o = out[z0:z1]
                     dzp_s = np.ascontiguousarray(dzp[:, z0:z1])
                     if paired and same:
-                        _kernels.bp_confocal(h, c, dxp, dyp, dzp_s, inv_w, o)
+                        _kernels.bp_confocal(h, c, dxp, dyp, dzp_s, o)
                     elif paired:
-                        _kernels.bp_paired(h, c, dxp, dyp, dzp_s, sx, sy, np.ascontiguousarray(sz[:, z0:z1]), inv_w, o)
+                        _kernels.bp_paired(h, c, dxp, dyp, dzp_s, sx, sy, np.ascontiguousarray(sz[:, z0:z1]), o)
                     else:
-                        _kernels.bp_one_spot(h, c, dxp, dyp, dzp_s, dxs, dys, dzs[z0:z1], inv_w, o)
+                        _kernels.bp_one_spot(h, c, dxp, dyp, dzp_s, dxs, dys, dzs[z0:z1], o)
                     advance(1)
     return out
 
