@@ -67,9 +67,11 @@ def _distance_range_m(points: np.ndarray, grid: VoxelGrid) -> tuple[np.ndarray, 
     return near, far
 
 
-#: Zero bins added beyond the computed index range on each side: float32 path lengths in bins
-#: (below 2^16 bins: absolute error under 0.01 bin) can round across the bounds by far less than this.
+#: Zero bins added beyond the computed index range on each side: float32 path lengths in bins round
+#: across the bounds by far less than this (float32 spacing is 1/8 bin at 2^20 bins, a few operations).
 _PAD_MARGIN = 2
+#: Largest padded time axis (bins): beyond it float32 path lengths in bins would be too coarse.
+_MAX_PADDED_BINS = 2 ** 20
 
 
 def _bin_range(capture, grid: VoxelGrid, j: int, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -125,6 +127,10 @@ def backproject(capture, grid: VoxelGrid, transform: Callable[[int, np.ndarray],
     hi_b = max(int(math.floor(r[1].max())) for r in ranges)
     pad = max(0, -lo_b) + _PAD_MARGIN
     Tp = pad + max(T, hi_b + 1) + _PAD_MARGIN
+    if Tp > _MAX_PADDED_BINS:
+        raise UserInputError(f"backprojection: the volume's path lengths and the capture's time axis span {Tp} bins of "
+                             f"{capture.bin_width_m:.4g} m; at most {_MAX_PADDED_BINS} are supported: use smaller bounds "
+                             f"or wider bins (preprocess.downsample_time)")
     per_pixel = 4 * (len(grid.x_m) + len(grid.y_m) + len(grid.z_m)) * (2 if paired else 1) \
         + Tp * np.dtype(hdtype).itemsize
     chunk = max(1, _TABLE_BYTES // per_pixel)
