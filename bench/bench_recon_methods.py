@@ -79,6 +79,7 @@ def main(argv=None) -> int:
     if a.child:
         print(json.dumps(child(a.child, a.small, a.repeat)))
         return 0
+    load_start = os.getloadavg()
     env = dict(os.environ, TRANSIENT_MI_PROGRESS="0")
     results = []
     for m in a.methods.split(","):
@@ -98,6 +99,7 @@ def main(argv=None) -> int:
         "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                     "cpu_count": os.cpu_count(), "python": platform.python_version(),
+                    "load_average_1min_start": round(load_start[0], 2),
                     "load_average_1_5_15_at_end": list(os.getloadavg())},
         "small": a.small, "repeat": a.repeat, "voxels": 16 if a.small else 64, "bounds_m": list(BOUNDS),
         "goal": GOAL, "results": results,
