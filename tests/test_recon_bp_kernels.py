@@ -21,6 +21,7 @@ from recon.backprojection import backproject
 from recon.capture import Capture
 from recon.grid import VoxelGrid
 from recon.synthetic import wall_grid
+from transient_core.errors import UserInputError
 
 EDGE_BINS = 1e-3
 GRID = VoxelGrid.from_bounds((-0.33, 0.31, -0.29, 0.35, 0.15, 0.8), voxels=(9, 8, 7))
@@ -93,3 +94,12 @@ def test_padded_kernel_is_deterministic():
     a = backproject(cap, GRID)
     b = backproject(cap, GRID)
     assert a.tobytes() == b.tobytes()
+
+
+def test_padded_axis_over_2_20_bins_is_refused():
+    # 1 fs bins (0.3 um of path): the grid's path lengths span millions of bins
+    P = wall_grid(2, 2, 0.2)
+    cap = Capture.from_arrays(np.ones((1, 2, 2, 10), np.float32), spots=[[0.0, 0.0, 0.0]], pixel_centers=P,
+                              t0_ps=3000.0, bin_width_ps=0.001)
+    with pytest.raises(UserInputError, match="at most 1048576 are supported"):
+        backproject(cap, GRID)
