@@ -85,7 +85,9 @@ def table() -> str:
     lines = []
     order = {f"study_methods_{k}.json": i for i, k in enumerate(RUNS)}   # the paper scene first
     for path in sorted(RESULTS.glob("study_methods_*.json"), key=lambda p: (order.get(p.name, len(order)), p.name)):
-        doc = _record.payload(json.loads(path.read_text()))
+        rec = json.loads(path.read_text())
+        doc = _record.payload(rec)
+        date = rec.get("date_utc") or doc.get("date_utc")  # the record layout keeps provenance at the top
         rows = doc["rows"]
         n = max(r["array"] for r in rows)
         e = max(r["exposure_s"] for r in rows)
@@ -93,7 +95,7 @@ def table() -> str:
                      key=lambda r: (r["chamfer_m"] is None, r["chamfer_m"] or 0))
         spp = doc["settings"]["defines"].get("spp")
         lines.append(f"**{doc['settings']['scene_file']}**, {n}x{n} array, {e * 1e3:g} ms per laser spot, "
-                     f"{spp} spp (`{path.relative_to(ROOT)}`, {doc['date_utc']}):\n")
+                     f"{spp} spp (`{path.relative_to(ROOT)}`, {date}):\n")
         lines.append("| method | Chamfer (cm) | completeness (cm) | IoU | depth MAE (cm) | visible Chamfer (cm) | "
                      "visible IoU | silhouette IoU | normal error (deg) | time (s) |")
         lines.append("|---|---|---|---|---|---|---|---|---|---|")
@@ -104,9 +106,17 @@ def table() -> str:
         lines.append("")
     bench = RESULTS / "recon_methods.json"
     if bench.is_file():
-        doc = _record.payload(json.loads(bench.read_text()))
-        lines.append(f"Each method at 64^3 on a closed-form 32x32-pixel, 2x2-spot capture (`{doc['command']}`, "
-                     f"{doc['machine']['cpu_count']} cores, {doc['date_utc']}; best of {doc['repeat']}, peak RSS "
+        rec = json.loads(bench.read_text())
+        doc = _record.payload(rec)
+        prov = rec if "date_utc" in rec else doc
+        m = prov["machine"]
+        cores = m.get("cores") or m.get("cpu_count")
+        load = ""
+        if m.get("load_average_1min_start") is not None and m.get("load_average_1min_end") is not None:
+            load = f", 1-min load {m['load_average_1min_start']:.2f} at start, {m['load_average_1min_end']:.2f} at end"
+        cpu = f" ({m['cpu_model']})" if m.get("cpu_model") else ""
+        lines.append(f"Each method at 64^3 on a closed-form 32x32-pixel, 2x2-spot capture (`{prov['command']}`, "
+                     f"{cores} cores{cpu}{load}, {prov['date_utc']}; best of {doc['repeat']}, peak RSS "
                      "of a fresh process):\n")
         lines.append("| method | time (s) | peak RSS (MB) | <= 2 s and <= 1 GB |")
         lines.append("|---|---|---|---|")
