@@ -12,8 +12,9 @@ Backprojection
 
     Array captures stream one laser spot (file) at a time; confocal captures
     pair spot k with pixel k (a spot within 1e-6 m of its pixel's patch centre,
-    as rendered float32 positions are, is taken to be on it). Memory: the volume, one file and per-pixel
-    distance tables (chunked over pixels), never a pairs x voxels array.
+    as rendered float32 positions are, is taken to be on it). Memory: the volume, one file, and per-pixel
+    distance tables and zero-padded histograms (chunked over pixels, about 64 MiB a chunk), never a
+    pairs x voxels array.
 
 Filtered backprojection (``fbp``)
     Each histogram is first filtered in time with the negative second
