@@ -676,6 +676,15 @@ def recon_targets_table(R) -> str:
                                    ("visible_iou", "visible IoU", 1, ".3f")):
         high = key.endswith("iou")
         lines.append(f"| {label} | {cell(best(front, key, high), key, scale, fmt)} | | | |")
+    seeds = R("completion_seeds")
+    sres = seeds["result"]["results"]["midpoint-fk+completion"]
+    n_seeds = len(seeds["result"]["settings"]["detection_seeds"])
+    for key, label, scale, fmt in (("chamfer_m", "Chamfer (cm)", 100, ".2f"), ("completeness_m", "completeness (cm)", 100, ".2f"),
+                                   ("iou", "IoU", 1, ".3f")):
+        v = sres[key]
+        lo, hi = (scale * x for x in v["ci95"])
+        lines.append(f"| {label}, over {n_seeds} detections | | {scale * v['mean']:{fmt}} +- {scale * v['sd']:{fmt}} "
+                     f"(95 % interval of the mean {lo:{fmt}} to {hi:{fmt}}) | | |")
     fr = feats["result"]["results"]
     fk = fr.get("midpoint-fk", {})
     lines.append(f"| legs separated (leg rows with two runs), head present | midpoint-fk: {fk.get('leg_rows_with_two_runs')}"
@@ -695,7 +704,9 @@ def recon_targets_table(R) -> str:
                  f"largest {worst_m['method']} {worst_m['peak_rss_mb']:.0f} MB | | both | "
                  f"{'met' if not slow else 'missed by ' + ', '.join(slow)} |")
     return ("\n".join(lines) + f"\n\nPaper scene: {n}x{n} array, {e * 1e3:g} ms per laser spot "
-            f"({provenance(paper, short=True)}); legs and head: {provenance(feats, short=True)}; letter: "
+            f"({provenance(paper, short=True)}; the rows over {n_seeds} detections: the same render detected with "
+            f"seeds 1 to {n_seeds}, mean +- sample standard deviation, {provenance(seeds, short=True)}, "
+            f"`python bench/completion_seeds.py`); legs and head: {provenance(feats, short=True)}; letter: "
             f"{provenance(letter, short=True)}; timings: {provenance(speed, short=True)}.\n")
 
 
@@ -822,7 +833,7 @@ GENERATORS = {
                                            "front_surface_limit"], False),
     "methods_trend": (methods_trend_para, ["study_methods_paper_mannequin"], False),
     "recon_targets": (recon_targets_table, ["study_methods_paper_mannequin", "study_methods_nlos_letter",
-                                            "mannequin_features", "recon_methods"], False),
+                                            "mannequin_features", "recon_methods", "completion_seeds"], False),
 }
 
 
