@@ -242,7 +242,8 @@ def complete_surface(rec: Reconstruction, aspect: float | str = "auto") -> Recon
     params = {"prior": "elliptical cross-sections", "aspect_requested": "auto" if auto else a_given}
     if not sil.any():
         out = Reconstruction(raw=rec.raw, grid=g, method=rec.method, params={**rec.params, "completion": {
-            **params, "aspects": [], "added_voxels": 0}}, volume=vol.copy(), filter=dict(rec.filter))
+            **params, "aspects": [], "added_voxels": 0, "dropped_voxels": 0}}, volume=vol.copy(),
+            filter=dict(rec.filter))
         return out
     front = front_depth(vol, g.z_m)
     dist, radius, centre = local_thickness(sil, dy, dx)

@@ -523,12 +523,14 @@ def test_viewer_works_on_the_demo_output(browser, tmp_path):
     labels = [lib.label(p) for p in lib.captures + lib.recons]
     assert labels == ["captures/array_04/counts", "captures/array_04/ideal", "captures/array_08/counts",
                       "captures/array_08/ideal", "recon/array_04", "recon/array_08",
-                      "recon/array_08_midpoint-fk"]  # the demo's best array method on its largest array
+                      "recon/array_08_midpoint-fk",  # the demo's best array method on its largest array
+                      "recon/array_08_midpoint-fk_completed"]  # and that closed behind its front (recon.completion)
     gt = (out / "ground_truth.ply").resolve()
     assert all(lib.ground_truth_for(p) == gt for p in lib.captures + lib.recons)
     proc, url = _start_server(out)
     try:
-        for show in ("capture: captures/array_08/counts", "recon: recon/array_08"):
+        for show in ("capture: captures/array_08/counts", "recon: recon/array_08",
+                     "recon: recon/array_08_midpoint-fk_completed"):
             page = _open(browser, url, show)
             try:
                 _assert_not_blank(page.locator(".tmv-integrated_image").screenshot(), show)
