@@ -9,8 +9,9 @@ rewrites the table between ``<!-- methods-leaderboard:start -->`` and
 ``<!-- methods-leaderboard:end -->`` in README.md.
 
 ``python bench/methods_leaderboard.py --table-only`` only regenerates the
-README table from the stored JSON files (``bench/results/study_methods_*.json``
-and ``bench/results/recon_methods.json``); ``--scenes`` picks scenes.
+README table and the leaderboard figures from the stored JSON files
+(``bench/results/study_methods_*.json`` and ``bench/results/recon_methods.json``);
+``--scenes`` picks scenes.
 """
 
 from __future__ import annotations
@@ -129,6 +130,21 @@ def table() -> str:
     return "\n".join(lines)
 
 
+def redraw_figures() -> None:
+    """Redraw ``docs/img/methods_<scene>_leaderboard.png`` from the stored JSON (the front views need the volumes,
+    which only a run has)."""
+    import transient_mi  # noqa: F401
+    from transient_core.atomic import atomic_file
+    from transient_mi.study.methods import leaderboard_figure
+
+    for scene in RUNS:
+        path = RESULTS / f"study_methods_{scene}.json"
+        if path.is_file():
+            rows = _record.payload(json.loads(path.read_text()))["rows"]
+            with atomic_file(ROOT / "docs" / "img" / f"methods_{scene}_leaderboard.png") as t:
+                leaderboard_figure(Path(t), rows)
+
+
 def write_readme(text: str) -> None:
     from transient_core.atomic import atomic_file
 
@@ -155,6 +171,8 @@ def main(argv=None) -> int:
         if bad:
             raise SystemExit(f"error: --scenes {bad[0]!r}: allowed {', '.join(RUNS)}")
         run(scenes, argv)
+    else:
+        redraw_figures()
     write_readme(table())
     return 0
 

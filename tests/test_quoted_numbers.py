@@ -85,3 +85,13 @@ def test_check_fails_when_the_json_changes_and_rewrite_fixes_it(tmp_path):
     assert w.returncode == 0, w.stderr
     assert "1999-01-02" in (root / "README.md").read_text()
     assert _check(root).returncode == 0
+
+
+def test_readme_methods_leaderboard_is_its_json():
+    """The README's leaderboard block is what ``bench/methods_leaderboard.py --table-only`` makes of the stored JSON."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    import methods_leaderboard as ml
+
+    text = (ROOT / "README.md").read_text()
+    block = text.split(ml.START, 1)[1].split(ml.END, 1)[0]
+    assert block == "\n" + ml.table() + "\n", "README leaderboard drifted: run python bench/methods_leaderboard.py --table-only"

@@ -297,11 +297,13 @@ filter in this process; peak MB: numpy allocations traced by tracemalloc (a lowe
 
 
 def leaderboard_figure(path: Path, rows: list[dict]) -> Path:
-    """Chamfer, visible completeness and time against array size, one line per method, per exposure."""
+    """Chamfer, visible completeness and time against array size, one line per method, per exposure (completed
+    rows dashed, in their method's colour)."""
     from transient_mi.reporting import save_figure, subplots
 
     exposures = sorted({r["exposure_s"] for r in rows})
     methods = list(dict.fromkeys(r["method"] for r in rows))
+    bases = list(dict.fromkeys(m.removesuffix(COMPLETION_SUFFIX) for m in methods))
     keys = (("chamfer_m", "Chamfer (cm)", 100), ("visible_completeness_m", "visible completeness (cm)", 100),
             ("reconstruct_s", "reconstruction time (s)", 1))
     fig, axes = subplots(len(exposures), len(keys), figsize=(4.4 * len(keys), 3.4 * len(exposures)), squeeze=False)
@@ -312,7 +314,9 @@ def leaderboard_figure(path: Path, rows: list[dict]) -> Path:
                 rr = sorted((r for r in rows if r["exposure_s"] == e and r["method"] == m), key=lambda r: r["array"])
                 xs = [r["array"] for r in rr]
                 ys = [np.nan if r.get(key) is None else scale * r[key] for r in rr]
-                ax.plot(xs, ys, marker="o", label=m, color=f"C{j}")
+                done = m.endswith(COMPLETION_SUFFIX)   # a completed row: its method's colour, dashed
+                ax.plot(xs, ys, marker="o", label=m, color=f"C{bases.index(m.removesuffix(COMPLETION_SUFFIX))}",
+                        linestyle="--" if done else "-", markerfacecolor="white" if done else None)
             ax.set_xscale("log", base=2)
             xs = sorted({r["array"] for r in rows})
             ax.set_xticks(xs, [f"{a}x{a}" for a in xs])
