@@ -28,6 +28,8 @@ import pytest
 import transient_mi  # noqa: F401  (before mitsuba/drjit)
 import drjit as dr
 import mitsuba as mi
+
+from ad_helpers import detach_all
 from scipy import stats
 
 import transient_mi.integrators._ad_geometry as adg
@@ -107,20 +109,6 @@ def _move(params, key, T0, kind, t):
     params.update()
 
 
-def _detach_all(params):
-    """Leave no parameter attached (a live shape with an attached to_world makes later symbolic loops of any
-    scene differentiable)."""
-    for key in params.keys():
-        try:
-            v = params[key]
-            on = dr.grad_enabled(v)
-        except Exception:  # noqa: BLE001 (not a Dr.Jit value)
-            continue
-        if on:
-            params[key] = type(v)(dr.detach(v))
-    params.update()
-
-
 def _paired(scene, key, kind, spp=SPP, w=None):
     """``(ad, fd)`` per seed: the reverse-mode gradient of ``sum(w * hist)`` along the motion ``kind`` of
     ``key`` and central differences of the primal with the same seed."""
@@ -136,7 +124,7 @@ def _paired(scene, key, kind, spp=SPP, w=None):
             _move(params, key, T0, kind, th)
             scene.integrator().render_backward(scene, params, mi.TensorXf(w), scene.sensors()[0], seed, spp)
             ads.append(float(dr.grad(th)[0]))
-            _detach_all(params)
+            detach_all(params)
             vals = []
             for s in (1, -1):
                 _move(params, key, T0, kind, s * eps)
@@ -144,7 +132,7 @@ def _paired(scene, key, kind, spp=SPP, w=None):
             fds.append((vals[0] - vals[1]) / (2 * eps))
     finally:
         _move(params, key, T0, 0, 0.0)
-        _detach_all(params)
+        detach_all(params)
     return np.asarray(ads), np.asarray(fds)
 
 
@@ -202,7 +190,7 @@ def test_mesh_vertex_positions_gradient_equals_central_differences(tmp_path):
             params.update()
             scene.integrator().render_backward(scene, params, mi.TensorXf(w), scene.sensors()[0], seed, SPP)
             ads.append(float(dr.grad(th)[0]))
-            _detach_all(params)
+            detach_all(params)
             vals = []
             for s in (1, -1):
                 params[key] = dr.ravel(V0 + mi.Vector3f(0, 0, s * eps))
@@ -210,7 +198,7 @@ def test_mesh_vertex_positions_gradient_equals_central_differences(tmp_path):
                 vals.append(float(np.sum(_render(scene, seed) * w)))
             fds.append((vals[0] - vals[1]) / (2 * eps))
     finally:
-        _detach_all(params)
+        detach_all(params)
     t, resolved = _t(np.asarray(ads), np.asarray(fds))
     assert abs(resolved) > 5 and abs(t) <= T_Q, f"AD {np.mean(ads):.5g} vs {np.mean(fds):.5g}: paired t = {t:+.2f}"
 
@@ -260,9 +248,9 @@ def test_forward_mode_equals_reverse_mode():
             else:
                 dr.forward(th)
                 out.append(float(np.sum(np.asarray(dr.grad(img), dtype=np.float64) * w)))
-            _detach_all(params)
+            detach_all(params)
     finally:
-        _detach_all(params)
+        detach_all(params)
     assert out[0] != 0 and out[1] == pytest.approx(out[0], rel=1e-4)
 
 
@@ -282,9 +270,9 @@ def test_same_seed_same_bytes():
             img = mi.render(scene, params, seed=5, spp=64)
             dr.forward(th)
             tangents.append(np.asarray(dr.grad(img)).tobytes())
-            _detach_all(params)
+            detach_all(params)
     finally:
-        _detach_all(params)
+        detach_all(params)
     assert tangents[0] == tangents[1] and np.any(np.frombuffer(tangents[0], np.float32) != 0)
 
 
@@ -301,4 +289,4 @@ def test_geometry_without_a_temporal_kernel_is_refused_in_one_line():
                 call()
             assert "\n" not in str(e.value)
     finally:
-        _detach_all(params)
+        detach_all(params)

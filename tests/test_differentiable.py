@@ -11,7 +11,6 @@ samples to float precision (deterministic: no statistical false-failure rate).
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
@@ -20,7 +19,7 @@ import transient_mi  # noqa: F401
 import drjit as dr
 import mitsuba as mi
 
-from stats_helpers import ALPHA, t_bound, welch_df
+from ad_helpers import assert_welch, loss_at, reverse_gradient
 
 T = mi.ScalarTransform4f
 PARAMS = ("plane.bsdf.reflectance.value", "wall.bsdf.reflectance.value", "light.intensity.value")
@@ -56,41 +55,15 @@ def _weights():
     return mi.TensorXf(np.random.default_rng(0).random((8, 8, 200)).astype(np.float32))
 
 
-def _ad_gradient(scene, key, w, seed, spp=256):
-    params = mi.traverse(scene)
-    dr.enable_grad(params[key])
-    params.update()
-    img = mi.render(scene, params, seed=seed, spp=spp)
-    dr.backward(dr.sum(img * w, axis=None))
-    g = float(np.asarray(dr.grad(params[key])).ravel()[0])
-    dr.disable_grad(params[key])
-    return g
-
-
-def _loss(scene, key, value, w, seed, spp):
-    params = mi.traverse(scene)
-    base = float(np.asarray(params[key]).ravel()[0])
-    params[key] = value
-    params.update()
-    out = float(np.sum(np.asarray(mi.render(scene, seed=seed, spp=spp), dtype=np.float64) * np.asarray(w)))
-    params[key] = base
-    params.update()
-    return out
-
-
 def test_reverse_mode_gradients_agree_with_finite_differences():
     scene, w = _scene(), _weights()
     for key in PARAMS:
         x0 = float(np.asarray(mi.traverse(scene)[key]).ravel()[0])
         h = 0.02 * x0
-        ad = np.array([_ad_gradient(scene, key, w, seed=10 + s) for s in range(8)])
-        fd = np.array([(_loss(scene, key, x0 + h, w, 100 + s, 2048) - _loss(scene, key, x0 - h, w, 100 + s, 2048))
-                       / (2 * h) for s in range(4)])
-        va, vb = ad.var(ddof=1), fd.var(ddof=1)
-        se = math.sqrt(va / len(ad) + vb / len(fd))
-        bound = t_bound(min(len(ad), len(fd)), ALPHA, len(PARAMS), df=welch_df(va, len(ad), vb, len(fd)))
-        assert abs(ad.mean()) > 10 * se, f"{key}: the gradient is not resolved"
-        assert abs(ad.mean() - fd.mean()) < bound * se, f"{key}: AD {ad.mean():.4g} vs FD {fd.mean():.4g} +- {se:.3g}"
+        ad = [reverse_gradient(scene, key, w, seed=10 + s, spp=256) for s in range(8)]
+        fd = [(loss_at(scene, key, x0 + h, w, 100 + s, 2048) - loss_at(scene, key, x0 - h, w, 100 + s, 2048))
+              / (2 * h) for s in range(4)]
+        assert_welch(ad, fd, len(PARAMS), key)
 
 
 @pytest.mark.parametrize("kernel_sigma_ps", [0.0, 60.0])
@@ -99,7 +72,7 @@ def test_forward_mode_equals_reverse_mode(kernel_sigma_ps):
     temporal kernel the adjoint goes through the kernel's taps."""
     scene, w = _scene(kernel_sigma_ps), _weights()
     key = PARAMS[1]
-    rev = _ad_gradient(scene, key, w, seed=3)
+    rev = reverse_gradient(scene, key, w, seed=3, spp=256)
     params = mi.traverse(scene)
     dr.enable_grad(params[key])
     params.update()
@@ -133,6 +106,7 @@ import transient_mi  # noqa: F401
 import drjit as dr
 import mitsuba as mi
 import test_differentiable as t
+from ad_helpers import color_direction_gradient, color_direction_loss
 
 scene = t._scene(spectral_rgb=True)
 w = mi.TensorXf(np.random.default_rng(0).random((8, 8, 200, 3)).astype(np.float32))
@@ -140,28 +114,11 @@ out = {{}}
 for key in ("plane.bsdf.reflectance.value", "wall.bsdf.reflectance.value"):
     params = mi.traverse(scene)
     x0 = mi.Color3f(params[key])
+    d = (0.0, 0.0, 1.0)  # the constant term of the sRGB model's polynomial
     def grad(seed, mode):
-        th = mi.Float(0.0)
-        dr.enable_grad(th)
-        params[key] = x0 + mi.Color3f(0.0, 0.0, 1.0) * th  # the constant term of the sRGB model's polynomial
-        params.update()
-        img = mi.render(scene, params, seed=seed, spp=256)
-        if mode == "reverse":
-            dr.backward(dr.sum(img * w, axis=None))
-            g = float(dr.grad(th)[0])
-        else:
-            dr.forward(th)
-            g = float(np.sum(np.asarray(dr.grad(img), dtype=np.float64) * np.asarray(w)))
-        params[key] = mi.Color3f(dr.detach(x0))
-        params.update()
-        return g
+        return color_direction_gradient(scene, params, key, x0, d, w, seed, mode, 256)
     def loss(c, seed):
-        params[key] = mi.Color3f(dr.detach(x0)) + mi.Color3f(0.0, 0.0, c)
-        params.update()
-        img = scene.integrator().render(scene, scene.sensors()[0], seed=seed, spp=2048)
-        params[key] = mi.Color3f(dr.detach(x0))
-        params.update()
-        return float(np.sum(np.asarray(img, dtype=np.float64) * np.asarray(w)))
+        return color_direction_loss(scene, params, key, x0, d, c, w, seed, 2048)
     h = 0.02
     out[key] = {{"reverse": grad(3, "reverse"), "forward": grad(3, "forward"),
                 "ad": [grad(10 + s, "reverse") for s in range(8)],
@@ -192,12 +149,7 @@ def test_spectral_variant_gradients():
     res = json.loads([x for x in out.stdout.splitlines() if x.startswith("JSON")][-1][4:])
     for key, r in res.items():
         assert r["reverse"] != 0 and r["forward"] == pytest.approx(r["reverse"], rel=1e-4), key
-        ad, fd = np.asarray(r["ad"]), np.asarray(r["fd"])
-        va, vb = ad.var(ddof=1), fd.var(ddof=1)
-        se = math.sqrt(va / len(ad) + vb / len(fd))
-        bound = t_bound(min(len(ad), len(fd)), ALPHA, len(res), df=welch_df(va, len(ad), vb, len(fd)))
-        assert abs(ad.mean()) > 10 * se, f"{key}: the gradient is not resolved"
-        assert abs(ad.mean() - fd.mean()) < bound * se, f"{key}: AD {ad.mean():.4g} vs FD {fd.mean():.4g} +- {se:.3g}"
+        assert_welch(r["ad"], r["fd"], len(res), key)
 
 
 def test_geometry_in_a_spectral_variant_is_refused_in_one_line():

@@ -27,6 +27,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 import transient_mi  # noqa: F401,E402  (before mitsuba/drjit)
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
+
+from ad_helpers import detach_all
 from scipy import stats  # noqa: E402
 
 import nlos_helpers as nh  # noqa: E402
@@ -85,21 +87,6 @@ def _move(params, key, T0, kind, t):
     params.update()
 
 
-def _detach_all(params):
-    """Leave no parameter attached to the AD graph: a live shape whose to_world stays attached makes every later
-    symbolic loop that calls shapes (any scene: Dr.Jit's calls reach every registered instance) differentiable
-    in reverse mode, which the camera AD loops refuse (tests/test_differentiable.py in the same process)."""
-    for key in params.keys():
-        try:
-            v = params[key]
-            on = dr.grad_enabled(v)
-        except Exception:  # noqa: BLE001 (not a Dr.Jit value)
-            continue
-        if on:
-            params[key] = type(v)(dr.detach(v))
-    params.update()
-
-
 def _reverse(scene, params, w, seed):
     scene.integrator().render_backward(scene, params, mi.TensorXf(w), scene.sensors()[0], seed, SPP)
 
@@ -116,7 +103,7 @@ def test_forward_mode_in_laser_power_replays_the_primal_bin_by_bin(capture):
     dr.enable_grad(params[key])
     dr.set_grad(params[key], 1.0)
     dh = np.asarray(scene.integrator().render_forward(scene, params, scene.sensors()[0], 3, SPP), dtype=np.float64)
-    _detach_all(params)
+    detach_all(params)
     assert h.max() > 0
     np.testing.assert_allclose(dh * E, h, rtol=2e-5, atol=2e-5 * h.max())
 
@@ -139,21 +126,21 @@ def test_deeper_paths_replay_the_primal_and_forward_equals_reverse(capture):
         dr.set_grad(params[key], 1.0)
         dh = np.asarray(integ.render_forward(scene, params, sensor, 3, SPP), dtype=np.float64)
         np.testing.assert_allclose(dh * E, h, rtol=2e-5, atol=2e-5 * h.max())
-        _detach_all(params)
+        detach_all(params)
         for key in ("target.bsdf.reflectance.value", "relay_wall.bsdf.reflectance.value"):
             dr.enable_grad(params[key])
             params.update()
             _reverse(scene, params, w, 4)
             rev = float(dr.grad(params[key])[0])
-            _detach_all(params)
+            detach_all(params)
             dr.enable_grad(params[key])
             params.update()
             dr.set_grad(params[key], 1.0)
             fwd = float(np.sum(np.asarray(integ.render_forward(scene, params, sensor, 4, SPP), dtype=np.float64) * w))
-            _detach_all(params)
+            detach_all(params)
             assert rev != 0 and fwd == pytest.approx(rev, rel=1e-4), key
     finally:
-        _detach_all(params)
+        detach_all(params)
 
 
 def test_a_spot_group_replays_the_primal_in_both_modes():
@@ -176,7 +163,7 @@ def test_a_spot_group_replays_the_primal_in_both_modes():
         nlos_backward(integ, scene, params, mi.TensorXf(w), sensor, 3, SPP, spots=[0, 1])
         g = float(dr.grad(params[key])[0])
     finally:
-        _detach_all(params)
+        detach_all(params)
     assert h.shape[0] == 2 and h[1].max() > 0
     np.testing.assert_allclose(dh * E, h, rtol=2e-5, atol=2e-5 * h.max())
     assert g * E == pytest.approx(float(np.sum(w * h)), rel=1e-5)
@@ -240,7 +227,7 @@ def test_geometry_gradients_equal_central_differences(capture, kind):
             diffs.append(ad - (vals[0] - vals[1]) / (2 * eps))
             ads.append(ad)
     finally:
-        _detach_all(params)
+        detach_all(params)
     d = np.asarray(diffs)
     se = d.std(ddof=1) / np.sqrt(len(d))
     assert abs(np.mean(ads)) > 10 * se, "the derivative must be resolved well above the noise"
@@ -285,7 +272,7 @@ def test_mesh_vertex_positions_gradient_equals_central_differences(tmp_path):
             diffs.append(ad - (vals[0] - vals[1]) / (2 * eps))
             ads.append(ad)
     finally:
-        _detach_all(params)
+        detach_all(params)
     d = np.asarray(diffs)
     se = d.std(ddof=1) / np.sqrt(len(d))
     assert abs(np.mean(ads)) > 10 * se
@@ -315,7 +302,7 @@ def test_an_occluding_edge_is_not_differentiated():
                 vals.append(float(np.sum(_render(scene, seed) * w)))
             fds.append((vals[0] - vals[1]) / (2 * eps))
     finally:
-        _detach_all(params)
+        detach_all(params)
     fds = np.asarray(fds)
     assert np.all(np.asarray(ads) == 0.0)
     assert abs(fds.mean()) > T_Q * fds.std(ddof=1) / np.sqrt(len(fds))
@@ -353,7 +340,7 @@ def test_forward_mode_equals_reverse_mode(capture):
                 dr.forward(th)
                 out.append(float(np.sum(np.asarray(dr.grad(img), dtype=np.float64) * w)))
     finally:
-        _detach_all(params)
+        detach_all(params)
     assert out[0] != 0 and out[1] == pytest.approx(out[0], rel=1e-4)
 
 
@@ -371,7 +358,7 @@ def test_transient_path_under_a_spad_array_gives_the_same_gradient():
             _reverse(scene, params, _weights((4, 4, 128)), 5)
             out.append(dr.grad(params[key]).numpy().tobytes())
         finally:
-            _detach_all(params)
+            detach_all(params)
     assert out[0] == out[1] and np.frombuffer(out[0], np.float32)[0] != 0
 
 
@@ -392,9 +379,9 @@ def test_same_seed_same_bytes():
             _reverse(scene, params, w, 5)
             grads.append((dr.grad(th).numpy().tobytes(),
                           dr.grad(params["target.bsdf.reflectance.value"]).numpy().tobytes()))
-            _detach_all(params)
+            detach_all(params)
     finally:
-        _detach_all(params)
+        detach_all(params)
     assert grads[0] == grads[1]
 
 
@@ -436,7 +423,7 @@ def test_unsupported_cases_are_refused_in_one_line():
         refuse(scene, params, r"max_depth=6; .* beyond three-bounce light need a \*_mono variant")
     else:
         refuse(scene, params, r"max_depth=6; derivatives with respect to hidden geometry .* \[1, 4\]")
-    _detach_all(params)
+    detach_all(params)
     params = mi.traverse(_scene())
     params["laser.pulse_energy_j"] = mi.Float(-1e-9)
     with pytest.raises(PluginParameterError, match=r"pulsed_laser: pulse_energy_j=-1e-09 .* one finite value > 0"):
@@ -447,12 +434,12 @@ def test_unsupported_cases_are_refused_in_one_line():
         params = mi.traverse(scene)
         dr.enable_grad(params["target.to_world"])
         refuse(scene, params, match)
-        _detach_all(params)
+        detach_all(params)
     scene = _scene()
     params = mi.traverse(scene)
     dr.enable_grad(params["relay_wall.to_world"])
     refuse(scene, params, "relay_wall.to_world moves the relay wall")
-    _detach_all(params)
+    detach_all(params)
     cam = mi.load_dict({"type": "scene", "integrator": {"type": "transient_nlos_path"},
                         "sensor": {"type": "perspective", "film": {"type": "transient_film", "width": 2, "height": 2,
                                                                    "n_bins": 4, "bin_width_ps": 10.0}},

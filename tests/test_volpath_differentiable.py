@@ -16,7 +16,6 @@ line.
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
@@ -25,7 +24,7 @@ import transient_mi  # noqa: F401
 import drjit as dr
 import mitsuba as mi
 
-from stats_helpers import ALPHA, t_bound, welch_df
+from ad_helpers import assert_welch, loss_at, reverse_gradient
 from transient_mi.props import PluginParameterError
 
 T = mi.ScalarTransform4f
@@ -66,40 +65,6 @@ def _weights():
     return mi.TensorXf(np.random.default_rng(0).random((H, W, NB)).astype(np.float32))
 
 
-def _ad_gradient(scene, key, w, seed, spp):
-    params = mi.traverse(scene)
-    dr.enable_grad(params[key])
-    params.update()
-    img = mi.render(scene, params, seed=seed, spp=spp)
-    dr.backward(dr.sum(img * w, axis=None))
-    g = float(np.asarray(dr.grad(params[key])).ravel()[0])
-    dr.disable_grad(params[key])
-    params.update()
-    return g
-
-
-def _loss(scene, key, value, w, seed, spp):
-    params = mi.traverse(scene)
-    base = float(np.asarray(params[key]).ravel()[0])
-    params[key] = value
-    params.update()
-    out = float(np.sum(np.asarray(mi.render(scene, seed=seed, spp=spp), dtype=np.float64) * np.asarray(w)))
-    params[key] = base
-    params.update()
-    return out
-
-
-def _welch(ad, fd, n_tests, what):
-    """Welch t of the AD mean against the FD mean, at family-wise rate ``ALPHA`` over ``n_tests`` comparisons."""
-    ad, fd = np.asarray(ad), np.asarray(fd)
-    va, vb = ad.var(ddof=1), fd.var(ddof=1)
-    se = math.sqrt(va / len(ad) + vb / len(fd))
-    bound = t_bound(min(len(ad), len(fd)), ALPHA, n_tests, df=welch_df(va, len(ad), vb, len(fd)))
-    assert abs(ad.mean()) > 10 * se, f"{what}: the gradient is not resolved ({ad.mean():.4g} +- {se:.3g})"
-    assert abs(ad.mean() - fd.mean()) < bound * se, \
-        f"{what}: AD {ad.mean():.4g} vs FD {fd.mean():.4g} +- {se:.3g} (bound {bound:.2f} se)"
-
-
 N_COMPARISONS = 5  # four here, one in the heterogeneous test
 
 
@@ -113,10 +78,10 @@ def test_reverse_mode_gradients_agree_with_finite_differences(fog_only, key):
     scene, w = _scene(fog_only), _weights()
     x0 = float(np.asarray(mi.traverse(scene)[key]).ravel()[0])
     h = 0.02 * x0
-    ad = [_ad_gradient(scene, key, w, seed=10 + s, spp=256) for s in range(8)]
-    fd = [(_loss(scene, key, x0 + h, w, 100 + s, 2048) - _loss(scene, key, x0 - h, w, 100 + s, 2048)) / (2 * h)
+    ad = [reverse_gradient(scene, key, w, seed=10 + s, spp=256) for s in range(8)]
+    fd = [(loss_at(scene, key, x0 + h, w, 100 + s, 2048) - loss_at(scene, key, x0 - h, w, 100 + s, 2048)) / (2 * h)
           for s in range(8)]
-    _welch(ad, fd, N_COMPARISONS, key)
+    assert_welch(ad, fd, N_COMPARISONS, key)
 
 
 def test_heterogeneous_grid_values_agree_with_finite_differences():
@@ -158,7 +123,7 @@ def test_heterogeneous_grid_values_agree_with_finite_differences():
         return out
 
     h = 0.05
-    _welch([ad(10 + s) for s in range(8)], [(loss(h, 100 + s) - loss(-h, 100 + s)) / (2 * h) for s in range(8)],
+    assert_welch([ad(10 + s) for s in range(8)], [(loss(h, 100 + s) - loss(-h, 100 + s)) / (2 * h) for s in range(8)],
            N_COMPARISONS, key)
 
 
@@ -169,7 +134,7 @@ def test_forward_mode_equals_reverse_mode(kernel_sigma_ps):
     radiance; with a temporal kernel the adjoint goes through the kernel's taps."""
     scene, w = _scene(kernel_sigma_ps=kernel_sigma_ps), _weights()
     for key in (SIGMA_T, ALBEDO, "fog.phase_function.g", REFL, "light.emitter.radiance.value"):
-        rev = _ad_gradient(scene, key, w, seed=3, spp=64)
+        rev = reverse_gradient(scene, key, w, seed=3, spp=64)
         params = mi.traverse(scene)
         dr.enable_grad(params[key])
         params.update()
@@ -238,6 +203,7 @@ import transient_mi  # noqa: F401
 import drjit as dr
 import mitsuba as mi
 import test_volpath_differentiable as t
+from ad_helpers import color_direction_gradient, color_direction_loss
 
 scene = t._scene(rgb=True)
 w = mi.TensorXf(np.random.default_rng(0).random((t.H, t.W, t.NB, 3)).astype(np.float32))
@@ -245,28 +211,10 @@ out = {{}}
 for key, d in ((t.SIGMA_T, (1.0, 0.0, 0.0)), (t.ALBEDO, (0.0, 1.0, 0.0))):
     params = mi.traverse(scene)
     x0 = mi.Color3f(params[key])
-    def grad(seed, mode, spp):
-        th = mi.Float(0.0)
-        dr.enable_grad(th)
-        params[key] = x0 + mi.Color3f(*d) * th  # one channel of the coefficient
-        params.update()
-        img = mi.render(scene, params, seed=seed, spp=spp)
-        if mode == "reverse":
-            dr.backward(dr.sum(img * w, axis=None))
-            g = float(dr.grad(th)[0])
-        else:
-            dr.forward(th)
-            g = float(np.sum(np.asarray(dr.grad(img), dtype=np.float64) * np.asarray(w)))
-        params[key] = mi.Color3f(dr.detach(x0))
-        params.update()
-        return g
+    def grad(seed, mode, spp):  # along one channel of the coefficient
+        return color_direction_gradient(scene, params, key, x0, d, w, seed, mode, spp)
     def loss(c, seed):
-        params[key] = mi.Color3f(dr.detach(x0)) + mi.Color3f(*d) * c
-        params.update()
-        img = mi.render(scene, seed=seed, spp=2048)
-        params[key] = mi.Color3f(dr.detach(x0))
-        params.update()
-        return float(np.sum(np.asarray(img, dtype=np.float64) * np.asarray(w)))
+        return color_direction_loss(scene, params, key, x0, d, c, w, seed, 2048)
     h = 0.02
     out[key] = {{"reverse": grad(3, "reverse", 64), "forward": grad(3, "forward", 64),
                 "ad": [grad(10 + s, "reverse", 256) for s in range(8)],
@@ -316,7 +264,7 @@ def test_rgb_variant_spectral_extinction_gradients():
     assert "\n" not in refused and "needs the film's colour channels, not channels='mono'" in refused
     for key, r in res.items():
         assert r["reverse"] != 0 and r["forward"] == pytest.approx(r["reverse"], rel=1e-4), key
-        _welch(r["ad"], r["fd"], len(res), key)
+        assert_welch(r["ad"], r["fd"], len(res), key)
 
 
 def test_nlos_captures_are_refused_in_one_line():
