@@ -97,3 +97,44 @@ def test_bad_input(tmp_path):
     r = subprocess.run([sys.executable, "-m", "transient_mi", "study", "methods", "-o", str(tmp_path / "y"),
                         "--arrays", "4,x"], capture_output=True, text=True)
     assert r.returncode == 2 and "error: --arrays" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_fit_row_beside_the_methods(tmp_path):
+    """``fit="mannequin"`` adds one ``fit:mannequin`` row per array x exposure: the fit of the same counts
+    (``transient-mi detect``'s writer, the study's detection seed), its surface voxelised on the study's grid and
+    scored like the methods; its time is the fit's, its settings are recorded, and nothing of its work is left in
+    the output. The mannequin model starts from the paper's pose, this scene's: even two iterations place the
+    surface closer to the mannequin than midpoint-fk's thresholded front (Chamfer, over the whole mesh)."""
+    from transient_mi.study import run_methods_study
+    from transient_mi.study.methods import fit_bin_width_ps, is_fit
+
+    kw = {**TINY, "arrays": (8,), "methods": ("midpoint-fk",), "complete": None}
+    out, rows = run_methods_study("paper_mannequin", tmp_path / "s", fit="mannequin", fit_iterations=2, **kw)
+    assert [r["method"] for r in rows] == ["midpoint-fk", "fit:mannequin"]
+    fk, fit = rows
+    assert is_fit(fit["method"]) and not is_fit(fk["method"])
+    assert fit["fit_iterations"] == 2 and fit["fit_bin_width_ps"] == 16.0
+    assert fit["reconstruct_s"] > 0 and fit["counts_per_pixel_per_spot"] == fk["counts_per_pixel_per_spot"]
+    assert fit["chamfer_m"] < fk["chamfer_m"]
+    assert fit["fit_joint_error_max_deg"] is not None and fit["fit_position_error_m"] is not None
+    data = json.loads((out / "leaderboard.json").read_text())
+    assert data["settings"]["fit"]["model"] == "mannequin" and data["settings"]["fit"]["iterations"] == 2
+    assert "fit:mannequin" in (out / "summary.md").read_text()
+    assert sorted(p.name for p in out.iterdir()) == ["ground_truth.ply", "leaderboard.csv", "leaderboard.json",
+                                                     "leaderboard.png", "reconstructions.png", "summary.md"]
+    # the smallest multiple of the capture's bins reaching 10 ps that divides the capture's bin count
+    assert fit_bin_width_ps(1.0, 11500) == 10.0 and fit_bin_width_ps(4.0, 2880) == 12.0
+    assert fit_bin_width_ps(4.0, 2875) == 20.0 and fit_bin_width_ps(25.0, 7) == 25.0
+
+
+def test_fit_bad_input(tmp_path):
+    from transient_core.errors import UserInputError
+    from transient_mi.study import run_methods_study
+
+    with pytest.raises(UserInputError, match="fit='cube': allowed mannequin, patches"):
+        run_methods_study("paper_mannequin", tmp_path / "x", fit="cube", **TINY)
+    with pytest.raises(UserInputError, match="fit_iterations=5: needs fit"):
+        run_methods_study("paper_mannequin", tmp_path / "x", fit_iterations=5, **TINY)
+    with pytest.raises(UserInputError, match="fit_iterations=0"):
+        run_methods_study("paper_mannequin", tmp_path / "x", fit="mannequin", fit_iterations=0, **TINY)
+    assert not (tmp_path / "x").exists()

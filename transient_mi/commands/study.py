@@ -192,6 +192,11 @@ def methods(
     complete: Optional[str] = typer.Option(
         None, "--complete", help="Also score each reconstruction closed behind its front under a stated prior "
                                  "(elliptical cross-sections; auto or an aspect in [0, 2]), as <method>+completion."),
+    fit: Optional[str] = typer.Option(
+        None, "--fit", help="Also fit this model (mannequin or patches; `transient-mi fit`) to every array x "
+                            "exposure's counts, as a row fit:<model> (minutes per fit)."),
+    fit_iterations: Optional[int] = typer.Option(
+        None, "--fit-iterations", parser=whole_number("--fit-iterations"), metavar="<int>", help="The fit's iterations (default the fit command's, 300)."),
     seed: int = SEED_OPT,
     ground_truth: Optional[Path] = GT_OPT,
     quick: bool = QUICK_OPT,
@@ -220,8 +225,8 @@ def methods(
         kw["bounds"] = parse_bounds(bounds)
     names = tuple(m.strip() for m in methods.split(",") if m.strip())
     path, rows = run_methods_study(scene, out, arrays=sizes, methods=names, defines=defines, seed=seed, quick=quick,
-                                   ground_truth=ground_truth, complete=complete, overwrite=overwrite, log=_log,
-                                   **kw)
+                                   ground_truth=ground_truth, complete=complete, fit=fit,
+                                   fit_iterations=fit_iterations, overwrite=overwrite, log=_log, **kw)
     typer.echo(f"wrote {path}: {len(rows)} reconstructions; summary {path / 'summary.md'}")
 
 

@@ -14,6 +14,17 @@ peak memory measured with :mod:`tracemalloc` (numpy's allocations; FFT
 scratch inside scipy is not traced, so this is a lower bound of the
 process's peak).
 
+With ``fit`` (a model of :mod:`transient_mi.fit`), each array x exposure also
+gets the analysis-by-synthesis fit (what ``transient-mi fit`` runs, with its
+default optimiser settings unless ``fit_iterations`` is given) of the same
+detected counts (written once with ``transient-mi detect``'s writer, the same
+detection seed), as a row ``fit:<model>``: its fitted surface, voxelised on the
+study's grid (the voxels it passes through), is scored like the methods' volumes.
+Its time is the fit's wall clock (backprojection start, optimisation, outputs);
+its traced memory sees numpy only, not Dr.Jit's buffers. A fit is model-based
+(it knows the object's kind), so the targets that name non-fitting methods
+exclude it (:func:`is_fit`).
+
 Ground truth: the paper scene knows its mannequin; for other scenes the
 study builds it from the scene itself (every mesh shape except the relay
 wall, :func:`scene_ground_truth`), unless one is given.
@@ -31,6 +42,7 @@ from __future__ import annotations
 import shutil
 import time
 import tracemalloc
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +65,12 @@ LEADERBOARD_METRICS = ("chamfer_m", "accuracy_m", "completeness_m", "iou", "dept
                        "surface_chamfer_m")
 #: Suffix of the method name in rows of completed reconstructions (``complete=...``).
 COMPLETION_SUFFIX = "+completion"
+#: Prefix of the method name in rows of fits (``fit=...``): ``fit:mannequin``.
+FIT_PREFIX = "fit:"
+#: Models ``fit`` accepts (:mod:`transient_mi.fit.models`).
+FIT_MODELS = ("mannequin", "patches")
+#: The fit's time bins reach at least this, ps (:func:`fit_bin_width_ps`).
+FIT_BIN_WIDTH_PS = 10.0
 ROW_COLUMNS = ("scene", "array", "exposure_s", "method", "counts_per_pixel_per_spot") + LEADERBOARD_METRICS + (
     "reconstruct_s", "peak_traced_mb")
 
@@ -90,7 +108,8 @@ def scene_ground_truth(scene) -> object:
 def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, arrays=DEFAULT_ARRAYS,
                       exposures_s=DEFAULT_EXPOSURES_S, methods=DEFAULT_METHODS, defines=None, voxels=(64, 64, 32),
                       seed: int = 0, quick: bool = False, progress: bool | None = None, ground_truth=None,
-                      bounds=None, threshold: str | None = None, complete=None, overwrite: bool = False, log=None):
+                      bounds=None, threshold: str | None = None, complete=None, fit: str | None = None,
+                      fit_iterations: int | None = None, overwrite: bool = False, log=None):
     """Run the methods study (see the module docstring); returns ``(out_dir, rows)``.
 
     Parameters
@@ -112,6 +131,11 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         Also score every reconstruction closed behind its front under the
         completion prior (:func:`recon.completion.complete_surface`), as rows
         named ``<method>+completion`` whose time includes the completion's.
+    fit : {"mannequin", "patches"}, optional
+        Also fit this model of :mod:`transient_mi.fit` to every array x exposure's counts (row
+        ``fit:<model>``; see the module docstring). Minutes per fit.
+    fit_iterations : int, optional
+        The fit's iterations (default :class:`transient_mi.fit.FitSettings`'s).
     voxels, seed, quick, progress, ground_truth, bounds, overwrite, log
         As for :func:`~transient_mi.study.run_array_size_study`.
     """
@@ -133,6 +157,7 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
 
         check_aspect(complete)
     seed = V.integer(seed, "seed", 0, 2**32)
+    fit_settings = _fit_settings(fit, fit_iterations)
     progress = V.progress(progress)
     sc = study_scene(scene, defines, quick=V.flag(quick, "quick"))
     if any(k in (defines or {}) for k in array_size_defines(sc, arrays[0])):
@@ -147,7 +172,7 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
     out = Path(out_dir)
     t_start = time.perf_counter()
     rows, previews = [], []
-    n_steps = len(arrays) * (1 + len(exposures) * len(methods))
+    n_steps = len(arrays) * (1 + len(exposures) * (len(methods) + (fit is not None)))
     with atomic_output_dir(out, V.flag(overwrite, "overwrite")) as tmp, quiet_inner_bars():
         with progress_bar("methods study", total=n_steps, disable=not bar_enabled(progress)) as advance:
             warmed = False
@@ -180,6 +205,18 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                         if complete is not None:
                             rows.append(_completed_row(rows[-1], rec, complete, gt, seed))
                         advance(1)
+                    if fit is not None:
+                        log(f"{n}x{n}, {e * 1e3:g} ms per spot: fit {fit}")
+                        from recon.grid import make_grid
+
+                        base = {"scene": sc.path.stem, "array": n, "exposure_s": e,
+                                "counts_per_pixel_per_spot": counts_per}
+                        row, frec = _fit_row(tmp / "fit_work", ideal_dir, params, e, seed + 1, fit, fit_settings,
+                                             make_grid(cap, bounds=bnds, voxels=vox), gt, base)
+                        rows.append(row)
+                        if n == arrays[-1] and e == exposures[-1]:
+                            previews.append((row["method"], front_view(frec)))
+                        advance(1)
                 shutil.rmtree(tmp / "captures" / f"array_{n:02d}")
         shutil.rmtree(tmp / "captures", ignore_errors=True)
         settings = {"scene": sc.name, "scene_file": sc.path.name, "defines": dict(sorted(sc.defines.items())),
@@ -187,6 +224,7 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                     "voxels": list(vox), "bounds_m": list(bnds) if bnds is not None else None,
                     "threshold": threshold or "each method's default (recon.pipeline.default_threshold)",
                     "completion": None if complete is None else str(complete),
+                    "fit": None if fit is None else {"model": fit, **asdict(fit_settings)},
                     "render_seed": seed, "detection_seed": seed + 1,
                     "detector": params.to_dict(), "ground_truth": gt_desc,
                     "total_s": time.perf_counter() - t_start}
@@ -227,6 +265,78 @@ def _reconstruct(cap, method: str, bounds, voxels, threshold: str):
     finally:
         tracemalloc.stop()
     return rec, dt, peak
+
+
+def _fit_settings(fit, fit_iterations):
+    """The fit's settings (None without ``fit``); checks ``fit`` and ``fit_iterations``."""
+    if fit is None:
+        if fit_iterations is not None:
+            raise UserInputError(f"fit_iterations={fit_iterations!r}: needs fit (a model: {', '.join(FIT_MODELS)})")
+        return None
+    if fit not in FIT_MODELS:
+        raise UserInputError(f"fit={fit!r}: allowed {', '.join(FIT_MODELS)}")
+    from transient_mi.fit import FitSettings
+
+    if fit_iterations is None:
+        return FitSettings()
+    return FitSettings(iterations=V.integer(fit_iterations, "fit_iterations", 1, 100_000))
+
+
+def is_fit(method: str) -> bool:
+    """Whether a leaderboard row's method is a model fit (``fit:<model>``), not a reconstruction method."""
+    return str(method).startswith(FIT_PREFIX)
+
+
+def fit_bin_width_ps(capture_bin_width_ps: float, n_bins: int) -> float:
+    """The fit's bin width for a capture: the smallest whole multiple ``k`` of its bin width that is
+    >= :data:`FIT_BIN_WIDTH_PS` and divides its ``n_bins`` (the fit sums ``k`` bins into one); ps."""
+    import math
+
+    k = max(1, math.ceil(FIT_BIN_WIDTH_PS / float(capture_bin_width_ps) - 1e-9))
+    while n_bins % k:
+        k += 1
+    return float(capture_bin_width_ps) * k
+
+
+def _fit_row(work: Path, ideal_dir: Path, params, exposure_s: float, seed: int, model: str, settings, grid, gt,
+             base: dict):
+    """Detect ``ideal_dir`` to a counts capture, fit ``model`` to it, score the fitted surface on ``grid``.
+
+    Returns ``(row, reconstruction)``; the reconstruction's volume marks the voxels the fitted surface passes
+    through (:func:`recon.metrics.mesh_occupancy`).
+    """
+    import trimesh
+    from spad_detector import detect_stack
+    from recon.metrics import mesh_occupancy
+    from recon.result import Reconstruction
+    from transient_mi.fit import fit_capture
+    from transient_core.stack import read_manifest
+
+    counts = detect_stack(ideal_dir, work / "counts", params, exposure_s=exposure_s, seed=seed, progress=False)
+    t = read_manifest(counts)["time"]
+    bw = fit_bin_width_ps(float(t["bin_width_ps"]), int(t["n_bins"]))
+    tracemalloc.start()
+    try:
+        t0 = time.perf_counter()
+        res = fit_capture(counts, work / "fit", model=model, settings=settings, bin_width_ps=bw, progress=False,
+                          log=lambda *a: None)
+        dt = time.perf_counter() - t0
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    mesh = trimesh.load(work / "fit" / "fitted.ply", force="mesh", process=False)
+    occ = mesh_occupancy(mesh, grid).astype(np.float32)
+    iterations = res["config"]["settings"]["iterations"]
+    rec = Reconstruction(raw=occ, grid=grid, method=FIT_PREFIX + model, volume=occ,
+                         params={"fit": {"model": model, "iterations": iterations, "bin_width_ps": bw}})
+    metrics = _metrics(rec, gt, 0)
+    m = res.get("metrics") or {}
+    row = {**base, "method": FIT_PREFIX + model, **{k: metrics.get(k) for k in LEADERBOARD_METRICS},
+           "reconstruct_s": dt, "peak_traced_mb": peak / 2**20, "fit_iterations": iterations,
+           "fit_bin_width_ps": bw, "fit_poisson_nll": res["poisson_nll"],
+           "fit_joint_error_max_deg": m.get("joint_error_max_deg"), "fit_position_error_m": m.get("position_error_m")}
+    shutil.rmtree(work)
+    return row, rec
 
 
 def _completed_row(row: dict, rec, complete, gt, seed: int) -> dict:
@@ -279,6 +389,13 @@ def summary_markdown(rows: list[dict], settings: dict) -> str:
                       "-" if r["normal_error_deg"] is None else f"{r['normal_error_deg']:.1f}",
                       f"{r['reconstruct_s']:.2f}", f"{r['peak_traced_mb']:.0f}"])
     s = settings
+    fit = s.get("fit")
+    fit_note = "" if not fit else (
+        f" Rows `{FIT_PREFIX}{fit['model']}` are the analysis-by-synthesis fit of a {fit['model']} model "
+        f"(`transient-mi fit`, {fit['iterations']} iterations) to the same counts, its surface voxelised on the grid: "
+        "model-based (it knows what kind of object hides), so not a reconstruction method; the mannequin model starts "
+        "from the paper's pose, which is this scene's unless `-D pose`/`joints` change it. Its time is the fit's; "
+        "its peak MB misses Dr.Jit's buffers.")
     return f"""# Methods study (leaderboard)
 
 Scene `{s['scene_file']}` (-D {', '.join(f'{k}={v}' for k, v in s['defines'].items()) or 'defaults'}), arrays
@@ -289,7 +406,7 @@ Total {s['total_s']:.0f} s.
 
 Ranked by Chamfer distance. "visible" distances use only the surface the relay wall sees (the back of an
 object sends no three-bounce light; definitions in `recon/metrics.py`). Rows `<method>+completion` are closed
-behind the front under a stated prior (elliptical cross-sections, `recon/completion.py`), not measured. Time: wall clock of reconstruction +
+behind the front under a stated prior (elliptical cross-sections, `recon/completion.py`), not measured.{fit_note} Time: wall clock of reconstruction +
 filter in this process; peak MB: numpy allocations traced by tracemalloc (a lower bound of the process's peak).
 
 {markdown_table(headers, table)}
