@@ -36,7 +36,7 @@ START, END = "<!-- methods-leaderboard:start -->", "<!-- methods-leaderboard:end
 #: scene -> study settings. The paper scene: 4 ps bins (the demo's 1 ps bins are finer than any voxel) at
 #: 16384 spp, so Monte Carlo noise is small next to the detector's at the paper's budget.
 RUNS = {
-    "paper_mannequin": dict(arrays=(8, 16, 32), exposures_s=(0.001, 0.01), complete="auto",
+    "paper_mannequin": dict(arrays=(8, 16, 32), exposures_s=(0.001, 0.01), complete="auto", fit="mannequin",
                             defines={"spp": 16384, "bin_width_ps": 4, "n_bins": 2875}),
     # the NLOS scenes: a 16x16 array of 5 cm patches (0.8 m of wall) and 4x4 laser spots 0.2 m apart (a wider
     # array and scan than the scenes' defaults, 3 cm patches and 0.1 m); volume around the objects at 0.5 m
