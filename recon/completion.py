@@ -24,10 +24,15 @@ from its nearest point by ``a R (1 - sqrt(1 - (u/R)^2))``; ``a`` is the
 least-squares slope of the front's measured recession against
 ``R (1 - sqrt(1 - (u/R)^2))`` over columns with ``0.4 < u/R < 0.95`` (where
 the recession is large enough to measure and the front not yet vertical),
-clipped to ``[0, 2]``. One aspect per connected part of the silhouette. The
-estimate is biased high by the columns' discretisation: disks are centred on
-columns, so ``R`` falls short by up to half a column diagonal (measured on
-spheroids: +10 % at 12 columns of radius, +26 % at 8).
+clipped to ``[0, 2]``. One aspect per connected part of the silhouette. From an
+exact front the estimate is biased high by the columns' discretisation: disks
+are centred on columns, so ``R`` falls short by up to half a column diagonal
+(measured on spheroids: +10 % at 12 columns of radius, +26 % at 8). From a
+reconstructed front it is a heuristic: the reconstruction's blur flattens the
+front near the silhouette (the recession is underestimated) and dilates the
+silhouette; on known cylinders and spheroids behind the paper's wall its errors
+run both ways by tens of per cent (``bench/completion_aspect.py``, docs/recon.md).
+Give the aspect when it is known.
 
 The front depth per column is the z of the column's maximum of ``volume``,
 refined to sub-voxel precision by a parabola through it and its two
