@@ -207,12 +207,11 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                         advance(1)
                     if fit is not None:
                         log(f"{n}x{n}, {e * 1e3:g} ms per spot: fit {fit}")
-                        from recon.grid import make_grid
-
                         base = {"scene": sc.path.stem, "array": n, "exposure_s": e,
                                 "counts_per_pixel_per_spot": counts_per}
+                        # scored on the grid the methods just used
                         row, frec = _fit_row(tmp / "fit_work", ideal_dir, params, e, seed + 1, fit, fit_settings,
-                                             make_grid(cap, bounds=bnds, voxels=vox), gt, base)
+                                             rec.grid, gt, base)
                         rows.append(row)
                         if n == arrays[-1] and e == exposures[-1]:
                             previews.append((row["method"], front_view(frec)))
