@@ -181,6 +181,41 @@ def rsd_kernels(rho2, z2, f0, df, factor, out):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, cache=True, nogil=True)
+def phasor_project(hist, r_m, f0, df, out):  # pragma: no cover - compiled
+    """``out[n, k] = sum_b hist[k, b] exp(-i 2 pi f_n r_m[b])``, ``f_n = f0 + n df``: each pixel's phasors.
+
+    hist : (K, T) float32, histograms (K pixels, T bins)
+    r_m : (T,) float64, path length of each bin's centre (m)
+    f0, df : first frequency and frequency step (cycles per metre of path)
+    out : (F, K) complex64
+
+    The phase factors follow the recurrence of :func:`rsd_kernels` (a table of ``T x F``, complex128); each
+    pixel's sum runs over its non-zero bins in order, in complex128, on one thread, so the result does not
+    depend on the number of threads (a BLAS product's summation order does).
+    """
+    K, T = hist.shape
+    F = out.shape[0]
+    E = np.empty((T, F), dtype=np.complex128)
+    for b in prange(T):
+        a = -2.0 * math.pi * f0 * r_m[b]
+        s = -2.0 * math.pi * df * r_m[b]
+        cur = complex(math.cos(a), math.sin(a))
+        step = complex(math.cos(s), math.sin(s))
+        for n in range(F):
+            E[b, n] = cur
+            cur = cur * step
+    for k in prange(K):
+        acc = np.zeros(F, dtype=np.complex128)
+        for b in range(T):
+            v = hist[k, b]
+            if v != 0.0:
+                for n in range(F):
+                    acc[n] += v * E[b, n]
+        for n in range(F):
+            out[n, k] = acc[n]
+
+
+@njit(parallel=True, cache=True, nogil=True)
 def spot_leg_sum(field, wts, dS, f0, df, plane):  # pragma: no cover - compiled
     """``plane[y, x] += sum_n field[n, y, x] wts[n] exp(i 2 pi f_n dS[y, x])``, ``f_n = f0 + n df``.
 

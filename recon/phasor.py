@@ -112,15 +112,32 @@ def virtual_wave(capture, wavelength_m: float | None, pulse_sigma_m: float | Non
 
 
 def _phasors(capture, j: int, hist: np.ndarray, freqs: np.ndarray) -> np.ndarray:
-    """``P[f, y, x] = sum_b H[y, x, b] exp(-i 2 pi f r_b) * exp(+i 2 pi f offset)``, complex64."""
+    """``P[f, y, x] = sum_b H[y, x, b] exp(-i 2 pi f r_b) * exp(+i 2 pi f offset)``, complex64.
+
+    ``freqs`` evenly spaced (:func:`virtual_wave`). The sum is :func:`recon._kernels.phasor_project`'s, not a BLAS
+    product, so the bytes do not depend on the number of threads.
+    """
+    from . import _kernels
+
     H, W, T = hist.shape
     r = capture.t0_m + (np.arange(T) + 0.5) * capture.bin_width_m
-    E = np.exp(-2j * np.pi * np.outer(r, freqs)).astype(np.complex64)     # (T, F)
-    P = (np.asarray(hist, dtype=np.float32).reshape(H * W, T) @ E).T      # (F, K)
+    f0, df = _freq_step(freqs)
+    P = np.empty((len(freqs), H * W), dtype=np.complex64)
+    _kernels.phasor_project(np.ascontiguousarray(np.asarray(hist, dtype=np.float32).reshape(H * W, T)), r, f0, df, P)
     if capture.include_first_last:
         off = capture.path_offsets_m(j).reshape(H * W)
         P *= np.exp(2j * np.pi * np.outer(freqs, off)).astype(np.complex64)
     return P.reshape(len(freqs), H, W)
+
+
+def _freq_step(freqs: np.ndarray) -> tuple[float, float]:
+    """First frequency and step of evenly spaced ``freqs`` (ValueError otherwise)."""
+    F = len(freqs)
+    f0 = float(freqs[0])
+    df = float(freqs[-1] - freqs[0]) / (F - 1) if F > 1 else 0.0
+    if F > 2 and not np.allclose(np.diff(freqs), df, rtol=1e-9, atol=0.0):
+        raise ValueError("phasor fields: the frequencies must be evenly spaced")
+    return f0, df
 
 
 def phasor_fields(capture, grid: VoxelGrid, wavelength_m: float | None = None,
@@ -188,7 +205,8 @@ def _phasor_bp(capture, grid, freqs, weights, sigma_m: float, upsample: int = 4)
     # q = u b + n: offset = (n + 1/2 - u/2) w / u
     n = np.arange(-half, half + 1)
     s = (n + 0.5 - u / 2) * (w / u)
-    g = (np.exp(2j * np.pi * np.outer(s, freqs)) @ weights).astype(np.complex64)
+    # a sum, not a BLAS product: the same bytes whatever the number of threads
+    g = np.sum(np.exp(2j * np.pi * np.outer(s, freqs)) * weights, axis=1).astype(np.complex64)
     start = half - u * pad  # full-convolution index of fine sample q = -u pad
 
     def transform(j, h):
@@ -253,10 +271,7 @@ def _rsd(capture, grid, wall, freqs, weights) -> np.ndarray:
     F = len(freqs)
     wts = weights.astype(np.complex64)
     # evenly spaced (virtual_wave): the kernels' phases follow a recurrence over n (f_n = f0 + n df)
-    f0 = float(freqs[0])
-    df = float(freqs[-1] - freqs[0]) / (F - 1) if F > 1 else 0.0
-    if F > 2 and not np.allclose(np.diff(freqs), df, rtol=1e-9, atol=0.0):
-        raise ValueError("phasor RSD: the frequencies must be evenly spaced")
+    f0, df = _freq_step(freqs)
     w64 = np.ascontiguousarray(weights, dtype=np.float64)
     factor = 2.0 if confocal else 1.0
     workers = max(1, __import__("os").cpu_count() or 1)

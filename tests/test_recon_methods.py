@@ -134,6 +134,54 @@ def _direct_phasor(cap, grid, mode):
     return np.abs(U).reshape(grid.shape), float(freqs.max())
 
 
+def test_phasors_equal_their_defining_sum():
+    """``_phasors`` (the numba kernel, complex128 sums rounded once) against the formula in float64: each value
+    within the complex64 rounding of its magnitude, 2^-24 |P|, plus the float64 sum's own error."""
+    cap = point_capture([[0.05, -0.03, 0.4], [-0.1, 0.1, 0.5]], pixels=(6, 5), sigma_ps=15, bin_width_ps=8,
+                        include_first_last=True)
+    freqs, _, _, _ = virtual_wave(cap, None, None, None)
+    h = cap.spot(0)
+    got = _phasors(cap, 0, h, freqs).reshape(len(freqs), -1)
+    T = h.shape[-1]
+    r = cap.t0_m + (np.arange(T) + 0.5) * cap.bin_width_m
+    off = cap.path_offsets_m(0).reshape(-1)
+    hh = np.asarray(h, dtype=np.float32).astype(np.float64).reshape(-1, T)
+    ref = (hh @ np.exp(-2j * np.pi * np.outer(r, freqs))).T * np.exp(2j * np.pi * np.outer(freqs, off))
+    total = np.abs(hh).sum(axis=1)[None, :]
+    assert np.all(np.abs(got - ref) <= 2.0 ** -24 * np.abs(ref) * 2 + 1e-12 * total)
+
+
+def test_phasor_bytes_do_not_depend_on_the_thread_count(tmp_path):
+    """Phasor fields (both implementations) give the same bytes with 1 and 2 threads of numba and BLAS: no
+    reduction whose order follows the thread count (a BLAS product's did)."""
+    import hashlib
+    import os
+    import subprocess
+    import sys
+
+    script = tmp_path / "run.py"
+    script.write_text(
+        "import hashlib, numpy as np\n"
+        "from recon.grid import VoxelGrid\n"
+        "from recon.phasor import phasor_fields\n"
+        "from recon.synthetic import point_capture\n"
+        "cap = point_capture([[0.05, -0.03, 0.4], [-0.1, 0.1, 0.5]], pixels=12, sigma_ps=15, bin_width_ps=8,\n"
+        "                    spots=[[-0.2, 0, 0], [0.2, 0, 0]], include_first_last=True)\n"
+        "grid = VoxelGrid.from_bounds((-0.31, 0.3, -0.3, 0.29, 0.3, 0.5), voxels=(9, 7, 3))\n"
+        "for m in ('rsd', 'backprojection'):\n"
+        "    print(m, hashlib.sha256(phasor_fields(cap, grid, method=m).raw.tobytes()).hexdigest())\n")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    outs = []
+    for n in ("1", "2"):
+        env = {**os.environ, "NUMBA_NUM_THREADS": n, "OPENBLAS_NUM_THREADS": n, "OMP_NUM_THREADS": n,
+               "MKL_NUM_THREADS": n, "PYTHONPATH": root}
+        r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, cwd=root)
+        assert r.returncode == 0, r.stderr
+        outs.append(r.stdout)
+    assert outs[0] == outs[1] and outs[0].count("\n") == 2
+    assert hashlib.sha256(b"").hexdigest() not in outs[0]
+
+
 def test_phasor_rsd_agrees_with_backprojection_form():
     """Same formula, two discretisations: the BP form samples the filtered signal at fine-bin centres
     (bins/4), so each term's phase errs by at most 2 pi f_max w/8."""
