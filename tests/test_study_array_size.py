@@ -49,6 +49,20 @@ def test_outputs_tables_and_figures(study):
     assert "| 4x4 |" in text and "| 8x8 |" in text and "render (s)" in text
 
 
+def test_rows_report_the_rendering_noise_the_methods_study_measures(study, tmp_path):
+    """Each row records its counts' rendering-to-photon noise ratio (from ``transient-mi detect``'s manifest); at
+    64 spp it is far above 0.1 and the summary says so. The methods study, which detects in memory, measures the
+    same ratio for the same render and budget."""
+    from transient_mi.study import run_methods_study
+
+    for r in study.rows:
+        assert r["render_noise_ratio"] > 0.1
+    assert "above the usual 0.1" in study.summary.read_text()
+    _, rows = run_methods_study("paper_mannequin", tmp_path / "m", arrays=(4,), exposures_s=(1e-3,), methods=("bp",),
+                                defines={"spp": 64}, quick=True, voxels=(32, 32, 16), progress=False)
+    assert rows[0]["render_noise_ratio"] == pytest.approx(study.rows[0]["render_noise_ratio"], rel=1e-9)
+
+
 def test_same_seed_same_bytes_and_kept_captures(study, tmp_path):
     """A rerun gives the same results.csv/json (timings apart); --keep-captures keeps the stacks."""
     from transient_mi.study import run_array_size_study

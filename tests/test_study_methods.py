@@ -97,6 +97,40 @@ def test_bad_input(tmp_path):
     r = subprocess.run([sys.executable, "-m", "transient_mi", "study", "methods", "-o", str(tmp_path / "y"),
                         "--arrays", "4,x"], capture_output=True, text=True)
     assert r.returncode == 2 and "error: --arrays" in r.stderr and "Traceback" not in r.stderr
+    with pytest.raises(UserInputError, match="noise_target: -1 is not allowed"):
+        run_methods_study("paper_mannequin", tmp_path / "x", noise_target=-1, **TINY)
+    r = subprocess.run([sys.executable, "-m", "transient_mi", "study", "methods", "-o", str(tmp_path / "y"),
+                        "--noise-target", "small"], capture_output=True, text=True)
+    assert r.returncode == 2 and "error: --noise-target 'small'" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_rows_report_the_rendering_noise(study):
+    """Without a noise target (``quick``) the scene's spp is rendered as it is, and every row still records the
+    measured ratio of rendering to photon noise and the samples used; the summary states the worst ratio."""
+    out, rows = study
+    for r in rows:
+        assert r["render_spp"] == 64 and r["render_noise_ratio"] > 0
+    assert json.loads((out / "leaderboard.json").read_text())["settings"]["noise_target"] is None
+    worst = max(r["render_noise_ratio"] for r in rows)
+    assert f"without a noise target: rendering noise up to {worst:.3g} x" in (out / "summary.md").read_text()
+
+
+def test_noise_target_renders_until_the_rendering_noise_is_small(tmp_path):
+    """``noise_target=0.1``: each array is rendered from the 64-spp pilot until its rendering variance is at most
+    0.1 x the photon variance at the largest exposure; the rows record more samples than the pilot and a measured
+    ratio within the target (pooled over spots, it cannot exceed the worst spot's, which the render brought under
+    the target), below the pilot-only render's."""
+    from transient_mi.study import run_methods_study
+
+    kw = {**TINY, "arrays": (4,), "methods": ("bp",), "complete": None}
+    _, pilot = run_methods_study("paper_mannequin", tmp_path / "a", **kw)
+    out, rows = run_methods_study("paper_mannequin", tmp_path / "b", noise_target=0.1, **kw)
+    assert pilot[0]["render_noise_ratio"] > 0.1, "the pilot alone must miss the target for this test to mean anything"
+    (r,) = rows
+    assert r["render_spp"] > 64 and 0 < r["render_noise_ratio"] <= 0.1
+    assert json.loads((out / "leaderboard.json").read_text())["settings"]["noise_target"] == 0.1
+    assert "rendered until its rendering noise was at most 0.1 x" in (out / "summary.md").read_text()
 
 
 def test_fit_row_beside_the_methods(tmp_path):
@@ -152,7 +186,7 @@ def test_the_fit_sees_the_counts_the_methods_see(tmp_path):
     sc = study_scene("paper_mannequin", {"spp": 64}, quick=True)
     ideal = render(sc.with_defines(**array_size_defines(sc, 4)), tmp_path / "ideal", 0)
     params = base_detector(sc)
-    cap, _ = _detect(ideal, params, 1e-3, 1)
+    cap = _detect(ideal, params, 1e-3, 1)[0]
     written = recon.load_capture(detect_stack(ideal, tmp_path / "counts", params, exposure_s=1e-3, seed=1,
                                               progress=False))
     assert written.kind == "counts" and written.data.sum() > 0

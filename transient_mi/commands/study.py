@@ -126,13 +126,7 @@ def photon_budget(
     if not 0 <= seed < 2**32:
         raise UserInputError(f"--seed {seed}: must be in [0, 2**32)")
     if noise_target is not None:
-        if noise_target.strip().lower() == "none":
-            kw["noise_target"] = None
-        else:
-            try:
-                kw["noise_target"] = float(noise_target)
-            except ValueError:
-                raise UserInputError(f"--noise-target {noise_target!r}: expected a number > 0 or 'none'") from None
+        kw["noise_target"] = _noise_target(noise_target)
     r = run_photon_budget_study(scene, out, defines=defines, seeds=tuple(range(seeds)), seed=seed, quick=quick,
                                 ground_truth=ground_truth, overwrite=overwrite, log=_log, **kw)
     typer.echo(f"wrote {r.out_dir}: {len(r.rows)} runs; summary {r.summary}")
@@ -197,6 +191,10 @@ def methods(
                             "exposure's counts, as a row fit:<model> (minutes per fit)."),
     fit_iterations: Optional[int] = typer.Option(
         None, "--fit-iterations", parser=whole_number("--fit-iterations"), metavar="<int>", help="The fit's iterations (default the fit command's, 300)."),
+    noise_target: Optional[str] = typer.Option(
+        None, "--noise-target", help="Render each array until its rendering variance <= this share of the photon "
+                                     "variance at the largest exposure; 'none' renders the scene's spp (default 0.1, "
+                                     "none with --quick; docs/noise.md)."),
     seed: int = SEED_OPT,
     ground_truth: Optional[Path] = GT_OPT,
     quick: bool = QUICK_OPT,
@@ -223,11 +221,25 @@ def methods(
         from recon.grid import parse_bounds
 
         kw["bounds"] = parse_bounds(bounds)
+    if noise_target is not None:
+        kw["noise_target"] = _noise_target(noise_target)
     names = tuple(m.strip() for m in methods.split(",") if m.strip())
     path, rows = run_methods_study(scene, out, arrays=sizes, methods=names, defines=defines, seed=seed, quick=quick,
                                    ground_truth=ground_truth, complete=complete, fit=fit,
                                    fit_iterations=fit_iterations, overwrite=overwrite, log=_log, **kw)
     typer.echo(f"wrote {path}: {len(rows)} reconstructions; summary {path / 'summary.md'}")
+
+
+def _noise_target(value: str):
+    """``--noise-target``: a number > 0 (checked by the study) or ``none``."""
+    from transient_core.errors import UserInputError
+
+    if value.strip().lower() == "none":
+        return None
+    try:
+        return float(value)
+    except ValueError:
+        raise UserInputError(f"--noise-target {value!r}: expected a number > 0 or 'none'") from None
 
 
 def register(app: typer.Typer) -> None:

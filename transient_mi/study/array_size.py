@@ -36,8 +36,8 @@ from .scene import array_size_defines, base_detector, load_study_ground_truth, r
 
 #: The paper's array sizes and 64x64.
 DEFAULT_ARRAYS = (4, 8, 16, 32, 64)
-ROW_COLUMNS = ("array", "pixels", "n_spots", "pulses_per_spot", "counts_per_pixel_per_spot", "ideal_bytes",
-               "counts_bytes", "engines", "exact") + METRIC_COLUMNS
+ROW_COLUMNS = ("array", "pixels", "n_spots", "pulses_per_spot", "counts_per_pixel_per_spot", "render_noise_ratio",
+               "ideal_bytes", "counts_bytes", "engines", "exact") + METRIC_COLUMNS
 TIMING_COLUMNS = ("array", "render_s", "detect_s", "reconstruct_s", "metrics_s", "total_s")
 
 
@@ -165,7 +165,9 @@ def _one(tmp: Path, sc, n: int, params, exposure: float, vox, seed: int, bounds,
     total = sum(int(d.sum(dtype=np.int64)) for _, d in iter_spots(counts))
     res = m["detector"]["resolved"]
     row = {"array": n, "pixels": n * n, "n_spots": m["n_files"], "pulses_per_spot": int(m["detector"]["pulses"]),
-           "counts_per_pixel_per_spot": total / (n * n * m["n_files"]), "ideal_bytes": _dir_bytes(ideal),
+           "counts_per_pixel_per_spot": total / (n * n * m["n_files"]),
+           # rendering variance / photon variance of these counts (spad_detector.render_noise; None if unknown)
+           "render_noise_ratio": (res.get("render_noise") or {}).get("ratio"), "ideal_bytes": _dir_bytes(ideal),
            "counts_bytes": _dir_bytes(counts), "engines": "/".join(sorted(set(res["engines_used"]))),
            "exact": bool(res["exact"]), **metric_values(metrics)}
     timing = {"array": n, "render_s": t1 - t0, "detect_s": t2 - t1, "reconstruct_s": t3 - t2 - t_met,
@@ -200,6 +202,20 @@ def _write_outputs(tmp: Path, sc, rows, timings, previews, gt, gt_desc, params, 
                        "timings_json": "timings.json"}, "figures": figs}
 
 
+def _noise_sentence(rows, spp: int) -> str:
+    """How much of the counts' noise is the ideal captures' rendering noise (measured per array)."""
+    ratios = {r["array"]: r.get("render_noise_ratio") for r in rows if r.get("render_noise_ratio") is not None}
+    if not ratios:
+        return "The ideal captures store no variance: their rendering noise is unknown."
+    worst = max(ratios.values())
+    per = ", ".join(f"{a}x{a}: {v:.3g}" for a, v in ratios.items())
+    verdict = ("at most the usual 0.1" if worst <= 0.1 else
+               "above the usual 0.1: part of the error at large arrays is Monte Carlo noise, not photon noise; "
+               "raise `-D spp` (or use `study methods`, which renders to a noise target)")
+    return (f"Rendering noise of the ideal captures ({spp} spp) relative to the photon noise at this budget "
+            f"(`spad_detector.render_noise`): {per}; {verdict}.")
+
+
 def _write_summary(path: Path, s: dict, rows, timings, figs, total_s: float) -> None:
     def cm(v):
         return f"{100 * v:.2f}"
@@ -232,6 +248,8 @@ arrays {', '.join(f'{a}x{a}' for a in s['arrays'])}. Each size: render (seed {s[
 {s['voxels'][2]} voxels over {s['bounds_m']} m). Ground truth: {s['ground_truth']}. Total {total_s:.0f} s.
 
 {markdown_table(headers, table_rows, fmts)}
+
+{_noise_sentence(rows, s['spp'])}
 
 Times are wall clock on this machine, with the disk I/O of each step (EXR stacks written and read).
 Chamfer = mean of accuracy (reconstructed voxels to the surface) and completeness (surface to the

@@ -25,6 +25,30 @@ def render(scene, out_dir, seed: int, noise_target=None, log=None) -> Path:
     return run_render(job, progress=False, log=log or (lambda line: None))
 
 
+def resolve_noise_target(noise_target, quick: bool) -> float | None:
+    """The study's noise target: ``"auto"`` is 0.1 (:data:`spad_detector.render_noise.DEFAULT_THRESHOLD`),
+    or None with ``quick``; None renders the scene's spp as it is; a number must be finite and > 0."""
+    from spad_detector.render_noise import DEFAULT_THRESHOLD
+
+    from . import validate as V
+
+    if isinstance(noise_target, str) and noise_target == "auto":
+        return None if quick else DEFAULT_THRESHOLD
+    if noise_target is None:
+        return None
+    return V.numbers_list([noise_target], "noise_target")[0]
+
+
+def rendered_spp(ideal_dir: Path, default: int) -> int:
+    """Largest samples per pixel any spot of a rendered capture received (``default``: the scene's spp, when the
+    render had no noise target)."""
+    import json
+
+    m = json.loads((Path(ideal_dir) / "manifest.json").read_text())
+    nt = (m.get("render") or {}).get("noise_target") or {}
+    return max(sp["spp"] for sp in nt["spots"]) if nt.get("spots") else int(default)
+
+
 def bar_enabled(progress: bool | None) -> str:
     """How a study reports its progress (``transient_core.progress.progress_mode``): ``progress`` True/False forces the
     bar on/off; None: a bar on a terminal, periodic lines otherwise. Decided before the inner bars are quieted."""

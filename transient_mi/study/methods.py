@@ -1,7 +1,10 @@
 """The methods study: a leaderboard of every reconstruction method x SPAD array size x photon budget.
 
 For every array size: render the scene's ideal capture once (``-D array=N``,
-or ``-D width=N -D height=N``); for every exposure detect it in memory
+or ``-D width=N -D height=N``), by default until its rendering noise is at most
+0.1 x the photon noise of the largest exposure (``noise_target``; the scene's
+spp is the pilot; rows record the samples used, ``render_spp``, and each
+exposure's measured ratio, ``render_noise_ratio``); for every exposure detect it in memory
 (:class:`~transient_mi.study.detection.Detection`, detection seed
 ``seed + 1``, the same counts ``transient-mi detect`` writes); reconstruct
 the counts with every method (+ the paper's filter with each method's default threshold)
@@ -52,7 +55,7 @@ from transient_core.errors import UserInputError
 from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv, write_json
 
 from . import validate as V
-from .common import bar_enabled, front_view, quiet_inner_bars, render
+from .common import bar_enabled, front_view, quiet_inner_bars, render, rendered_spp, resolve_noise_target
 from .scene import array_size_defines, base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
 
 #: Every method that reconstructs array captures.
@@ -71,7 +74,8 @@ FIT_PREFIX = "fit:"
 FIT_MODELS = ("mannequin", "patches")
 #: The fit's time bins reach at least this, ps (:func:`fit_bin_width_ps`).
 FIT_BIN_WIDTH_PS = 10.0
-ROW_COLUMNS = ("scene", "array", "exposure_s", "method", "counts_per_pixel_per_spot") + LEADERBOARD_METRICS + (
+ROW_COLUMNS = ("scene", "array", "exposure_s", "method", "counts_per_pixel_per_spot", "render_spp",
+               "render_noise_ratio") + LEADERBOARD_METRICS + (
     "reconstruct_s", "peak_traced_mb")
 
 
@@ -109,7 +113,8 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                       exposures_s=DEFAULT_EXPOSURES_S, methods=DEFAULT_METHODS, defines=None, voxels=(64, 64, 32),
                       seed: int = 0, quick: bool = False, progress: bool | None = None, ground_truth=None,
                       bounds=None, threshold: str | None = None, complete=None, fit: str | None = None,
-                      fit_iterations: int | None = None, overwrite: bool = False, log=None):
+                      fit_iterations: int | None = None, noise_target: float | None | str = "auto",
+                      overwrite: bool = False, log=None):
     """Run the methods study (see the module docstring); returns ``(out_dir, rows)``.
 
     Parameters
@@ -136,6 +141,12 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         ``fit:<model>``; see the module docstring). Minutes per fit.
     fit_iterations : int, optional
         The fit's iterations (default :class:`transient_mi.fit.FitSettings`'s).
+    noise_target : float, None or "auto"
+        Render each array's ideal capture until its rendering variance is at most this share of the photon
+        variance at the largest exposure (every smaller exposure then has a smaller ratio); the scene's spp is
+        the pilot (:mod:`transient_mi.noise_target`). ``"auto"``: 0.1, or None with ``quick``. None renders the
+        scene's spp as it is. Either way every row records the measured ratio (``render_noise_ratio``,
+        :mod:`spad_detector.render_noise`) and the samples used (``render_spp``).
     voxels, seed, quick, progress, ground_truth, bounds, overwrite, log
         As for :func:`~transient_mi.study.run_array_size_study`.
     """
@@ -159,7 +170,9 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
     seed = V.integer(seed, "seed", 0, 2**32)
     fit_settings = _fit_settings(fit, fit_iterations)
     progress = V.progress(progress)
-    sc = study_scene(scene, defines, quick=V.flag(quick, "quick"))
+    quick = V.flag(quick, "quick")
+    noise_target = resolve_noise_target(noise_target, quick)
+    sc = study_scene(scene, defines, quick=quick)
     if any(k in (defines or {}) for k in array_size_defines(sc, arrays[0])):
         raise UserInputError(f"defines: {', '.join(array_size_defines(sc, arrays[0]))} are set by the study; "
                              "choose the sizes with arrays (--arrays)")
@@ -169,6 +182,11 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         gt, gt_desc = load_study_ground_truth(sc, ground_truth)
     bnds = reconstruction_bounds(sc, bounds)
     params = base_detector(sc)
+    spec = None
+    if noise_target is not None:
+        from transient_mi.noise_target import NoiseTargetSpec
+
+        spec = NoiseTargetSpec(target=noise_target, params=params, exposure_s=max(exposures))
     out = Path(out_dir)
     t_start = time.perf_counter()
     rows, previews = [], []
@@ -180,10 +198,18 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                 log(f"{n}x{n}: render")
                 cap_dir = tmp / "captures" / f"array_{n:02d}"
                 cap_dir.mkdir(parents=True)
-                ideal_dir = render(sc.with_defines(**array_size_defines(sc, n)), cap_dir / "ideal", seed)
+                ideal_dir = render(sc.with_defines(**array_size_defines(sc, n)), cap_dir / "ideal", seed,
+                                   noise_target=spec)
+                spp = rendered_spp(ideal_dir, sc.spp)
                 advance(1)
                 for e in exposures:
-                    cap, counts_per = _detect(ideal_dir, params, e, seed + 1)
+                    cap, counts_per, noise_ratio = _detect(ideal_dir, params, e, seed + 1)
+                    if spec is not None and noise_ratio is not None and noise_ratio > spec.target:
+                        log(f"{n}x{n}, {e * 1e3:g} ms per spot: rendering noise {noise_ratio:.3g}x the photon noise, "
+                            f"above the target {spec.target:g} (the render stopped at its spp cap)")
+                    base = {"scene": sc.path.stem, "array": n, "exposure_s": e,
+                            "counts_per_pixel_per_spot": counts_per, "render_spp": spp,
+                            "render_noise_ratio": noise_ratio}
                     if bnds is None:
                         from recon.grid import default_bounds
 
@@ -196,9 +222,7 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                         log(f"{n}x{n}, {e * 1e3:g} ms per spot: {m}")
                         rec, dt, peak = _reconstruct(cap, m, bnds, vox, threshold)
                         metrics = _metrics(rec, gt, seed)
-                        rows.append({"scene": sc.path.stem, "array": n, "exposure_s": e, "method": m,
-                                     "counts_per_pixel_per_spot": counts_per,
-                                     **{k: metrics.get(k) for k in LEADERBOARD_METRICS},
+                        rows.append({**base, "method": m, **{k: metrics.get(k) for k in LEADERBOARD_METRICS},
                                      "reconstruct_s": dt, "peak_traced_mb": peak / 2**20})
                         if n == arrays[-1] and e == exposures[-1]:
                             previews.append((m, front_view(rec)))
@@ -207,8 +231,6 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                         advance(1)
                     if fit is not None:
                         log(f"{n}x{n}, {e * 1e3:g} ms per spot: fit {fit}")
-                        base = {"scene": sc.path.stem, "array": n, "exposure_s": e,
-                                "counts_per_pixel_per_spot": counts_per}
                         # scored on the grid the methods just used
                         row, frec = _fit_row(tmp / "fit_work", ideal_dir, params, e, seed + 1, fit, fit_settings,
                                              rec.grid, gt, base)
@@ -223,6 +245,7 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                     "voxels": list(vox), "bounds_m": list(bnds) if bnds is not None else None,
                     "threshold": threshold or "each method's default (recon.pipeline.default_threshold)",
                     "completion": None if complete is None else str(complete),
+                    "noise_target": noise_target,
                     "fit": None if fit is None else {"model": fit, **asdict(fit_settings)},
                     "render_seed": seed, "detection_seed": seed + 1,
                     "detector": params.to_dict(), "ground_truth": gt_desc,
@@ -249,7 +272,7 @@ def _detect(ideal_dir: Path, params, exposure_s: float, seed: int):
     cap = det.capture(seed)
     data = cap.data   # detect every spot once; the methods then share the cached counts
     n_px = cap.height * cap.width * cap.n_files
-    return cap, float(data.sum(dtype=np.int64)) / n_px
+    return cap, float(data.sum(dtype=np.int64)) / n_px, det.render_noise().get("ratio")
 
 
 def _reconstruct(cap, method: str, bounds, voxels, threshold: str):
@@ -388,6 +411,17 @@ def summary_markdown(rows: list[dict], settings: dict) -> str:
                       "-" if r["normal_error_deg"] is None else f"{r['normal_error_deg']:.1f}",
                       f"{r['reconstruct_s']:.2f}", f"{r['peak_traced_mb']:.0f}"])
     s = settings
+    ratios = [r["render_noise_ratio"] for r in rows if r.get("render_noise_ratio") is not None]
+    worst = max(ratios) if ratios else None
+    if s.get("noise_target") is not None:
+        noise_note = (f" Each array's ideal capture was rendered until its rendering noise was at most "
+                      f"{s['noise_target']:g} x the photon noise at the largest exposure (the scene's spp as the pilot); "
+                      f"measured at every point: at most {worst:.3g} x.") if worst is not None else ""
+    else:
+        noise_note = ("" if worst is None else
+                      f" Ideal captures rendered at {s['spp']} spp without a noise target: rendering noise up to "
+                      f"{worst:.3g} x the photon noise" + (" (above the usual 0.1: read small differences with care)."
+                                                            if worst > 0.1 else "."))
     fit = s.get("fit")
     fit_note = "" if not fit else (
         f" Rows `{FIT_PREFIX}{fit['model']}` are the analysis-by-synthesis fit of a {fit['model']} model "
@@ -406,7 +440,7 @@ Total {s['total_s']:.0f} s.
 Ranked by Chamfer distance. "visible" distances use only the surface the relay wall sees (the back of an
 object sends no three-bounce light; definitions in `recon/metrics.py`). Rows `<method>+completion` are closed
 behind the front under a stated prior (elliptical cross-sections, `recon/completion.py`), not measured.{fit_note} Time: wall clock of reconstruction +
-filter in this process; peak MB: numpy allocations traced by tracemalloc (a lower bound of the process's peak).
+filter in this process; peak MB: numpy allocations traced by tracemalloc (a lower bound of the process's peak).{noise_note}
 
 {markdown_table(headers, table)}
 """

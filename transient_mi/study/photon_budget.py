@@ -33,7 +33,7 @@ from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv,
 
 from . import validate as V
 from .common import (METRIC_COLUMNS, bar_enabled, check_method_fits, front_view, metric_values, quiet_inner_bars,
-                     reconstruct, render)
+                     reconstruct, render, resolve_noise_target)
 from .study_result import StudyResult
 from .scene import base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
 
@@ -124,10 +124,7 @@ def run_photon_budget_study(scene="paper_mannequin", out_dir="out/study-photon-b
     overwrite = V.flag(overwrite, "overwrite")
     progress = V.progress(progress)
     method = V.method(method)
-    if noise_target == "auto":
-        noise_target = None if quick else 0.1
-    elif noise_target is not None:
-        noise_target = V.numbers_list([noise_target], "noise_target")[0]
+    noise_target = resolve_noise_target(noise_target, quick)
     sc = study_scene(scene, defines, quick=quick)
     gt, gt_desc = load_study_ground_truth(sc, ground_truth)
     bnds = reconstruction_bounds(sc, bounds)
