@@ -824,10 +824,13 @@ def methods_trend_para(R) -> str:
     st = rec["result"]["settings"]
     spp = [r.get("render_spp") for r in (get("midpoint-fk", a, exps[-1]) for a in arrays) if r]
     ratio = [r.get("render_noise_ratio") for r in rows if r.get("render_noise_ratio") is not None]
-    how = (f"{st['spp']} spp" if not spp or spp[0] is None else
-           f"rendered to a noise target of {st['noise_target']:g}, {' / '.join(str(x) for x in spp)} spp, rendering noise at "
-           f"most {max(ratio):.2g} x the photon noise" if st.get("noise_target") is not None else
-           f"{' / '.join(str(x) for x in spp)} spp")
+    if not spp or spp[0] is None:   # rows from before the study recorded its render
+        how = f"{st['spp']} spp"
+    else:
+        how = f"{' / '.join(str(x) for x in spp)} spp"
+        if st.get("noise_target") is not None:
+            how = (f"rendered to a noise target of {st['noise_target']:g}, {how}, rendering noise at most "
+                   f"{max(ratio):.2g} x the photon noise")
     text = (f"Measured ({provenance(rec, short=True)}: {how}, "
             f"{exps[-1] * 1e3:g} ms per spot), Chamfer for {sizes} (reconstruction time): " + "; ".join(parts) + ".")
     if len(exps) > 1:

@@ -33,6 +33,7 @@ from transient_core.errors import UserInputError
 from .experiment import (detect_counts, ground_truth, reconstruct, render_ideal, summed_histogram,
                          write_ground_truth)
 from .paper import (PAPER, PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, paper_detector)
+from .noise_target import rendered_spp
 from .reporting import METRIC_KEYS, atomic_output_dir, save_figure as _savefig, subplots, write_csv
 
 
@@ -143,8 +144,7 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
         hists[n] = (t_ideal, h_ideal, h_counts, m["detector"]["resolved"])
         n_spots = m["n_files"]
         rn = m["detector"]["resolved"].get("render_noise") or {}
-        nt = ((json.loads((ideal / "manifest.json").read_text()).get("render") or {}).get("noise_target") or {})
-        spp_used = max(sp["spp"] for sp in nt["spots"]) if nt else s.spp
+        spp_used = rendered_spp(ideal, s.spp)
         results.append(ArrayResult(
             array=n, metrics=metrics, pulses_per_spot=pulses, spp=spp_used, render_noise=rn,
             counts_per_pixel_per_spot=float(h_counts.sum() / (n * n * n_spots)),

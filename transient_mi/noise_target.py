@@ -206,6 +206,16 @@ class TargetRun:
         return float(nr.report()["ratio"])
 
 
+def rendered_spp(ideal_dir, default: int) -> int:
+    """Largest samples per pixel any spot of a rendered capture received: from the manifest's
+    ``render.noise_target.spots`` (written by a noise-target render), else ``default`` (the spp asked for)."""
+    import json
+
+    m = json.loads((Path(ideal_dir) / "manifest.json").read_text())
+    nt = (m.get("render") or {}).get("noise_target") or {}
+    return max(sp["spp"] for sp in nt["spots"]) if nt.get("spots") else int(default)
+
+
 def render_group(job, run: TargetRun, group: list[int], seed: int, digest: str, log=None, progress=None):
     """Render one group of spots to the noise target; returns ``(results, info per spot, checkpoint path)``.
 

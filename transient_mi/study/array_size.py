@@ -207,11 +207,13 @@ def _noise_sentence(rows, spp: int) -> str:
     ratios = {r["array"]: r.get("render_noise_ratio") for r in rows if r.get("render_noise_ratio") is not None}
     if not ratios:
         return "The ideal captures store no variance: their rendering noise is unknown."
+    from spad_detector.render_noise import DEFAULT_THRESHOLD
+
     worst = max(ratios.values())
     per = ", ".join(f"{a}x{a}: {v:.3g}" for a, v in ratios.items())
-    verdict = ("at most the usual 0.1" if worst <= 0.1 else
-               "above the usual 0.1: part of the error at large arrays is Monte Carlo noise, not photon noise; "
-               "raise `-D spp` (or use `study methods`, which renders to a noise target)")
+    verdict = (f"at most the usual {DEFAULT_THRESHOLD:g}" if worst <= DEFAULT_THRESHOLD else
+               f"above the usual {DEFAULT_THRESHOLD:g}: part of the error at large arrays is Monte Carlo noise, "
+               "not photon noise; raise `-D spp` (or use `study methods`, which renders to a noise target)")
     return (f"Rendering noise of the ideal captures ({spp} spp) relative to the photon noise at this budget "
             f"(`spad_detector.render_noise`): {per}; {verdict}.")
 

@@ -39,16 +39,6 @@ def resolve_noise_target(noise_target, quick: bool) -> float | None:
     return V.numbers_list([noise_target], "noise_target")[0]
 
 
-def rendered_spp(ideal_dir: Path, default: int) -> int:
-    """Largest samples per pixel any spot of a rendered capture received (``default``: the scene's spp, when the
-    render had no noise target)."""
-    import json
-
-    m = json.loads((Path(ideal_dir) / "manifest.json").read_text())
-    nt = (m.get("render") or {}).get("noise_target") or {}
-    return max(sp["spp"] for sp in nt["spots"]) if nt.get("spots") else int(default)
-
-
 def bar_enabled(progress: bool | None) -> str:
     """How a study reports its progress (``transient_core.progress.progress_mode``): ``progress`` True/False forces the
     bar on/off; None: a bar on a terminal, periodic lines otherwise. Decided before the inner bars are quieted."""

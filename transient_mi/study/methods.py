@@ -52,10 +52,11 @@ import numpy as np
 
 from transient_core.progress import progress_bar
 from transient_core.errors import UserInputError
+from transient_mi.noise_target import rendered_spp
 from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv, write_json
 
 from . import validate as V
-from .common import bar_enabled, front_view, quiet_inner_bars, render, rendered_spp, resolve_noise_target
+from .common import bar_enabled, front_view, quiet_inner_bars, render, resolve_noise_target
 from .scene import array_size_defines, base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
 
 #: Every method that reconstructs array captures.
