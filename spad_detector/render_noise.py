@@ -83,7 +83,7 @@ class NoiseRatio:
     var_sum: float = 0.0
 
     def add_spot(self, model: DetectorModel, ideal: np.ndarray, variance: np.ndarray, n_pulses: int,
-                 total_variance: np.ndarray | None = None) -> None:
+                 total_variance: np.ndarray | None = None, error_bound: bool = False) -> None:
         """Add one spot.
 
         Parameters
@@ -98,6 +98,12 @@ class NoiseRatio:
         total_variance : ndarray, shape (n_pixels,), optional
             Estimated variance of each pixel's sum over time (scale squared
             applied); without it, the per-bin variances are summed.
+        error_bound : bool
+            ``variance`` and ``total_variance`` hold a deterministic estimator's
+            bound ``B`` on the absolute error (photon scale applied, not squared).
+            A bound is a worst case, correlated between bins: it is carried
+            through gate, PDE and jitter linearly, and its square stands for the
+            rendering variance, ``V_b = N^2 (sum_j k_j (eta g B)_{b - j})^2``.
         """
         x_all = np.asarray(ideal, dtype=np.float64)
         T = x_all.shape[-1]
@@ -114,8 +120,12 @@ class NoiseRatio:
         lam = model.params.pde * model.gate_slots[None, t_lo:t_hi] * x + bg[None, t_lo:t_hi]
         mu = apply_jitter_kernel(lam, model.kernel_first, model.kernel) * n_pulses
         w = w_all[None, t_lo:t_hi]
-        v_in = np.square(w) * np.asarray(variance, dtype=np.float64)[:, t_lo:t_hi]
-        var = apply_jitter_kernel(v_in, model.kernel_first, np.square(model.kernel)) * float(n_pulses) ** 2
+        if error_bound:
+            b_in = w * np.asarray(variance, dtype=np.float64)[:, t_lo:t_hi]
+            var = np.square(apply_jitter_kernel(b_in, model.kernel_first, model.kernel) * float(n_pulses))
+        else:
+            v_in = np.square(w) * np.asarray(variance, dtype=np.float64)[:, t_lo:t_hi]
+            var = apply_jitter_kernel(v_in, model.kernel_first, np.square(model.kernel)) * float(n_pulses) ** 2
         bg_outside = float(n_pulses) * float(bg[:t_lo].sum() + bg[t_hi:].sum())
         for c, (lo, hi) in enumerate(BIN_CLASSES):
             sel = (mu > lo) & (mu <= hi)
@@ -132,14 +142,18 @@ class NoiseRatio:
             xs = x.sum(axis=1)
             gbar = np.divide((x * model.gate_slots[None, t_lo:t_hi]).sum(axis=1), xs, out=np.zeros_like(xs),
                              where=xs > 0)
-            pv = (float(n_pulses) * model.params.pde * gbar) ** 2 * np.asarray(total_variance, dtype=np.float64)
+            tv = np.asarray(total_variance, dtype=np.float64)
+            pv = (float(n_pulses) * model.params.pde * gbar) ** 2 * (np.square(tv) if error_bound else tv)
         self.total_mu += float(pm.sum())
         self.total_var += float(pv.sum())
         ok = pm > 1.0
         self.pixel_ratios.extend((pv[ok] / pm[ok]).tolist())
 
-    def report(self, spp: int | None = None, replicates: int | None = None) -> dict:
-        """The JSON block written to a counts manifest (``detector.resolved.render_noise``)."""
+    def report(self, spp: int | None = None, replicates: int | None = None, estimator: str | None = None) -> dict:
+        """The JSON block written to a counts manifest (``detector.resolved.render_noise``).
+
+        ``estimator``: ``"quadrature"`` when the ideal capture's error is a deterministic bound (the ratio is
+        then (bound / photon noise) squared and no spp hint is given)."""
         classes = []
         headline = 0.0
         for c, (lo, hi) in enumerate(BIN_CLASSES):
@@ -156,7 +170,10 @@ class NoiseRatio:
         out = {"available": True, "ratio": headline, "threshold": self.threshold,
                "exceeds_threshold": bool(headline > self.threshold), "definition": DEFINITION,
                "classes": classes, "pixel_totals": totals}
-        if spp:
+        if estimator is not None:
+            out["estimator"] = estimator
+            out["definition"] = DEFINITION + "; rendering variance = square of the deterministic error bound"
+        if spp and estimator is None:
             out["spp"] = int(spp)
             out["spp_for_threshold"] = spp_for_threshold(spp, headline, self.threshold, replicates or 1)
         return out
@@ -187,6 +204,10 @@ def warning_line(report: dict) -> str | None:
     need = report.get("spp_for_threshold")
     hint = (f"; render with --spp {need} (now {spp}) or `transient-mi render --noise-target "
             f"{report['threshold']:g}` to bring it under" if spp and need else "")
+    if report.get("estimator") == "quadrature":
+        return (f"warning: the quadrature's error bound is {report['ratio']:.3g}x the photon noise (squared) at this "
+                f"budget (threshold {report['threshold']:g}): render with a smaller element_size_m or more "
+                "patch_cells")
     tot = report["pixel_totals"].get("ratio_pooled")
     tot_txt = f" (per-pixel totals: {tot:.3g})" if tot is not None else ""
     return (f"warning: rendering noise is {report['ratio']:.3g}x the photon noise at this budget "

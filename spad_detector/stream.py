@@ -23,7 +23,7 @@ from transient_core.progress import progress_bar
 from transient_core.atomic import check_output_location, temp_dir_beside
 from transient_core.lock import output_lock
 from transient_core.errors import UserInputError
-from transient_core.stack import (MANIFEST_NAME, StackError, has_variance, missing_spots, new_manifest, read_intensity,
+from transient_core.stack import (MANIFEST_NAME, StackError, has_variance, is_error_bound, missing_spots, new_manifest, read_intensity,
                                   read_manifest, read_variance, spot_filename, write_manifest, write_spot)
 
 from .budget import resolve_budget
@@ -211,6 +211,7 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
         # multi-channel ideal captures store per-channel variances, not the variance of the intensity the
         # detector sees (channel covariances are not recorded): no noise ratio for them
         noise = NoiseRatio(threshold=float(noise_threshold)) if has_variance(m) and not m.get("channels") else None
+        bound_kind = is_error_bound(m)
         N = budget.n_pulses
         with progress_bar(f"detect {ideal.name}", total=m["n_files"] * N,
                           disable=None if progress else True) as advance:
@@ -222,9 +223,12 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
                 spot_model = model if spot_gates is None else spot_model_for(m, run_params, spot_gates, j, budget)
                 if noise is not None:
                     var, tvar = read_variance(ideal, j, m)
+                    # a bound scales with the photons, a variance with their square
+                    vs = budget.photon_scale if bound_kind else budget.photon_scale ** 2
                     noise.add_spot(spot_model, arr.reshape(H * W, T),
-                                   var.reshape(H * W, T).astype(np.float64) * budget.photon_scale ** 2, N,
-                                   total_variance=tvar.reshape(-1).astype(np.float64) * budget.photon_scale ** 2)
+                                   var.reshape(H * W, T).astype(np.float64) * vs, N,
+                                   total_variance=tvar.reshape(-1).astype(np.float64) * vs,
+                                   error_bound=bound_kind)
                     del var, tvar
                 counts, info = run_spot(spot_model, arr.reshape(H * W, T), N, spot_rng(seed, j), engine, (H, W),
                                         advance=advance)
@@ -236,7 +240,8 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
         if noise is not None:
             spp_used = m["variance"].get("spp_per_spot") or [(m.get("render") or {}).get("spp")]
             render_noise = noise.report(spp=max(spp_used) if None not in spp_used else None,
-                                        replicates=m["variance"].get("replicates"))
+                                        replicates=m["variance"].get("replicates"),
+                                        estimator="quadrature" if bound_kind else None)
         else:
             render_noise = unavailable("the ideal capture stores no variance (rendered with one replicate or by "
                                        "an older version): its rendering noise is unknown")

@@ -79,7 +79,7 @@ __all__ = [
     "channel_names", "dtype_for", "new_manifest", "validate_manifest", "write_manifest", "read_manifest",
     "config_digest", "spot_path", "write_spot", "read_spot", "spot_is_complete", "missing_spots",
     "iter_spots", "read_stack", "write_stack", "VARIANCE_DIR", "TOTAL_CHANNEL", "has_variance",
-    "write_variance", "read_variance", "variance_is_complete", "data_shape", "intensity", "CHANNEL_SETS",
+    "write_variance", "read_variance", "variance_is_complete", "is_error_bound", "ERROR_BOUND_KIND", "ERROR_BOUND_DIR", "data_shape", "intensity", "CHANNEL_SETS",
     "INTENSITY_RULES", "read_intensity", "band_name", "band_edges_nm", "intensity_rule",
 ]
 
@@ -680,9 +680,26 @@ def write_stack(directory: str | os.PathLike, manifest: dict, data: np.ndarray) 
 
 
 def has_variance(manifest: dict) -> bool:
-    """True if the capture stores per-bin variance files (``manifest['variance']['directory']``)."""
+    """True if the capture stores per-bin variance files (``manifest['variance']['directory']``).
+
+    The files hold a Monte Carlo variance, or, for a deterministic estimator, an error bound (see
+    :func:`is_error_bound`); :func:`read_variance` reads either.
+    """
     v = manifest.get("variance")
     return isinstance(v, dict) and bool(v.get("directory"))
+
+
+#: ``manifest['variance']['kind']`` of a deterministic estimator: the files hold a bound on the absolute error
+#: of every value (same unit as the data), not a variance.
+ERROR_BOUND_KIND = "error_bound"
+#: Directory of the error-bound files of a deterministic estimator's capture.
+ERROR_BOUND_DIR = "error_bound"
+
+
+def is_error_bound(manifest: dict) -> bool:
+    """True if the capture's ``variance`` files hold a deterministic error bound (not a variance)."""
+    v = manifest.get("variance")
+    return isinstance(v, dict) and v.get("kind") == ERROR_BOUND_KIND
 
 
 def _variance_dir(directory, manifest: dict) -> Path:

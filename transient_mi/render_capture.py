@@ -159,6 +159,11 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         raise UserInputError(f"{scene_file}: a spad_film needs an NLOS sensor (spad_array) that records "
                              "photons per laser pulse; under a camera use transient_film")
 
+    if noise_target is not None and layout["quantity"] == "photons_per_pulse" and \
+            estimator_of(integrator) == "quadrature":
+        raise UserInputError(f"--noise-target: {scene_file} renders with estimator=quadrature, which has no samples "
+                             "to add; its error bound is set by element_size_m and patch_cells (integrator "
+                             "parameters) and stated by `transient-mi detect`")
     if noise_target is not None:
         noise_target = _resolve_noise_target(noise_target, integrator, spp, layout, detect_kwargs, scene_file)
     axis = film.time_axis()
@@ -209,6 +214,8 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         channels=film.channel_names() if layout["capture"] == "camera" and hasattr(film, "channel_names") else None,
     )
     manifest["variance"] = variance_block(integrator, spp, layout["quantity"])
+    manifest["render"]["estimator"] = (estimator_of(integrator) if layout["quantity"] == "photons_per_pulse"
+                                       else "monte_carlo")
     if noise_target is not None:
         manifest["render"]["noise_target"] = dict(noise_target.to_dict(), spots=[None] * layout["n_files"])
     job = RenderJob(scene_file, out_dir, dict(defines or {}), spp, seed, tm.variant(), resume,
@@ -246,9 +253,34 @@ def _replicates(integrator, nlos: bool) -> int:
     return f(nlos) if f is not None else DEFAULT_REPLICATES
 
 
+def estimator_of(integrator) -> str:
+    """``"quadrature"`` (the deterministic three-bounce estimator) or ``"monte_carlo"``."""
+    return (getattr(integrator, "nlos_options", None) or {}).get("estimator", "monte_carlo")
+
+
 def variance_block(integrator, spp: int, quantity: str) -> dict:
-    """The manifest's ``variance`` entry for a render of ``spp`` samples (summary filled in at the end)."""
+    """The manifest's ``variance`` entry for a render of ``spp`` samples (summary filled in at the end).
+
+    A quadrature capture (``estimator="quadrature"``) stores its deterministic error bound the same way
+    (``kind: "error_bound"``, directory ``error_bound/``, read by the same reader).
+    """
     from transient_mi.integrators._replicates import effective_replicates
+
+    if quantity == "photons_per_pulse" and estimator_of(integrator) == "quadrature":
+        o = integrator.nlos_options
+        return {
+            "directory": stack.ERROR_BOUND_DIR,
+            "kind": stack.ERROR_BOUND_KIND,
+            "replicates": 1,
+            "degrees_of_freedom": None,
+            "estimator": ("deterministic three-bounce quadrature (transient_mi.integrators._nlos_quadrature): the "
+                          "files bound the absolute error of every bin (mixed visibility, path-length "
+                          "linearisation, midpoint rule)"),
+            "settings": {"element_size_m": o["element_size_m"], "patch_cells": o["patch_cells"],
+                         "refine_levels": o["refine_levels"]},
+            "quantity": quantity,
+            "summary": None,
+        }
 
     R = effective_replicates(spp, _replicates(integrator, nlos=quantity == "photons_per_pulse"))
     block = {
@@ -279,9 +311,12 @@ def variance_summary(directory: Path, manifest: dict) -> dict | None:
     if not stack.has_variance(manifest):
         return None
     rel, sd_sum, x_sum = [], 0.0, 0.0
+    bound = stack.is_error_bound(manifest)
     for j in range(manifest["n_files"]):
         x = stack.read_spot(directory, j, manifest).astype(np.float64)
         var, tvar = stack.read_variance(directory, j, manifest)
+        if bound:  # a bound is already an error (not squared)
+            var, tvar = np.square(var.astype(np.float64)), np.square(tvar.astype(np.float64))
         tot = x.sum(axis=2)  # over time: [H, W] (or [H, W, C] per channel)
         ok = tot > 1e-6 * max(float(tot.max()), 1e-300)
         rel.extend((np.sqrt(tvar[ok].astype(np.float64)) / tot[ok]).tolist())
@@ -409,7 +444,10 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
                 if j not in todo_set:
                     continue  # complete from an earlier run (and identical)
                 if stack.has_variance(m):  # first: a complete spot file implies a complete variance file
-                    stack.write_variance(d, j, res.variance, res.total_variance, m)
+                    if stack.is_error_bound(m):
+                        stack.write_variance(d, j, res.error_bound, res.total_error_bound, m)
+                    else:
+                        stack.write_variance(d, j, res.variance, res.total_variance, m)
                 stack.write_spot(d, j, res.histogram, m)
                 dropped_n += res.dropped_contributions
                 frac_sum += res.dropped_fraction

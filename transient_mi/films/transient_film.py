@@ -46,6 +46,14 @@ class TransientResult:
     invalid_contributions : int
         Contributions whose path length was NaN or ``-inf`` (or whose value
         was NaN): a bug, kept out of every other number and reported.
+    error_bound : ndarray of float32, shape ``(height, width, n_bins)``, or None
+        Deterministic estimators (``estimator="quadrature"``): a bound on the
+        absolute error of every value of ``histogram`` (same unit), in place of
+        a variance (see :mod:`transient_mi.integrators._nlos_quadrature`).
+    total_error_bound : ndarray of float32, shape ``(height, width)``, or None
+        A bound on the error of each pixel's total over time.
+    estimator_info : dict or None
+        What the deterministic estimator used (elements, refinement levels, pairs).
     negative_fraction : float
         The most negative raw dropped fraction seen (0 when none was below
         ``-1e-5``): more light in the histogram than recorded, a bug.
@@ -61,6 +69,9 @@ class TransientResult:
     replicates: int = 1
     invalid_contributions: int = 0
     negative_fraction: float = 0.0
+    error_bound: np.ndarray | None = None
+    total_error_bound: np.ndarray | None = None
+    estimator_info: dict | None = None
 
 
 #: Wavelength range Mitsuba's spectral variants sample (nm)

@@ -155,6 +155,18 @@ def render_spots(setup: "NLOSSetup", scene, film, options: dict, *, seed: int, s
             raise PluginParameterError(f"spad_array: spot={j} out of range [0, {setup.n_spots})")
     if len(set(spots)) != len(spots) or not spots:
         raise PluginParameterError(f"spad_array: spots={spots} must be distinct and non-empty")
+    if options.get("estimator") == "quadrature":  # deterministic three-bounce estimator: no samples, no replicates
+        from transient_mi.integrators._nlos_quadrature import check_supported, render_spots_quadrature
+
+        plugin = options.get("plugin", "transient_nlos_path")
+        if options.get("medium") is not None:
+            raise PluginParameterError(f"{plugin}: estimator=quadrature cannot render through a medium (fog); use "
+                                       "estimator=monte_carlo")
+        check_supported(setup, options, plugin)
+        results = render_spots_quadrature(setup, scene, film, options, spots)
+        if progress is not None:
+            progress(W * H * spp, W * H * spp)
+        return results
     R = replicates or effective_replicates(spp, options.get("variance_replicates", DEFAULT_REPLICATES))
     n = spp // R
     P = W * H

@@ -12,7 +12,7 @@ from __future__ import annotations
 import mitsuba as mi
 import numpy as np
 
-from transient_mi.props import PluginParameterError, get_bool, get_float, get_int
+from transient_mi.props import PluginParameterError, get_bool, get_choice, get_float, get_int
 from transient_mi.integrators._sensor_checks import check_rfilter, check_sampler
 
 #: ``hidden_geometry_prob`` unless the scene gives one.
@@ -36,18 +36,36 @@ def read_path_params(props, plugin: str) -> tuple[int, int, int | None]:
 
 
 def read_nlos_options(props, plugin: str) -> dict:
-    """The NLOS estimator's own parameters: ``{"rqmc": bool, "hidden_geometry_prob": float}``.
+    """The NLOS estimator's own parameters: ``rqmc``, ``hidden_geometry_prob``, ``estimator`` and the quadrature's
+    ``element_size_m``, ``patch_cells``, ``refine_levels`` (see :mod:`transient_mi.integrators._nlos_quadrature`).
 
     ``hidden_geometry_prob``: probability of choosing hidden-geometry (area) sampling over BSDF sampling
     for the direction leaving the relay-wall patch point (one-sample MIS with the balance heuristic, see
     :mod:`transient_mi.integrators.transient_nlos_path`); in [0, 1], default 0.8. ``rqmc``: randomised
     quasi-Monte Carlo at the patch point (default true).
     """
+    from transient_mi.integrators import _nlos_quadrature as q
+
     return {
         "rqmc": get_bool(props, plugin, "rqmc", True),
         "hidden_geometry_prob": get_float(props, plugin, "hidden_geometry_prob", DEFAULT_HIDDEN_GEOMETRY_PROB,
                                           min_value=0.0, max_value=1.0),
+        "estimator": get_choice(props, plugin, "estimator", "monte_carlo", ("monte_carlo", "quadrature")),
+        "element_size_m": get_float(props, plugin, "element_size_m", q.DEFAULT_ELEMENT_SIZE_M, min_value=1e-5,
+                                    max_value=10.0),
+        "patch_cells": get_int(props, plugin, "patch_cells", q.DEFAULT_PATCH_CELLS, min_value=1, max_value=64),
+        "refine_levels": get_int(props, plugin, "refine_levels", q.DEFAULT_REFINE_LEVELS, min_value=0,
+                                 max_value=8),
     }
+
+
+def estimator_suffix(options: dict) -> str:
+    """What a plug-in's ``to_string`` adds for the estimator: nothing for Monte Carlo (the default, so its
+    configuration digests are unchanged), the quadrature's settings otherwise."""
+    if options.get("estimator", "monte_carlo") == "monte_carlo":
+        return ""
+    return (f", estimator=quadrature, element_size_m={options['element_size_m']:g}, "
+            f"patch_cells={options['patch_cells']}, refine_levels={options['refine_levels']}")
 
 
 def check_render_call(plugin: str, sensor, seed: int, spp: int, replicates: int | None):

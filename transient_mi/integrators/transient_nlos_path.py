@@ -170,7 +170,7 @@ from __future__ import annotations
 
 import mitsuba as mi
 
-from transient_mi.integrators._path_options import (as_int, check_render_call, read_nlos_options,
+from transient_mi.integrators._path_options import (as_int, check_render_call, estimator_suffix, read_nlos_options,
                                                      read_path_params, render_tensor, replicates_for)
 from transient_mi.props import PluginParameterError
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
@@ -199,6 +199,7 @@ def render_nlos(integrator, scene, sensor, *, seed: int, spp: int, spot: int | N
     from transient_mi.integrators._nlos_render import render_spots
 
     options = dict(integrator.nlos_options)
+    options["plugin"] = integrator.NAME
     options["variance_replicates"] = integrator.replicates_for(True)
     options.setdefault("max_depth", integrator.max_depth_param)
     options.setdefault("rr_depth", integrator.rr_depth)
@@ -370,4 +371,5 @@ class TransientNLOSPath(mi.CppADIntegrator):
         o = self.nlos_options
         return (f"TransientNLOSPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}, "
                 f"variance_replicates={self.variance_replicates or 'default'}, "
-                f"hidden_geometry_prob={o['hidden_geometry_prob']:g}, rqmc={str(o['rqmc']).lower()}]")
+                f"hidden_geometry_prob={o['hidden_geometry_prob']:g}, rqmc={str(o['rqmc']).lower()}]"
+                f"{estimator_suffix(o)}]")

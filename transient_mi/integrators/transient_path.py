@@ -9,8 +9,8 @@ import numpy as np
 
 from transient_mi.integrators._lanes import (STOKES_CHANNELS, ChannelHistogram, LaneHistogram, LaneLayout,
                                              channel_values, choose_streams, seed_rng, stokes_rotation)
-from transient_mi.integrators._path_options import (as_int, check_render_call, read_nlos_options, read_path_params,
-                                                     render_tensor, replicates_for)
+from transient_mi.integrators._path_options import (as_int, check_render_call, estimator_suffix, read_nlos_options,
+                                                     read_path_params, render_tensor, replicates_for)
 from transient_mi.integrators._optical_path import segment_index
 from transient_mi.integrators._pixel_filter import PixelFilter
 from transient_mi.integrators._replicates import (ReplicateStats, effective_replicates,
@@ -419,4 +419,5 @@ class TransientPath(mi.CppADIntegrator):
         o = self.nlos_options
         return (f"TransientPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}, "
                 f"variance_replicates={self.variance_replicates or 'default'}, hidden_geometry_prob={o['hidden_geometry_prob']:g}, "
-                f"rqmc={str(o['rqmc']).lower()}]")
+                f"rqmc={str(o['rqmc']).lower()}]"
+                f"{estimator_suffix(o)}]")

@@ -7,7 +7,8 @@ import mitsuba as mi
 
 from transient_mi.integrators._lanes import channel_values
 from transient_mi.integrators._optical_path import segment_index
-from transient_mi.integrators._path_options import as_int, check_render_call, read_nlos_options, read_path_params
+from transient_mi.integrators._path_options import (as_int, check_render_call, estimator_suffix, read_nlos_options,
+                                                     read_path_params)
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
 from transient_mi.integrators.transient_nlos_path import render_nlos
 from transient_mi.integrators.transient_path import TransientPath, mis_weight
@@ -411,4 +412,5 @@ class TransientVolPath(TransientPath):
         return (f"TransientVolPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}, "
                 f"hide_emitters={str(self.hide_emitters).lower()}, "
                 f"variance_replicates={self.variance_replicates or 'default'}, "
-                f"hidden_geometry_prob={o['hidden_geometry_prob']:g}, rqmc={str(o['rqmc']).lower()}]")
+                f"hidden_geometry_prob={o['hidden_geometry_prob']:g}, rqmc={str(o['rqmc']).lower()}]"
+                f"{estimator_suffix(o)}]")

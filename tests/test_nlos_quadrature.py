@@ -1,0 +1,222 @@
+"""The deterministic three-bounce estimator (``estimator="quadrature"``, transient_mi.integrators._nlos_quadrature).
+
+* the time spread of one element is the exact distribution of a linear path length over (triangle x cell),
+  checked against a dense deterministic grid;
+* a small Lambertian patch against the closed form of ``nlos_helpers`` (Gauss-Legendre over patch and target)
+  to 1e-4;
+* against the Monte Carlo estimator on the letter and on a partly occluded target (their difference within
+  Monte Carlo's Student-t interval plus the quadrature's bound);
+* self-convergence: a coarse level's error against a fine one stays under the coarse bound, bin by bin;
+* the render pipeline stores the bound like a variance and ``detect`` states the ratio; same bytes twice;
+* captures it cannot render are refused in one line.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import transient_mi  # noqa: F401  (LLVM + variant + plug-ins)
+from nlos_helpers import nlos_scene, patch_centers, square, three_bounce_reference
+from stats_helpers import t_bound
+from transient_mi.integrators._nlos_time_spread import spread_pairs
+from transient_mi.props import PluginParameterError
+
+#: False-failure rate of each Monte Carlo comparison below (family-wise, Bonferroni over its checks).
+ALPHA = 1e-3
+
+
+def _quadrature(scene, **settings):
+    integ = scene.integrator()
+    integ.nlos_options.update(estimator="quadrature", **settings)
+    return integ
+
+
+def _render(scene, spots=None, **settings):
+    integ = _quadrature(scene, **settings)
+    sensor = scene.sensors()[0]
+    if spots is None:
+        return integ.render_transient(scene, sensor, seed=0, spp=1, spot=0)
+    return integ.render_transient(scene, sensor, seed=0, spp=1, spots=spots)
+
+
+# ---------------------------------------------------------------- time spread
+
+
+@pytest.mark.parametrize("t,w1,w2", [((3.2, 4.7, 7.1), 2.3, 0.7), ((3.2, 3.2, 7.1), 0.0, 0.7),
+                                     ((3.2, 7.1, 7.1), 3.0, 0.0), ((8.5, 8.6, 8.61), 5.0, 5.0),
+                                     ((3.25, 3.25, 3.25), 0.0, 0.0), ((3.5, 3.6, 12.61), 1e-9, 0.3)])
+def test_time_spread_is_the_exact_distribution(t, w1, w2):
+    """Bin masses of (triangle with vertex values t) + two centred uniforms of widths w1, w2, against a dense
+    deterministic reference: the triangle's values on a 600 x 600 barycentric grid and the cell's on a 200 x 200
+    grid, each histogrammed at 1/50 bin, convolved, summed into bins (deterministic: the tolerance is the
+    reference's own discretisation, a fiftieth of a bin of shift at most)."""
+    t = np.sort(np.asarray(t, float))
+    n = 600
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    keep = i + j < n  # centroids of the upright sub-triangles and (below) of the inverted ones
+    u = np.concatenate([(i[keep] + 1 / 3) / n, (i[i + j < n - 1] + 2 / 3) / n])
+    v = np.concatenate([(j[keep] + 1 / 3) / n, (j[i + j < n - 1] + 2 / 3) / n])
+    a = t[0] + u * (t[1] - t[0]) + v * (t[2] - t[0])
+    g = (np.arange(200) + 0.5) / 200 - 0.5
+    c = (g[:, None] * w1 + g[None, :] * w2).reshape(-1)
+    sub = 50
+    edges = np.arange(-24 * sub, 24 * sub + 1) / sub
+    ha = np.histogram(a, bins=edges)[0] / a.size
+    hc = np.histogram(c, bins=edges)[0] / c.size
+    fine = np.convolve(ha, hc)  # support starts at 2 * edges[0] = -48 bins
+    ref = np.add.reduceat(fine[(48 * sub):(48 * sub + 24 * sub)], np.arange(0, 24 * sub, sub))
+    hist = np.zeros((1, 24))
+    bound = np.zeros((1, 24))
+    out = spread_pairs(hist, bound, np.array([0]), np.array([1.0]), np.array([0.0]), np.array([t[0]]),
+                       np.array([t[1] - t[0]]), np.array([t[2] - t[0]]), np.array([w1]), np.array([w2]),
+                       np.array([0.0]), np.array([0.0]), 24)
+    assert out[0] == pytest.approx(0.0, abs=1e-12)
+    assert hist.sum() == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(hist[0], ref, atol=5e-3)
+
+
+# ---------------------------------------------------------------- closed form
+
+X0 = np.array([0.05, -0.03, 0.35])
+SIDE = 0.01
+W = H = 2
+FP = 0.01
+
+
+def test_small_patch_matches_the_closed_form_to_1e4():
+    """Pixel totals of a 1 cm Lambertian square against ``three_bounce_reference`` (Gauss-Legendre, 16 nodes
+    per axis over patch and target): relative error <= 1e-4, and within the stated bound."""
+    scene = nlos_scene(width=W, height=H, footprint=FP, include_wall_return=False, n_bins=400, bin_width_ps=8.0,
+                       t0_ps=11000.0, hidden=[square(X0, SIDE, 0.6)])
+    res = _render(scene, element_size_m=0.0025, patch_cells=4)
+    centers = patch_centers(W, H, FP)
+    for y in range(H):
+        for x in range(W):
+            ref = three_bounce_reference(np.zeros(3), centers[y, x], FP, X0, SIDE, 0.6, n=16)[0]
+            got = float(res.histogram[y, x].astype(np.float64).sum())
+            assert abs(got - ref) <= 1e-4 * ref, (x, y, got, ref)
+            assert abs(got - ref) <= float(res.total_error_bound[y, x]) + 1e-7 * ref
+
+
+# ---------------------------------------------------------------- against Monte Carlo
+
+
+def _mc_vs_quadrature(scene_q, scene_mc, spp, spots, settings, n_windows=8):
+    """Compare pixel x time-window sums: |quadrature - MC| <= t * se_MC + bound (t from the 8 replicates)."""
+    q = _render(scene_q, spots=spots, **settings)
+    integ = scene_mc.integrator()
+    integ.variance_replicates = 8
+    mc = integ.render_transient(scene_mc, scene_mc.sensors()[0], seed=3, spp=spp, spots=spots)
+    checks = []
+    for rq, rm in zip(q, mc):
+        T = rq.histogram.shape[-1]
+        P = rq.histogram.shape[0] * rq.histogram.shape[1]
+        wq = rq.histogram.astype(np.float64).reshape(P, n_windows, T // n_windows).sum(-1)
+        wm = rm.histogram.astype(np.float64).reshape(P, n_windows, T // n_windows).sum(-1)
+        # window variance from the replicates' per-bin variances (bins of one window are nearly independent:
+        # each sample adds to one bin per spot; see spad_detector.render_noise)
+        vm = rm.variance.astype(np.float64).reshape(P, n_windows, T // n_windows).sum(-1)
+        wb = rq.error_bound.astype(np.float64).reshape(P, n_windows, T // n_windows).sum(-1)
+        lit = vm > 0
+        checks.append((wq[lit], wm[lit], np.sqrt(vm[lit]), wb[lit]))
+    n = sum(len(c[0]) for c in checks)
+    tb = t_bound(8, ALPHA, n)
+    for wq, wm, se, wb in checks:
+        bad = np.abs(wq - wm) > tb * se + wb
+        assert not bad.any(), (wq[bad][:5], wm[bad][:5], se[bad][:5], wb[bad][:5])
+    tot_q = sum(float(r.steady.sum()) for r in q)
+    tot_m = sum(float(r.steady.sum()) for r in mc)
+    return tot_q, tot_m
+
+
+LETTER = dict(include_wall_return="false", width="4", height="4", spots_x="2", spots_y="1", n_bins="512",
+              bin_width_ps="16")
+
+
+def test_letter_agrees_with_monte_carlo():
+    """The README's letter (4 x 4 pixels, 2 spots): every lit pixel x 64-bin window within Monte Carlo's t
+    interval (8 replicates, family-wise false-failure rate 1e-3) plus the bound; totals within 0.2 %."""
+    from transient_mi.scene_io import load_scene
+
+    tq, tm_ = _mc_vs_quadrature(load_scene("scenes/nlos_letter.xml", LETTER),
+                                load_scene("scenes/nlos_letter.xml", LETTER), 4096, [0, 1],
+                                dict(element_size_m=0.01, patch_cells=2))
+    assert abs(tq - tm_) <= 2e-3 * tm_
+
+
+def test_occluded_target_agrees_with_monte_carlo():
+    """A target half hidden behind a smaller occluder (mixed visibility, refined): within Monte Carlo's
+    interval plus the bound, which here includes the mixed-visibility part."""
+    def scene():
+        return nlos_scene(width=3, height=3, footprint=0.05, include_wall_return=False, n_bins=256,
+                          bin_width_ps=16.0, t0_ps=8000.0,
+                          hidden=[square((0.0, 0.0, 0.5), 0.2, 0.7, id_="far"),
+                                  square((0.05, 0.05, 0.3), 0.08, 0.5, id_="near")])
+    sq = scene()
+    q = _render(sq, element_size_m=0.02, patch_cells=2, refine_levels=3)
+    assert q.estimator_info["refine_levels"] >= 1  # the occluder's shadow was refined
+    assert float(q.error_bound.sum()) > 0  # mixed pairs remain and are bounded
+    _mc_vs_quadrature(scene(), scene(), 2048, [0], dict(element_size_m=0.02, patch_cells=2, refine_levels=3))
+
+
+# ---------------------------------------------------------------- self-convergence
+
+
+def test_coarse_level_error_stays_under_its_bound():
+    """Element 4 cm / 1 cell against element 5 mm / 4 cells on the letter: in every bin the coarse level's
+    difference from the fine one is at most the sum of both bounds."""
+    from transient_mi.scene_io import load_scene
+
+    d = dict(LETTER, spots_x="1", width="3", height="3")
+    coarse = _render(load_scene("scenes/nlos_letter.xml", d), element_size_m=0.04, patch_cells=1)
+    fine = _render(load_scene("scenes/nlos_letter.xml", d), element_size_m=0.005, patch_cells=4)
+    diff = np.abs(coarse.histogram.astype(np.float64) - fine.histogram.astype(np.float64))
+    allowed = coarse.error_bound.astype(np.float64) + fine.error_bound.astype(np.float64)
+    assert (diff <= allowed * (1 + 1e-5) + 1e-9 * float(fine.histogram.max())).all()
+    assert float(fine.error_bound.sum()) < 0.2 * float(coarse.error_bound.sum())  # the bound falls with h
+
+
+# ---------------------------------------------------------------- pipeline
+
+
+def test_render_stores_the_bound_and_detect_states_the_ratio(tmp_path):
+    """`transient-mi render -D estimator=quadrature` writes error_bound/ files and says so in the manifest; the
+    same render twice gives the same bytes; `detect` reports the rendering-error ratio of the bound."""
+    from transient_core import stack
+    from transient_mi.render_capture import render
+    from spad_detector import detect_stack
+
+    d = dict(LETTER, estimator="quadrature", width="3", height="3")
+    a = render("scenes/nlos_letter.xml", tmp_path / "a", defines=d, progress=False)
+    b = render("scenes/nlos_letter.xml", tmp_path / "b", defines=d, progress=False)
+    m = stack.read_manifest(a)
+    assert m["render"]["estimator"] == "quadrature"
+    assert m["variance"]["kind"] == "error_bound" and m["variance"]["directory"] == "error_bound"
+    for j in range(m["n_files"]):
+        name = stack.spot_filename(j)
+        assert (a / name).read_bytes() == (b / name).read_bytes()
+        assert (a / "error_bound" / name).read_bytes() == (b / "error_bound" / name).read_bytes()
+        bnd, tot = stack.read_variance(a, j, m)
+        assert bnd.shape == (3, 3, 512) and (bnd >= 0).all() and (tot > 0).any()
+    out = detect_stack(a, tmp_path / "counts", exposure_s=1e-3, seed=1)
+    rn = json.loads((out / "manifest.json").read_text())["detector"]["resolved"]["render_noise"]
+    assert rn["available"] and rn["estimator"] == "quadrature" and "spp" not in rn
+    # the ratio is (bound / photon noise)^2: a worst case, far above the actual error (docs/quadrature.md)
+    assert np.isfinite(rn["ratio"]) and rn["ratio"] > 0
+
+
+def test_unsupported_captures_are_refused_in_one_line():
+    from transient_mi.scene_io import load_scene
+
+    s = load_scene("scenes/nlos_point_targets.xml", {"estimator": "quadrature"})  # disks: not meshes
+    with pytest.raises(PluginParameterError, match="estimator=quadrature cannot render this capture: the hidden"):
+        s.integrator().render_transient(s, s.sensors()[0], seed=0, spp=1, spot=0)
+    s = load_scene("scenes/nlos_letter.xml", {"estimator": "quadrature", "max_depth": "5", "width": "2",
+                                              "height": "2"})
+    with pytest.raises(PluginParameterError, match="max_depth=5 asks for light beyond three bounces"):
+        s.integrator().render_transient(s, s.sensors()[0], seed=0, spp=1, spot=0)
+    with pytest.raises(Exception, match="estimator='simpson'; allowed: monte_carlo, quadrature"):
+        load_scene("scenes/nlos_letter.xml", {"estimator": "simpson"})

@@ -1,0 +1,511 @@
+r"""The deterministic three-bounce NLOS estimator (``estimator="quadrature"``).
+
+Three-bounce light, laser spot ``S`` -> hidden point ``X`` -> wall point ``p`` of pixel ``k``'s patch ->
+detector ``D``, is the 4-D integral (photons per pulse, arrival time ``\ell / c``)
+
+.. math::
+
+    \Phi_k(t) = N \int_{A_k} \int_{H} \frac{W_0(p)}{A_{pix}} \,[f_p \cos\theta_{pX}]\,
+        \frac{\cos\theta_X}{|X - p|^2}\,[f_X \cos\theta_{XS}]\,\frac{[f_S \cos\theta_{SX}]}{|S - X|^2}\,
+        V(p, X)\, V(X, S)\; \delta(t - \ell(p, X)/c)\; dA_X\, dA_p,
+
+the same integrand the Monte Carlo estimator samples (:mod:`transient_mi.integrators.transient_nlos_path`:
+``W_0`` the sensor weight, every bracket one Mitsuba ``bsdf.eval``, so BSDFs and textures are the scene's own).
+Here it is integrated by quadrature instead of sampling:
+
+* **Elements.** Every triangle of every hidden shape (mesh shapes; Mitsuba's ``rectangle`` is one) is
+  split uniformly until no edge is longer than ``element_size_m``; every pixel patch into
+  ``patch_cells x patch_cells`` square cells (one point, the centre, with ``pixel_sampling="center"``).
+* **Weight of a pair (element, cell): the midpoint rule.** The integrand at the element's centroid and
+  the cell's centre, times both areas.
+* **Arrival times: exact for the linearised path length.** Across a pair the optical path length is
+  linear to second order; the pair's arrival-time distribution is the triangular distribution of the
+  element's three vertex values convolved with the cell's two uniform components, integrated exactly over
+  every bin (:mod:`transient_mi.integrators._nlos_time_spread`), not deposited at the centre.
+* **Visibility.** ``V(p, X)`` and ``V(X, S)`` are tested by ray casts at the centroid and at three points
+  near the element's corners (each leg from the cell centre and from the spot). Elements whose samples
+  disagree for some pixel or spot are split in four, up to ``refine_levels`` times; a pair still mixed
+  then contributes the visible share of its samples, and its whole unoccluded weight is added to the bound.
+  Visibility is assumed constant over an element whose samples agree (an occluder smaller than an element
+  can be missed: keep ``element_size_m`` below the smallest feature).
+
+Error bound (stored like the Monte Carlo variance, ``kind: "error_bound"``): per bin, the sum over pairs of
+
+1. mixed visibility: the unoccluded weight of each mixed pair, spread like its light;
+2. linearisation of the path length: its deviation ``delta`` over the pair is at most
+   ``(1/|X-p| + 1/|X-S|) h_e^2 / 2 + (1/|X-p| + 1/|p-D|) d_c^2 / 2 + h_e d_c / |X-p|`` (the Hessian of a
+   distance is bounded by the inverse distance; ``h_e`` the longest element edge, ``d_c`` the cell's
+   half-diagonal), so each bin edge within reach moves at most ``delta`` times the pair's largest density of
+   its light;
+3. the midpoint rule for the weight: ``SMOOTH_CONSTANT (h_e^2 / r_e^2 + d_c^2 / r_c^2)`` of the pair's
+   light, with ``r`` the shortest distance the element (cell) sees; this part assumes the BSDFs and textures
+   vary no faster than the geometric factors (true for the Lambertian and rough BSDFs of NLOS scenes; a
+   texture with detail finer than an element is not covered).
+
+Parts 2 and 3 fall as ``h^2``; the self-convergence tests check that a coarse level's error against a
+fine one stays under the coarse bound.
+
+What it does not do (refused in one line; use ``estimator="monte_carlo"``): windows and media on the device
+legs or in hidden space, a divergent laser beam, a non-planar relay wall, shapes that are not meshes
+(spheres, cylinders), ``max_depth`` above 4 (light beyond three bounces). The wall's first-bounce return is
+added in closed form as in the Monte Carlo estimator. Not differentiable (the radiometry is evaluated by
+Mitsuba, the accumulation by a numba kernel).
+"""
+
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from transient_core.units import C_M_PER_PS
+from transient_mi.integrators._lanes import to_mono
+from transient_mi.integrators._nlos_time_spread import spread_pairs, spread_spot
+from transient_mi.props import PluginParameterError
+from transient_mi.time_axis import apply_kernel
+
+#: Relative tolerance on a hit distance for a point to count as visible (as the Monte Carlo estimator).
+VISIBILITY_REL_TOL = 1e-4
+#: Visibility samples near each corner sit this far from the centroid, as a share of the way to the corner.
+CORNER_SAMPLE = 0.95
+#: Constant of the midpoint-rule part of the bound (see the module docstring, part 3).
+SMOOTH_CONSTANT = 2.0
+#: Pairs (element, cell) evaluated per Dr.Jit launch.
+PAIRS_PER_CHUNK = 1 << 20
+#: Default longest element edge, m.
+DEFAULT_ELEMENT_SIZE_M = 0.01
+#: Default cells per patch side.
+DEFAULT_PATCH_CELLS = 2
+#: Default visibility refinement levels.
+DEFAULT_REFINE_LEVELS = 3
+
+
+def check_supported(setup, options: dict, plugin: str) -> None:
+    """Refuse, in one line naming the reason, a capture the quadrature does not render."""
+    why = None
+    if setup.windows:
+        why = "the scene has windows (delta-transmissive shapes)"
+    elif setup.laser.divergence_mrad > 0:
+        why = f"the laser beam diverges (divergence_mrad={setup.laser.divergence_mrad:g})"
+    elif not setup.planar_wall:
+        why = "the relay wall is not planar"
+    elif options.get("max_depth", -1) == -1 or options.get("max_depth", -1) > 4:
+        why = (f"max_depth={options.get('max_depth')} asks for light beyond three bounces (the quadrature renders "
+               "max_depth <= 4)")
+    else:
+        for s in setup.hidden_shapes:
+            if not s.is_mesh():
+                why = f"the hidden shape {s.id() or type(s).__name__!r} is not a mesh (spheres, cylinders, ...)"
+                break
+    if why is not None:
+        raise PluginParameterError(f"{plugin}: estimator=quadrature cannot render this capture: {why}; use "
+                                   "estimator=monte_carlo")
+
+
+# ------------------------------------------------------------------ elements
+
+
+def mesh_triangles(shapes) -> tuple[np.ndarray, np.ndarray]:
+    """``(tri[n, 3, 3] float64 world vertices, shape_index[n] int64)`` of the hidden shapes' triangles."""
+    tris, idx = [], []
+    for i, s in enumerate(shapes):
+        v = np.asarray(s.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+        f = np.asarray(s.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+        tris.append(v[f])
+        idx.append(np.full(len(f), i, dtype=np.int64))
+    if not tris:
+        return np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64)
+    return np.concatenate(tris), np.concatenate(idx)
+
+
+def subdivide(tri: np.ndarray, shape_index: np.ndarray, max_edge_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Split every triangle into ``n^2`` similar ones (``n = ceil(longest edge / max_edge_m)``)."""
+    edges = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
+                      np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
+    n_div = np.maximum(1, np.ceil(edges / max_edge_m - 1e-9)).astype(np.int64)
+    out, out_idx = [], []
+    for n in np.unique(n_div):
+        sel = np.flatnonzero(n_div == n)
+        t = tri[sel]
+        a, b, c = t[:, 0], t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
+        local = []
+        for i in range(n):
+            for j in range(n - i):
+                local.append(((i, j), (i + 1, j), (i, j + 1)))
+                if j < n - i - 1:
+                    local.append(((i + 1, j), (i + 1, j + 1), (i, j + 1)))
+        L = np.asarray(local, dtype=np.float64) / n  # [m, 3 vertices, (i, j)]
+        pts = a[:, None, None, :] + L[None, :, :, 0:1] * b[:, None, None, :] + L[None, :, :, 1:2] * c[:, None, None, :]
+        out.append(pts.reshape(-1, 3, 3))
+        out_idx.append(np.repeat(shape_index[sel], len(local)))
+    order_tri = np.concatenate(out)
+    order_idx = np.concatenate(out_idx)
+    return order_tri, order_idx
+
+
+def split4(tri: np.ndarray) -> np.ndarray:
+    """Midpoint subdivision: each triangle ``[n, 3, 3]`` into four, ``[4 n, 3, 3]`` (children of one parent
+    consecutive)."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
+    kids = np.stack([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1), np.stack([ca, bc, c], 1),
+                     np.stack([ab, bc, ca], 1)], axis=1)
+    return kids.reshape(-1, 3, 3)
+
+
+def _sample_points(tri: np.ndarray) -> np.ndarray:
+    """``[n, 4, 3]``: centroid, then three points near the corners (visibility samples)."""
+    g = tri.mean(axis=1)
+    corners = g[:, None, :] + CORNER_SAMPLE * (tri - g[:, None, :])
+    return np.concatenate([g[:, None, :], corners], axis=1)
+
+
+# ------------------------------------------------------------------ Mitsuba queries
+
+
+def _f(a) -> "mi.Float":
+    return mi.Float(np.ascontiguousarray(a, dtype=np.float32))
+
+
+def _v3(a) -> "mi.Vector3f":
+    a = np.asarray(a)
+    return mi.Vector3f(_f(a[:, 0]), _f(a[:, 1]), _f(a[:, 2]))
+
+
+def _visible(scene, origins: np.ndarray, targets: np.ndarray, target_shape, offset_normal: np.ndarray):
+    """Whether the first surface along ``origin -> target`` is ``target_shape`` at the target's distance.
+
+    ``origins`` lie on the relay wall and are offset along its ``offset_normal`` (no self-hit); returns a
+    numpy bool array and the surface interactions (for BSDF evaluations at the targets).
+    """
+    o = origins + 1e-6 * offset_normal
+    d = targets - o
+    dist = np.linalg.norm(d, axis=1)
+    ray = mi.Ray3f(mi.Point3f(_v3(o)), _v3(d / dist[:, None]))
+    si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False)
+    dist_f = _f(dist)
+    ok = si.is_valid() & (si.shape == target_shape) & (dr.abs(si.t - dist_f) <= VISIBILITY_REL_TOL * dist_f)
+    return si, ok
+
+
+class _Geometry:
+    """The capture's fixed geometry in numpy float64 (world frame, metres)."""
+
+    def __init__(self, setup, film, cells: int):
+        fr = setup.frame
+        W, H = setup.width, setup.height
+        self.W, self.H = W, H
+        center = setup.pixel_sampling == "center"
+        self.m = 1 if center else int(cells)
+        m = self.m
+        pc = fr.grid(W, H, setup.pitch_m).reshape(-1, 3)  # [P, 3] patch centres in the wall plane
+        off = (np.arange(m) + 0.5) / m - 0.5
+        ou, ov = np.meshgrid(off, off, indexing="xy")  # [m, m]
+        fp = setup.footprint_m
+        delta = (ou.reshape(-1, 1) * fr.ex + ov.reshape(-1, 1) * fr.ey) * (0.0 if center else fp)  # [m^2, 3]
+        self.cell_p = (pc[:, None, :] + delta[None]).reshape(-1, 3)  # [P m^2, 3]
+        self.cell_pixel = np.repeat(np.arange(W * H), m * m)
+        self.cell_ax = fr.ex * (0.0 if center else fp / m)
+        self.cell_ay = fr.ey * (0.0 if center else fp / m)
+        self.cell_half_diag = 0.0 if center else fp / m / math.sqrt(2.0)
+        self.normal = np.asarray(fr.normal, dtype=np.float64)
+        D = np.asarray(setup.detector, dtype=np.float64)
+        self.D = D
+        to_q = self.cell_p - D
+        dist_q = np.linalg.norm(to_q, axis=1)
+        dq = to_q / dist_q[:, None]
+        # W0 / A_pix times the cell's share of the patch: A_ap cos(theta_ap) cos(theta_q) / |q - D|^2 * A_pix / m^2
+        self.cell_w0 = (setup.aperture_area_m2 * np.maximum(dq @ setup.aperture_normal, 0.0)
+                        * np.abs(dq @ self.normal) / dist_q ** 2 * setup.footprint_m ** 2 / (m * m))
+        self.fl = 1.0 if setup.include_first_last else 0.0
+        self.cell_opl_d = self.fl * dist_q  # the detector leg
+        self.dq = dq
+        axis = film.time_axis()
+        self.taps = film.kernel_taps()
+        self.pad = len(self.taps) // 2
+        self.n_bins = axis.n_bins
+        self.n_ext = axis.n_bins + 2 * self.pad
+        self.bin_m = axis.bin_width_ps * C_M_PER_PS
+        self.t0_m = axis.t0_ps * C_M_PER_PS
+        self.N = float(setup.photons_per_pulse)
+
+
+def _wall_interactions(scene, g: _Geometry):
+    """Surface interactions at every cell centre, seen from the detector (``wi`` towards it)."""
+    ray = mi.Ray3f(mi.Point3f(_v3(np.broadcast_to(g.D, g.cell_p.shape))), _v3(g.dq))
+    si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
+    dr.eval(si)
+    return si
+
+
+def _gather_si(si, idx):
+    """The fields of ``si`` a BSDF evaluation needs, gathered at ``idx`` (mi.UInt32)."""
+    out = dr.zeros(mi.SurfaceInteraction3f)
+    out.p = dr.gather(mi.Point3f, si.p, idx)
+    out.n = dr.gather(mi.Normal3f, si.n, idx)
+    out.sh_frame = mi.Frame3f(dr.gather(mi.Vector3f, si.sh_frame.s, idx), dr.gather(mi.Vector3f, si.sh_frame.t, idx),
+                              dr.gather(mi.Normal3f, si.sh_frame.n, idx))
+    out.uv = dr.gather(mi.Point2f, si.uv, idx)
+    out.wi = dr.gather(mi.Vector3f, si.wi, idx)
+    out.t = dr.gather(mi.Float, si.t, idx)
+    out.shape = dr.gather(mi.ShapePtr, si.shape, idx)
+    return out
+
+
+class _SpotSide:
+    """Per laser spot and element: the spot's surface interaction, visibility of the element's samples,
+    the spot's intensity towards the centroid, distances."""
+
+    def __init__(self, scene, setup, spots: list[int], tri, shape_index, hidden_ptrs):
+        n = len(tri)
+        pts = _sample_points(tri)  # [n, 4, 3]
+        Lo = np.asarray(setup.laser_origin, dtype=np.float64)
+        normal = np.asarray(setup.frame.normal, dtype=np.float64)
+        self.S = np.asarray(setup.spots, dtype=np.float64)[spots]  # [G, 3]
+        self.laser_leg = np.linalg.norm(self.S - Lo, axis=1)  # [G]
+        tg = np.asarray(setup.spot_targets, dtype=np.float64)[spots]
+        d = tg - Lo
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        shape_ptr = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(np.repeat(shape_index, 4).astype(np.uint32)))
+        ctx = mi.BSDFContext()
+        self.vis = np.zeros((len(spots), n, 4), dtype=bool)
+        self.intensity = np.zeros((len(spots), n))  # f_S cos(theta_SX) towards the centroid
+        for g in range(len(spots)):
+            S = self.S[g]
+            _, ok = _visible(scene, np.broadcast_to(S, (n * 4, 3)), pts.reshape(-1, 3), shape_ptr, normal)
+            self.vis[g] = np.asarray(ok).reshape(n, 4)
+            # the laser ray to this spot, once per element (wi towards the laser)
+            ray = mi.Ray3f(mi.Point3f(_v3(np.broadcast_to(Lo, (n, 3)))), _v3(np.broadcast_to(d[g], (n, 3))))
+            sig = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
+            to_x = pts[:, 0] - S
+            dx = to_x / np.linalg.norm(to_x, axis=1, keepdims=True)
+            val = to_mono(sig.bsdf().eval(ctx, sig, sig.to_local(_v3(dx))), sig.wavelengths)
+            self.intensity[g] = np.asarray(val, dtype=np.float64)
+        self.r_sv = np.linalg.norm(tri[None, :, :, :] - self.S[:, None, None, :], axis=3)  # [G, n, 3]
+        self.r_sx = np.linalg.norm(pts[None, :, 0, :] - self.S[:, None, :], axis=2)  # [G, n]
+
+
+def _mixed_elements(scene, g: _Geometry, spot_side: _SpotSide, tri, shape_index, hidden_ptrs) -> np.ndarray:
+    """Elements whose visibility samples disagree for some cell or spot (bool ``[n]``)."""
+    n = len(tri)
+    mixed = (spot_side.vis.any(axis=2) & ~spot_side.vis.all(axis=2)).any(axis=0)
+    pts = _sample_points(tri)
+    C = len(g.cell_p)
+    per = max(1, PAIRS_PER_CHUNK // (4 * C))
+    for e0 in range(0, n, per):
+        e1 = min(n, e0 + per)
+        ne = e1 - e0
+        org = np.repeat(g.cell_p, ne * 4, axis=0)
+        tgt = np.tile(pts[e0:e1].reshape(-1, 3), (C, 1))
+        sp = dr.gather(mi.ShapePtr, hidden_ptrs,
+                       mi.UInt32(np.tile(np.repeat(shape_index[e0:e1], 4), C).astype(np.uint32)))
+        _, ok = _visible(scene, org, tgt, sp, g.normal)
+        v = np.asarray(ok).reshape(C, ne, 4)
+        mixed[e0:e1] |= (v.any(axis=2) & ~v.all(axis=2)).any(axis=0)
+    return mixed
+
+
+def build_elements(scene, setup, g: _Geometry, spots, element_size_m: float, refine_levels: int, hidden_ptrs):
+    """Elements after uniform subdivision and visibility refinement: ``(tri, shape_index, levels_used)``."""
+    tri, idx = mesh_triangles(setup.hidden_shapes)
+    tri, idx = subdivide(tri, idx, element_size_m)
+    levels = 0
+    for _ in range(refine_levels):
+        side = _SpotSide(scene, setup, spots, tri, idx, hidden_ptrs)
+        mixed = _mixed_elements(scene, g, side, tri, idx, hidden_ptrs)
+        if not mixed.any():
+            break
+        keep = ~mixed
+        tri = np.concatenate([tri[keep], split4(tri[mixed])])
+        idx = np.concatenate([idx[keep], np.repeat(idx[mixed], 4)])
+        levels += 1
+    return tri, idx, levels
+
+
+# ------------------------------------------------------------------ the render
+
+
+def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int]):
+    """Render the three-bounce light of a group of spots by quadrature (see the module docstring).
+
+    Returns one :class:`~transient_mi.films.transient_film.TransientResult` per spot with ``error_bound`` and
+    ``total_error_bound`` set and no variance. ``options``: ``element_size_m``, ``patch_cells``,
+    ``refine_levels``, ``max_depth``.
+    """
+    from transient_mi.films.transient_film import TransientResult
+
+    g = _Geometry(setup, film, options.get("patch_cells", DEFAULT_PATCH_CELLS))
+    confocal = setup.capture == "confocal"
+    P = g.W * g.H
+    max_depth = options.get("max_depth", 4)
+    spot_ids = list(range(setup.n_spots)) if confocal else list(spots)
+    G_out = 1 if confocal else len(spots)
+    hist = np.zeros((G_out, P, g.n_ext))
+    bound = np.zeros((G_out, P, g.n_ext))
+    steady = np.zeros((G_out, P))
+    tot_bound = np.zeros((G_out, P))
+    outside = np.zeros((G_out, P))
+    info = {"elements": 0, "refine_levels": 0, "pairs": 0}
+    if setup.hidden_shapes and max_depth >= 4:
+        hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
+        tri, idx, levels = build_elements(scene, setup, g, spot_ids,
+                                          float(options.get("element_size_m", DEFAULT_ELEMENT_SIZE_M)),
+                                          int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)), hidden_ptrs)
+        info.update(elements=len(tri), refine_levels=levels)
+        side = _SpotSide(scene, setup, spot_ids, tri, idx, hidden_ptrs)
+        _accumulate(scene, setup, g, side, tri, idx, hidden_ptrs, spot_ids, confocal, hist, bound, steady,
+                    tot_bound, outside, info)
+    # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)
+    wr = setup.wall_return
+    for gi in range(G_out):
+        js = spot_ids if confocal else [spots[gi]]
+        for j in js:
+            pix = int(wr["pixel"][j])
+            ph = float(wr["photons"][j])
+            if pix < 0 or ph <= 0:
+                continue
+            b = int(math.floor((float(wr["opl_m"][j]) - g.t0_m) / g.bin_m)) + g.pad
+            steady[gi, pix] += ph
+            if 0 <= b < g.n_ext:
+                hist[gi, pix, b] += ph
+            else:
+                outside[gi, pix] += ph
+    results = []
+    for gi in range(G_out):
+        h = apply_kernel(hist[gi], g.taps) if g.pad else hist[gi]
+        e = apply_kernel(bound[gi], g.taps) if g.pad else bound[gi]
+        in_hist = float(h.sum())
+        tot = float(steady[gi].sum())
+        frac = max(0.0, 1.0 - in_hist / tot) if tot > 0 else 0.0
+        results.append(TransientResult(
+            histogram=h.astype(np.float32).reshape(g.H, g.W, g.n_bins),
+            steady=steady[gi].astype(np.float32).reshape(g.H, g.W),
+            dropped_contributions=int((outside[gi] > 1e-12 * max(tot, 1e-300)).sum()),
+            dropped_fraction=frac,
+            samples=info["pairs"],
+            variance=None,
+            total_variance=None,
+            replicates=1,
+            error_bound=e.astype(np.float32).reshape(g.H, g.W, g.n_bins),
+            total_error_bound=tot_bound[gi].astype(np.float32).reshape(g.H, g.W),
+            estimator_info=dict(info),
+        ))
+    return results
+
+
+def _accumulate(scene, setup, g: _Geometry, side: _SpotSide, tri, idx, hidden_ptrs, spot_ids, confocal, hist, bound,
+                steady, tot_bound, outside, info):
+    """Evaluate every (element, cell) pair for every spot and deposit it (see :func:`render_spots_quadrature`)."""
+    n = len(tri)
+    pts = _sample_points(tri)
+    X0 = pts[:, 0]
+    edge = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
+                     np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    C = len(g.cell_p)
+    ctx = mi.BSDFContext()
+    per = max(1, PAIRS_PER_CHUNK // C)
+    hd = g.cell_half_diag
+    for e0 in range(0, n, per):
+        e1 = min(n, e0 + per)
+        ne = e1 - e0
+        ce = np.repeat(np.arange(C), ne)  # pair -> cell
+        ee = np.tile(np.arange(e0, e1), C)  # pair -> element
+        if confocal:  # the pixel's own spot only
+            spot_of_pair = g.cell_pixel[ce]
+        p = g.cell_p[ce]
+        # ---- detector side (spot-independent): visibility of the four samples, BSDF at the wall
+        sp = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(idx[ee].astype(np.uint32)))
+        # the centroid's interaction (wi towards p) serves the BSDF at X for every spot
+        si_x, ok_c = _visible(scene, p, X0[ee], sp, g.normal)
+        dr.eval(si_x, ok_c)
+        sp3 = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(np.repeat(idx[ee], 3).astype(np.uint32)))
+        _, ok3 = _visible(scene, np.repeat(p, 3, axis=0), pts[ee, 1:].reshape(-1, 3), sp3, g.normal)
+        vis_p = np.concatenate([np.asarray(ok_c).reshape(-1, 1), np.asarray(ok3).reshape(-1, 3)], axis=1)
+        del sp3, ok3
+        to_x = X0[ee] - p
+        r_px = np.linalg.norm(to_x, axis=1)
+        d_px = to_x / r_px[:, None]
+        ray_p = mi.Ray3f(mi.Point3f(_v3(np.broadcast_to(g.D, p.shape))), _v3(g.dq[ce]))
+        si_p = scene.ray_intersect(ray_p, ray_flags=mi.RayFlags.All, coherent=True)
+        f_p = np.asarray(to_mono(si_p.bsdf().eval(ctx, si_p, si_p.to_local(_v3(d_px))), si_p.wavelengths),
+                         dtype=np.float64)
+        # cos(theta_X) from the element's geometric normal (the triangle's; Mitsuba's si.n for flat faces)
+        nrm = np.cross(tri[ee, 1] - tri[ee, 0], tri[ee, 2] - tri[ee, 0])
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        cos_x = np.abs(np.einsum("ij,ij->i", nrm, d_px))
+        base = g.N * g.cell_w0[ce] * area[ee] * f_p * cos_x / r_px ** 2  # photons per pulse, before the spot leg
+        # detector-side OPL at the cell centre, at the three vertices, and its gradient in p (cell widths)
+        opl_d = g.cell_opl_d[ce]
+        r_pv = np.linalg.norm(tri[ee] - p[:, None, :], axis=2)  # [n_pairs, 3]
+        grad_p = g.fl * (p - g.D) / np.linalg.norm(p - g.D, axis=1, keepdims=True) - d_px
+        w1 = np.abs(grad_p @ g.cell_ax) / g.bin_m
+        w2 = np.abs(grad_p @ g.cell_ay) / g.bin_m
+        r_pd = np.linalg.norm(p - g.D, axis=1)
+        if not confocal:
+            pix = g.cell_pixel[ce]
+            pixel_start = np.searchsorted(pix, np.arange(len(steady[0]) + 1)).astype(np.int64)
+            hd_term = (1.0 / r_px + g.fl / r_pd) * hd ** 2 / 2.0
+            pd_term = hd ** 2 / np.minimum(r_px, r_pd) ** 2
+            vis_p = np.ascontiguousarray(vis_p)
+            r_pv = np.ascontiguousarray(r_pv)
+            t_origin = g.t0_m / g.bin_m - g.pad
+            for gi in range(len(spot_ids)):
+                to_s = side.S[gi] - X0[ee]
+                d_s = to_s / np.linalg.norm(to_s, axis=1, keepdims=True)
+                f_x = np.asarray(to_mono(si_x.bsdf().eval(ctx, si_x, si_x.to_local(_v3(d_s))), si_x.wavelengths),
+                                 dtype=np.float64)
+                spread_spot(hist[gi], bound[gi], steady[gi], tot_bound[gi], outside[gi], pixel_start,
+                            ee.astype(np.int64), base, vis_p, r_pv, r_px, opl_d, w1, w2, hd_term, pd_term, f_x,
+                            np.ascontiguousarray(side.vis[gi]), side.intensity[gi] / side.r_sx[gi] ** 2,
+                            np.ascontiguousarray(side.r_sv[gi]), side.r_sx[gi], g.fl * float(side.laser_leg[gi]),
+                            edge, hd, g.bin_m, t_origin, SMOOTH_CONSTANT, g.n_ext)
+                info["pairs"] += len(ee)
+            del si_x, si_p, ok_c
+            continue
+        groups = [None]
+        for gi in groups:
+            if confocal:
+                gs = spot_of_pair  # [n_pairs] spot per pair
+                S = side.S[gs]
+                vis_s = side.vis[gs, ee]
+                inten = side.intensity[gs, ee]
+                leg = side.laser_leg[gs]
+                out_i = 0
+            else:
+                S = side.S[gi]
+                vis_s = side.vis[gi][ee]
+                inten = side.intensity[gi][ee]
+                leg = side.laser_leg[gi]
+                out_i = gi
+            to_s = S - X0[ee]
+            r_sx = np.linalg.norm(to_s, axis=-1)
+            d_s = to_s / r_sx[:, None]
+            f_x = np.asarray(to_mono(si_x.bsdf().eval(ctx, si_x, si_x.to_local(_v3(d_s))), si_x.wavelengths),
+                             dtype=np.float64)
+            full = base * f_x * inten / r_sx ** 2  # unoccluded weight of the pair
+            vis = vis_p & vis_s  # [n_pairs, 4]
+            # centroid 1/2, corner samples 1/6 each
+            frac = vis.astype(np.float64) @ np.array([0.5, 1.0 / 6.0, 1.0 / 6.0, 1.0 / 6.0])
+            mixed = vis.any(axis=1) & ~vis.all(axis=1)
+            weight = full * frac
+            err_w = np.where(mixed, full * np.maximum(frac, 1.0 - frac), 0.0)
+            # vertex arrival values (bins on the padded axis)
+            r_sv = np.linalg.norm(tri[ee] - (S[None, None, :] if S.ndim == 1 else S[:, None, :]), axis=2)
+            opl_v = opl_d[:, None] + r_pv + r_sv + g.fl * (leg if np.ndim(leg) == 0 else leg[:, None])
+            tv = np.sort((opl_v - g.t0_m) / g.bin_m + g.pad, axis=1)
+            r_min_e = np.minimum(r_px, r_sx)
+            he = edge[ee]
+            delta = ((1.0 / r_px + 1.0 / r_sx) * he ** 2 / 2.0 + (1.0 / r_px + g.fl / r_pd) * hd ** 2 / 2.0
+                     + he * hd / r_px) / g.bin_m
+            rel_smooth = SMOOTH_CONSTANT * (he ** 2 / r_min_e ** 2 + hd ** 2 / np.minimum(r_px, r_pd) ** 2)
+            pix = g.cell_pixel[ce]
+            out = spread_pairs(hist[out_i], bound[out_i], pix.astype(np.int64), weight, err_w, tv[:, 0],
+                               tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0], w1, w2, delta, rel_smooth, g.n_ext)
+            outside[out_i] += out
+            steady[out_i] += np.bincount(pix, weights=weight, minlength=len(steady[out_i]))
+            tot_bound[out_i] += np.bincount(pix, weights=err_w + weight * rel_smooth, minlength=len(steady[out_i]))
+            info["pairs"] += len(ee)
+        del si_x, si_p, ok_c
