@@ -184,7 +184,6 @@ def cli_page() -> dict[str, str]:
     from transient_mi.cli import command
 
     root = command()
-    ctx = click.Context(root, info_name="transient-mi")
     lines = [_title("Command line: ``transient-mi``"),
              "Generated from the commands themselves (the click commands typer builds), so every command and "
              "option is listed with its own ``--help`` text. A summary with examples: :doc:`../commands`.\n"]
@@ -211,7 +210,6 @@ def cli_page() -> dict[str, str]:
             lines.append(f".. option:: {opts}\n")
             for p in _help_paragraphs(help_text) or ["(no help text)"]:
                 lines.append(f"   {p}\n")
-    del ctx
     return {"cli.rst": "\n".join(lines)}
 
 
@@ -336,7 +334,7 @@ def _on_missing_reference(app, env, node, contnode):
         return None
     py = env.domains["py"]
     public = {}
-    for name, entry in py.objects.items():
+    for name in py.objects:
         try:
             public.setdefault(id(_lookup(name)), name)
         except Exception:
