@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import os
 import re
 from pathlib import Path
 
@@ -37,9 +38,12 @@ KINDS = ("film", "sensor", "emitter", "integrator", "shape")
 
 
 def _write(path: Path, text: str) -> None:
+    """Write ``text`` if it changed, atomically (two builds at once, as under pytest-xdist, never read half a page)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     if not path.is_file() or path.read_text() != text:
-        path.write_text(text)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(text)
+        os.replace(tmp, path)
 
 
 def _title(text: str, ch: str = "=") -> str:
@@ -244,8 +248,8 @@ def generate(out: Path = OUT) -> list[Path]:
         _write(out / rel, text)
     keep = {out / rel for rel in pages}
     for old in out.rglob("*"):
-        if old.is_file() and old not in keep:
-            old.unlink()  # a plug-in or command that no longer exists
+        if old.is_file() and old not in keep and not old.name.endswith(".tmp"):
+            old.unlink(missing_ok=True)  # a plug-in or command that no longer exists
     return sorted(keep)
 
 
