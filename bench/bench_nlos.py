@@ -59,6 +59,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _record  # noqa: E402
+from _rss import peak_rss_mb, reset_peak_rss  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 C_M_PER_PS = 299792458.0 * 1e-12
@@ -177,29 +178,6 @@ def ours_scene_xml(cfg, n_spots_side: int) -> str:
 {chr(10).join(rects)}
 </scene>
 """
-
-
-def peak_rss_mb() -> float:
-    """Peak resident set size of this process since it started (VmHWM; not inherited across exec)."""
-    try:
-        for line in open("/proc/self/status"):
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def reset_peak_rss() -> bool:
-    """Reset VmHWM to the current resident set (Linux ``clear_refs`` 5); False if refused."""
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
 
 
 def ours_worker(cfg_path: str) -> None:

@@ -92,8 +92,8 @@ def timed_calls(fn, repeat: int, budget_s: float) -> tuple[list[float], list[flo
 
     Returns the times (s), the peak resident set after each call (MiB, VmHWM
     reset before the first call) and the last result. The rule is the same
-    for recon and y-tal (``_ytal_runner.py`` has its own copy: it runs in
-    y-tal's environment and imports nothing of this project).
+    for recon and y-tal (``_ytal_runner.py`` applies it in y-tal's environment, with the same memory
+    measure, ``bench/_rss.py``, and nothing else of this project).
     """
     from _record import peak_rss_mb, reset_peak_rss
 
