@@ -12,7 +12,8 @@ alone), ``max_rss_mb`` the peak including the one float32 numpy copy of the
 result that the benchmark needs to save it. No float64 copy is made.
 
 Only numpy, mitsuba, mitransient and ``_rss.py`` (beside this file, standard
-library only) are imported: this file must run with that environment's interpreter. Usage: ``python _mitransient_worker.py CONFIG.json``.
+library only) are imported: this file must run with that environment's interpreter.
+Usage: ``python _mitransient_worker.py CONFIG.json``.
 """
 
 import json

@@ -1,4 +1,4 @@
-"""Run the methods leaderboard on the shipped scenes and regenerate its table in docs/benchmarks.md from the JSON results.
+"""Run the methods leaderboard on the shipped scenes; regenerate its table (docs/benchmarks.md) from the JSON.
 
 ``python bench/methods_leaderboard.py`` runs ``transient-mi study methods``
 (:func:`transient_mi.study.run_methods_study`) on each scene of
