@@ -161,16 +161,26 @@ def api_pages() -> dict[str, str]:
 
 
 def _commands(group, path: tuple[str, ...] = ()):
-    import click
-
+    """Every leaf command under ``group`` as ``(path, command)``; a group is anything with ``commands``
+    (typer builds its commands on its own copy of click, so no ``isinstance`` against ``click``'s classes)."""
     for name in sorted(group.commands):
         cmd = group.commands[name]
         if getattr(cmd, "hidden", False):
             continue
-        if isinstance(cmd, click.Group):
+        if getattr(cmd, "commands", None):
             yield from _commands(cmd, path + (name,))
         else:
             yield path + (name,), cmd
+
+
+def _usage(full: str, cmd) -> str:
+    """``transient-mi render [OPTIONS] SCENE``: the arguments by name, upper case, as the help texts say them."""
+    words = [full, "[OPTIONS]"]
+    for p in cmd.params:
+        if p.param_type_name == "argument":
+            w = p.name.upper() + ("..." if p.nargs == -1 else "")
+            words.append(w if p.required else f"[{w}]")
+    return " ".join(words)
 
 
 def _help_paragraphs(text: str | None) -> list[str]:
@@ -183,8 +193,6 @@ def _help_paragraphs(text: str | None) -> list[str]:
 
 
 def cli_page() -> dict[str, str]:
-    import click
-
     from transient_mi.cli import command
 
     root = command()
@@ -195,17 +203,18 @@ def cli_page() -> dict[str, str]:
     lines.append("")
     for path, cmd in _commands(root):
         full = "transient-mi " + " ".join(path)
-        sub = click.Context(cmd, info_name=full, parent=None)
+        sub = cmd.context_class(cmd, info_name=full)
         lines.append(f".. _cli-{'-'.join(path)}:\n")
         lines.append(_title(f"``{full}``", "-"))
         lines += [p + "\n" for p in _help_paragraphs(cmd.help)]
-        usage = " ".join(cmd.collect_usage_pieces(sub))
-        lines.append(f".. code-block:: text\n\n   {full} {usage}\n")
+        lines.append(f".. code-block:: text\n\n   {_usage(full, cmd)}\n")
         lines.append(f".. program:: {full}\n")
         for param in cmd.params:
-            if isinstance(param, click.Argument):
-                lines.append(f".. option:: {param.human_readable_name}\n\n   argument"
-                             f"{' (required)' if param.required else ''}\n")
+            if param.param_type_name == "argument":
+                help_text = getattr(param, "help", None) or "(no help text)"
+                lines.append(f".. option:: {param.name.upper()}\n")
+                lines.append(f"   Argument{'' if param.required else ' (optional)'}. "
+                             f"{' '.join(_help_paragraphs(help_text))}\n")
                 continue
             rec = param.get_help_record(sub)
             if rec is None:
