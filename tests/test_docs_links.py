@@ -55,6 +55,16 @@ def links(page: Path) -> list[str]:
     return [m.group(1) for m in LINK.finditer(_prose(page.read_text()))]
 
 
+def test_every_docs_page_is_in_the_site_index():
+    """A new docs/*.md page must be listed in a toctree of docs/index.md (the site build fails otherwise too)."""
+    index = (ROOT / "docs" / "index.md").read_text()
+    listed = {line.strip() for block in re.findall(r"```\{toctree\}\n(.*?)```", index, re.S)
+              for line in block.splitlines() if line.strip() and not line.startswith(":")}
+    pages = {p.stem for p in (ROOT / "docs").glob("*.md")} - {"index"}
+    assert not pages - listed, f"add to a toctree in docs/index.md: {sorted(pages - listed)}"
+    assert not {x for x in listed - pages if not x.startswith("_generated/")}, listed - pages
+
+
 def test_the_link_finder_finds_links():
     page = ROOT / "README.md"
     found = links(page)
