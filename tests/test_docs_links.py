@@ -108,5 +108,25 @@ def test_every_python_block_runs_or_says_why_not(page, before, code, tmp_path):
                                f"'<!-- not executed: REASON -->' if it cannot run here):\n{r.stderr}")
 
 
+def test_getting_started_runs_as_written(tmp_path):
+    """The first render, detection and reconstruction of docs/getting_started.md, command by command."""
+    import json
+    import shlex
+
+    text = (ROOT / "docs" / "getting_started.md").read_text()
+    commands = [shlex.split(line.split("#", 1)[0]) for block in re.findall(r"```bash\n(.*?)```", text, re.S)
+                for line in block.splitlines() if line.startswith("transient-mi ")]
+    assert [c[1] for c in commands] == ["render", "detect", "scene-mesh", "recon"], commands
+    (tmp_path / "scenes").symlink_to(ROOT / "scenes")
+    env = dict(os.environ, TRANSIENT_MI_PROGRESS="0")
+    for cmd in commands:
+        r = subprocess.run([sys.executable, "-m", "transient_mi", *cmd[1:]], cwd=tmp_path, env=env,
+                           capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, (cmd, r.stderr)
+    metrics = json.loads((tmp_path / "out" / "letter_recon" / "metrics.json").read_text())
+    assert metrics["depth_mae_m"] < 0.01 and metrics["iou"] > 0.5, metrics  # the F (IoU 0.74 when written)
+    assert (tmp_path / "out" / "letter_counts" / "manifest.json").is_file()
+
+
 def test_some_python_block_is_executed():
     assert any(not NOT_EXECUTED.search(b.values[1]) for b in _python_blocks())
