@@ -41,7 +41,7 @@ case "$cmd" in
   docs)
     # warnings are errors (-W), every reference must resolve (-n); the reference pages are generated at each build
     out="$here/docs/_build/html"
-    "$venv/bin/python" -m sphinx -b html -W --keep-going -n -q "$@" docs "$out"
+    "$venv/bin/python" -m sphinx -b html -W --keep-going -n -q -d "$here/docs/_build/doctrees" "$@" docs "$out"
     echo "[run.sh] documentation built: open file://$out/index.html" >&2
     ;;
   *)
