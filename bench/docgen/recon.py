@@ -44,7 +44,6 @@ def recon_readme_table(R) -> str:
 
 
 def recon_docs_table(R) -> str:
-    from bench_recon import markdown_table
 
     rec = R("recon")
     return "\n" + markdown_table(rec["result"]) + "\n\n" + provenance(rec) + "\n"
@@ -264,3 +263,43 @@ def methods_trend_para(R) -> str:
             text += (f" {exps[0] * 1e3:g} ms per spot instead changes every Chamfer by at most {100 * d:.2f} cm "
                      f"({m} at {a}x{a}).")
     return text + "\n"
+
+
+def _fmt(r: dict | None) -> tuple[str, str]:
+    if not r:
+        return "-", "-"
+    if r.get("status") != "ok":
+        why = r.get("reason") or r["status"]
+        if r.get("status") == "out of memory":
+            why = f"out of memory (> {r.get('memory_limit_gb'):g} GB limit)"
+        if r.get("status") == "timeout":
+            why = f"did not finish in {r.get('timeout_s')} s (timeout)"
+        return why, "-"
+    return f"{r['time_s']:.3g} s", f"{r['peak_rss_mb'] / 1024:.2f} GB"
+
+
+def markdown_table(result: dict) -> str:
+    """Markdown table of a benchmark result."""
+    lines = ["| case | capture | voxels | recon time | recon peak RSS | goal | y-tal 0.20.0 time | y-tal peak RSS |"
+             " speed-up |", "|---|---|---|---|---|---|---|---|---|"]
+    for c in result["cases"]:
+        t, m = _fmt(c["ours"])
+        yt, ym = _fmt(c.get("ytal"))
+        g = c.get("goal")
+        goal = "-" if not g else " / ".join([f"<= {g['time_s']:g} s"] + ([f"<= {g['peak_rss_gb']:g} GB"]
+                                                                          if "peak_rss_gb" in g else []))
+        if g:
+            goal += " (met)" if c.get("meets_goal") else " (missed)"
+        sp = f"{c['speedup']:.0f}x" if "speedup" in c else "-"
+        y, o = c.get("ytal") or {}, c["ours"]
+        if y.get("status") == "timeout" and o.get("status") == "ok":
+            sp = f"> {y['timeout_s'] / o['time_s']:.0f}x (lower bound)"
+        cap = ", ".join(p.strip() for p in result["captures"][c["capture"]].split(",")[:2])
+        lines.append(f"| {c['case']} | {cap} | {'x'.join(map(str, c['voxels']))} | {t} | {m} | {goal} | {yt} | {ym} |"
+                     f" {sp} |")
+    la, lb = result.get("load_average_start"), result.get("load_average_end")
+    if la and lb:
+        lines.append("")
+        lines.append(f"Machine: {result['machine']['cpus']} CPUs; 1-minute load average {la[0]:.1f} at the start and "
+                     f"{lb[0]:.1f} at the end of the run.")
+    return "\n".join(lines)
