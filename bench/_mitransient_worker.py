@@ -11,37 +11,18 @@ the peak up to the end of ``mi.render`` + ``dr.eval`` (mitransient's renderer
 alone), ``max_rss_mb`` the peak including the one float32 numpy copy of the
 result that the benchmark needs to save it. No float64 copy is made.
 
-Only numpy, mitsuba and mitransient are imported: this file must run with
-that environment's interpreter. Usage: ``python _mitransient_worker.py CONFIG.json``.
+Only numpy, mitsuba, mitransient and ``_rss.py`` (beside this file, standard
+library only) are imported: this file must run with that environment's interpreter.
+Usage: ``python _mitransient_worker.py CONFIG.json``.
 """
 
 import json
-import resource
 import sys
 import time
 
 import numpy as np
 
-
-def peak_rss_mb():
-    """Peak resident set size of this process (VmHWM; not inherited across exec)."""
-    try:
-        for line in open("/proc/self/status"):
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def reset_peak_rss():
-    """Reset VmHWM to the current resident set (Linux ``clear_refs`` 5); False if refused."""
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
+from _rss import peak_rss_mb, reset_peak_rss  # this folder (the script's own, first on sys.path)
 
 
 def main(path):

@@ -29,38 +29,13 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _rss import peak_rss_mb, reset_peak_rss, rss_mb  # noqa: E402,F401  (the one copy, re-exported)
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
 #: Distributions whose versions every record carries (missing ones are recorded as ``None``).
 PACKAGES = ("transient-mi", "mitsuba", "drjit", "numpy", "scipy", "numba")
-
-
-def peak_rss_mb() -> float:
-    """Peak resident set of this process in MiB (``VmHWM``; Linux)."""
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    raise RuntimeError("VmHWM not found in /proc/self/status (Linux only)")
-
-
-def rss_mb() -> float:
-    """Current resident set of this process in MiB (``VmRSS``; Linux)."""
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    raise RuntimeError("VmRSS not found in /proc/self/status (Linux only)")
-
-
-def reset_peak_rss() -> bool:
-    """Reset this process's ``VmHWM`` to its current resident set (``clear_refs`` 5); False if refused."""
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
 
 
 def cpu_model() -> str:

@@ -2,7 +2,7 @@
 
 Executed by ``bench_recon.py --with-ytal`` with the Python of y-tal's own
 virtual environment; it imports y-tal (GPL) as a library and nothing of
-transient-mi, so no y-tal code is copied into this project.
+transient-mi (only ``_rss.py`` beside it, standard library), so no y-tal code is copied into this project.
 
 The warm/cold policy is bench_recon's, for both sides: one warm-up call of
 the same method on the tiny capture ``spec["warm_h5"]`` (4^3 voxels where the
@@ -17,29 +17,7 @@ import json
 import sys
 import time
 
-
-def _status_kib(key):
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith(key + ":"):
-                return int(line.split()[1])
-    raise RuntimeError(f"{key} not in /proc/self/status")
-
-
-def peak_rss_mb() -> float:
-    return _status_kib("VmHWM") / 1024.0
-
-
-def rss_mb() -> float:
-    return _status_kib("VmRSS") / 1024.0
-
-
-def reset_peak_rss() -> None:
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-    except OSError:
-        pass
+from _rss import peak_rss_mb, reset_peak_rss, rss_mb  # this folder (the script's own, first on sys.path)
 
 
 def main() -> None:

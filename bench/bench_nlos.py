@@ -59,6 +59,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _record  # noqa: E402
+from _rss import peak_rss_mb, reset_peak_rss  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 C_M_PER_PS = 299792458.0 * 1e-12
@@ -177,29 +178,6 @@ def ours_scene_xml(cfg, n_spots_side: int) -> str:
 {chr(10).join(rects)}
 </scene>
 """
-
-
-def peak_rss_mb() -> float:
-    """Peak resident set size of this process since it started (VmHWM; not inherited across exec)."""
-    try:
-        for line in open("/proc/self/status"):
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def reset_peak_rss() -> bool:
-    """Reset VmHWM to the current resident set (Linux ``clear_refs`` 5); False if refused."""
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
 
 
 def ours_worker(cfg_path: str) -> None:
@@ -502,57 +480,6 @@ def _pipeline(cfg, tmp: Path) -> dict:
     return out
 
 
-def _t(x: dict, eps: str) -> str:
-    """Time to a relative RMSE, labelled when the fit extrapolates beyond the measured runs."""
-    lab = "" if x.get("time_to_rel_rmse_basis", {}).get(eps, "measured") == "measured" else " (extrapolated)"
-    return f"{x['time_to_rel_rmse_s'][eps]:.3g} s{lab}"
-
-
-def _rss_range(values) -> str:
-    lo, hi = min(values), max(values)
-    return f"{lo:.0f} MB" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} MB"
-
-
-def markdown_table(report: dict) -> str:
-    """The benchmark table (markdown) of a report produced by :func:`main`.
-
-    Times to an error level that no run reached are marked "(extrapolated)"
-    (the fitted power law beyond the measured range); speed-ups likewise
-    ("*" = extrapolated on at least one side). Peak memory is each run's own
-    peak (VmHWM, reset before every run; the range over the runs); for
-    mitransient the peak up to the end of its render (before the benchmark's
-    numpy copy).
-    """
-    rows = ["| Configuration | transient-mi: rel. RMSE @ spp (time) | mitransient: rel. RMSE @ spp (time) | "
-            "fitted exponent beta (ours / mitransient) | time to rel. RMSE 0.1 (ours / mitransient) | "
-            "speed-up at equal RMSE 0.2 / 0.1 / 0.05 | peak RSS per run (ours / mitransient) |",
-            "| --- | --- | --- | --- | --- | --- | --- |"]
-    for c in report["configs"]:
-        o, m = c["ours"], c.get("mitransient")
-
-        def runs(x):
-            return "; ".join(f"{q['rel_rmse']:.3f} @ {q['spp']} ({q.get('time_full_capture_s', q['time_s']):.3g} s)"
-                             for q in x["runs"])
-
-        if c["capture"] == "array" and c.get("ours_pipeline"):
-            rss_o = f"{max(v['peak_rss_mb'] for v in c['ours_pipeline'].values()):.0f} MB (streamed render)"
-        else:
-            rss_o = _rss_range(o.get("peak_rss_per_run_mb") or [o["peak_rss_mb"]])
-        if m is None:
-            rows.append(f"| {c['name']} | {runs(o)} | - | {o['error_model']['beta']:.2f} / - | "
-                        f"{_t(o, '0.1')} / - | - | {rss_o} / - |")
-            continue
-        sp = c["speedup_time_to_equal_error"]
-        basis = c.get("speedup_basis", {})
-        spd = " / ".join(f"{sp[e]:.1f}x" + ("*" if basis.get(e, "measured") != "measured" else "")
-                         for e in ("0.2", "0.1", "0.05"))
-        rss_m = _rss_range(m.get("render_rss_per_run_mb") or m.get("peak_rss_per_run_mb") or [m["peak_rss_mb"]])
-        rows.append(f"| {c['name']} | {runs(o)} | {runs(m)} | {o['error_model']['beta']:.2f} / "
-                    f"{m['error_model']['beta']:.2f} | {_t(o, '0.1')} / {_t(m, '0.1')} | {spd} | "
-                    f"{rss_o} / {rss_m} |")
-    return "\n".join(rows)
-
-
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--small", action="store_true", help="tiny sizes (CI)")
@@ -569,6 +496,8 @@ def main(argv=None) -> dict:
     _record.add_arguments(ap)
     args = ap.parse_args(argv)
     if args.table:
+        from docgen.nlos import markdown_table
+
         print(markdown_table(json.loads(Path(args.table).read_text())))
         return {}
     if args.worker:

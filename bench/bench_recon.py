@@ -92,8 +92,8 @@ def timed_calls(fn, repeat: int, budget_s: float) -> tuple[list[float], list[flo
 
     Returns the times (s), the peak resident set after each call (MiB, VmHWM
     reset before the first call) and the last result. The rule is the same
-    for recon and y-tal (``_ytal_runner.py`` has its own copy: it runs in
-    y-tal's environment and imports nothing of this project).
+    for recon and y-tal (``_ytal_runner.py`` applies it in y-tal's environment, with the same memory
+    measure, ``bench/_rss.py``, and nothing else of this project).
     """
     from _record import peak_rss_mb, reset_peak_rss
 
@@ -229,46 +229,6 @@ def run_ytal(py: Path, case: str, h5: Path, n: int, pitch: float, bin_m: float, 
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-def _fmt(r: dict | None) -> tuple[str, str]:
-    if not r:
-        return "-", "-"
-    if r.get("status") != "ok":
-        why = r.get("reason") or r["status"]
-        if r.get("status") == "out of memory":
-            why = f"out of memory (> {r.get('memory_limit_gb'):g} GB limit)"
-        if r.get("status") == "timeout":
-            why = f"did not finish in {r.get('timeout_s')} s (timeout)"
-        return why, "-"
-    return f"{r['time_s']:.3g} s", f"{r['peak_rss_mb'] / 1024:.2f} GB"
-
-
-def markdown_table(result: dict) -> str:
-    """Markdown table of a benchmark result."""
-    lines = ["| case | capture | voxels | recon time | recon peak RSS | goal | y-tal 0.20.0 time | y-tal peak RSS |"
-             " speed-up |", "|---|---|---|---|---|---|---|---|---|"]
-    for c in result["cases"]:
-        t, m = _fmt(c["ours"])
-        yt, ym = _fmt(c.get("ytal"))
-        g = c.get("goal")
-        goal = "-" if not g else " / ".join([f"<= {g['time_s']:g} s"] + ([f"<= {g['peak_rss_gb']:g} GB"]
-                                                                          if "peak_rss_gb" in g else []))
-        if g:
-            goal += " (met)" if c.get("meets_goal") else " (missed)"
-        sp = f"{c['speedup']:.0f}x" if "speedup" in c else "-"
-        y, o = c.get("ytal") or {}, c["ours"]
-        if y.get("status") == "timeout" and o.get("status") == "ok":
-            sp = f"> {y['timeout_s'] / o['time_s']:.0f}x (lower bound)"
-        cap = ", ".join(p.strip() for p in result["captures"][c["capture"]].split(",")[:2])
-        lines.append(f"| {c['case']} | {cap} | {'x'.join(map(str, c['voxels']))} | {t} | {m} | {goal} | {yt} | {ym} |"
-                     f" {sp} |")
-    la, lb = result.get("load_average_start"), result.get("load_average_end")
-    if la and lb:
-        lines.append("")
-        lines.append(f"Machine: {result['machine']['cpus']} CPUs; 1-minute load average {la[0]:.1f} at the start and "
-                     f"{lb[0]:.1f} at the end of the run.")
-    return "\n".join(lines)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--small", action="store_true", help="tiny sizes (CI)")
@@ -298,6 +258,8 @@ def main(argv=None) -> int:
                                a.repeat_budget_s)))
         return 0
     if a.table:
+        from docgen.recon import markdown_table
+
         print(markdown_table(json.loads(a.table.read_text())))
         return 0
     cases = [c for c in a.cases.split(",") if c]

@@ -50,6 +50,9 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+from _rss import peak_rss_mb  # noqa: E402  (standard library only: the mitransient worker imports it too)
+
 C_M_PER_PS = 299792458.0 * 1e-12
 #: relative errors at which the time to equal error is reported
 EPS = (0.05, 0.02)
@@ -74,14 +77,6 @@ def scene_dict(mi, film: dict, integrator: dict) -> dict:
                  "to_world": T().translate([0.0, 2.5, 0.0]) @ T().rotate([1, 0, 0], 90.0) @ T().scale(0.5),
                  "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [10.0, 10.0, 10.0]}}},
     }
-
-
-def _vmhwm_mb() -> float:
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
 
 
 def worker(cfg_path: str) -> None:
@@ -130,7 +125,7 @@ def worker(cfg_path: str) -> None:
         np.save(cfg["out_npy"], reps.astype(np.float32))
     else:
         reps = np.zeros((0,))
-    Path(cfg["result"]).write_text(json.dumps({"timings_s": timings, "peak_rss_mb": _vmhwm_mb(),
+    Path(cfg["result"]).write_text(json.dumps({"timings_s": timings, "peak_rss_mb": peak_rss_mb(),
                                                "shape": list(reps.shape)}))
 
 

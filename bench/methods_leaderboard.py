@@ -1,4 +1,4 @@
-"""Run the methods leaderboard on the shipped scenes and regenerate its README table from the JSON results.
+"""Run the methods leaderboard on the shipped scenes; regenerate its table (docs/benchmarks.md) from the JSON.
 
 ``python bench/methods_leaderboard.py`` runs ``transient-mi study methods``
 (:func:`transient_mi.study.run_methods_study`) on each scene of
@@ -6,10 +6,10 @@
 ``bench/results/study_methods_<scene>.json`` (rows, settings, command,
 machine, date), copies its figures to ``docs/img/methods_<scene>_*.png`` and
 rewrites the table between ``<!-- methods-leaderboard:start -->`` and
-``<!-- methods-leaderboard:end -->`` in README.md.
+``<!-- methods-leaderboard:end -->`` in docs/benchmarks.md.
 
 ``python bench/methods_leaderboard.py --table-only`` only regenerates the
-README table and the leaderboard figures from the stored JSON files
+docs/benchmarks.md table and the leaderboard figures from the stored JSON files
 (``bench/results/study_methods_*.json`` and ``bench/results/recon_methods.json``);
 ``--scenes`` picks scenes.
 """
@@ -98,7 +98,7 @@ def _f3(v):
 
 
 def table() -> str:
-    """The README table: per scene, the largest array at the largest exposure, ranked by Chamfer; and the
+    """The leaderboard table (docs/benchmarks.md): per scene, the largest array at the largest exposure, ranked by Chamfer; and the
     64^3 timings of bench/results/recon_methods.json."""
     lines = []
     order = {f"study_methods_{k}.json": i for i, k in enumerate(RUNS)}   # the paper scene first
@@ -161,13 +161,17 @@ def redraw_figures() -> None:
                 leaderboard_figure(Path(t), rows)
 
 
-def write_readme(text: str) -> None:
+#: The page that shows the leaderboard table.
+PAGE = ROOT / "docs" / "benchmarks.md"
+
+
+def write_page(text: str) -> None:
     from transient_core.atomic import atomic_file
 
-    readme = ROOT / "README.md"
+    readme = PAGE
     s = readme.read_text()
     if START not in s or END not in s:
-        raise SystemExit(f"README.md has no {START} ... {END} block")
+        raise SystemExit(f"{PAGE.relative_to(ROOT)} has no {START} ... {END} block")
     head, rest = s.split(START, 1)
     _, tail = rest.split(END, 1)
     with atomic_file(readme) as t:
@@ -189,7 +193,7 @@ def main(argv=None) -> int:
         run(scenes, argv)
     else:
         redraw_figures()
-    write_readme(table())
+    write_page(table())
     return 0
 
 

@@ -72,7 +72,7 @@ def reconstruct(capture: Capture, method: str = "bp", grid: VoxelGrid | None = N
     **options
         Method options: ``voxel_integration`` (bp), ``fbp_sigma_m`` (fbp),
         ``snr`` (lct, midpoint-lct), ``wavelength_m``, ``pulse_sigma_m``, ``phasor_method`` (phasor),
-        ``midpoint_pitch_m`` (midpoint-*).
+        ``midpoint_pitch_m`` (``midpoint-*``).
     """
     if method not in METHODS:
         raise UserInputError(f"--method {method!r}: allowed {', '.join(METHODS)}")

@@ -1,0 +1,167 @@
+"""Studies, datasets, viewer and fit regions (docs/benchmarks.md, docs/studies.md, docs/dataset.md,
+docs/view.md, docs/fit.md).
+"""
+
+from __future__ import annotations
+
+from docgen.common import Missing, _gb, provenance, shown_command
+
+
+def _study_cases(R):
+    rec = R("studies")
+    return rec, {c["case"]: c for c in rec["result"]["cases"]}
+
+
+def studies_para(R) -> str:
+    rec, c = _study_cases(R)
+
+    def one(k, what):
+        x = c.get(k)
+        if not x or x.get("status") != "ok":
+            return f"{what}: not yet re-measured (`--full`)"
+        return f"{what} {x['wall_s']:.0f} s, {_gb(x['peak_rss_mb'])}"
+
+    pq = c.get("photon_quick", {})
+    return (f"\n**Studies** (`{shown_command(rec)}`): "
+            + one("photon_quick", f"`study photon-budget --quick` ({pq.get('runs', '?')} detections and "
+                                  f"reconstructions)") + "; "
+            + one("photon_default", "with 1 ps bins") + "; "
+            + one("array_quick", "`study array-size --quick` (4x4 to 64x64)") + "; "
+            + one("array_default", "with 1 ps bins") + f" (wall time of the whole command, peak RSS). "
+            f"{provenance(rec)}\n")
+
+
+def _study_inline(key):
+    def gen(R):
+        rec, c = _study_cases(R)
+        x = c.get(key)
+        if not x or x.get("status") != "ok":
+            raise Missing("studies")
+        return f"{x['wall_s']:.0f} s, {_gb(x['peak_rss_mb'])} peak on {rec['machine']['cores']} cores"
+    return gen
+
+
+def dataset_para(R) -> str:
+    rec = R("dataset_dataset_example")
+    r = rec["result"]
+    runs = ", ".join(f"{x['items_per_hour']:.0f} (`--workers {x['workers']}`, {x['items']} items in {x['wall_s']:.0f} s)"
+                     for x in r["runs"])
+    text = (f"\n**Datasets** (`{shown_command(rec)}`, the camera example "
+            f"`docs/examples/dataset_example.yaml`, wall time of the whole command): items per hour {runs}. "
+            f"{provenance(rec)}")
+    try:
+        n = R("dataset_dataset_nlos_mannequin")
+        nr = ", ".join(f"{x['items_per_hour']:.0f} (`--workers {x['workers']}`)" for x in n["result"]["runs"])
+        text += (f" The NLOS example spec (`docs/examples/dataset_nlos_mannequin.yaml`: paper scene, 16x16/32x32 "
+                 f"arrays, counts, ground truth): items per hour {nr}. {provenance(n)}")
+    except Missing:
+        text += (" The NLOS example spec (`docs/examples/dataset_nlos_mannequin.yaml`): not yet re-measured "
+                 "(`bench/results/dataset_dataset_nlos_mannequin.json` missing).")
+    return text + "\n"
+
+
+def dataset_docs_table(R) -> str:
+    rec = R("dataset_dataset_example")
+    r = rec["result"]
+    lines = ["| configuration | items | wall (s) | items per hour | mean item time in a worker (s) |",
+             "|---|---|---|---|---|"]
+    for x in r["runs"]:
+        where = f"`--scheduler {x['scheduler']}`" if x.get("scheduler") else f"local, `--workers {x['workers']}`"
+        lines.append(f"| {where} | {x['items']} | {x['wall_s']:.1f} | {x['items_per_hour']:.0f} | "
+                     f"{x['mean_item_s_in_worker']:.2f} |")
+    lines += ["", provenance(rec)]
+    return "\n" + "\n".join(lines) + "\n"
+
+
+def view_para(R) -> str:
+    rec = R("view")
+    res = rec["result"]
+    c = res["cases"]
+    fp, de, rc = c["first_page"], c["detector_update"], c["recon_update"]
+    load = res.get("load_average_1_5_15_min", {})
+    lo = load.get("before", [None])[0]
+
+    def met(case):
+        return "met" if case["goal_met"] else "not met"
+
+    cpu_d = sorted(de["server_cpu_ms"])
+    cpu_r = sorted(rc["server_cpu_ms"])
+    return (f"**Viewer** (`{rec['command'].strip()}`, timed in headless Chromium, median of {res['repeats']}): a "
+            f"detector-slider change on a {de['capture']} capture reaches the page in {de['median_s']:.2f} s (goal "
+            f"<= {de['goal_s']:g} s, {met(de)}; server CPU {cpu_d[0]:.0f}-{cpu_d[-1]:.0f} ms); a reconstruction change "
+            f"at {rc['voxels']} ({rc['methods']}) in {rc['median_s']:.2f} s (goal <= {rc['goal_s']:g} s, {met(rc)}; "
+            f"server CPU {cpu_r[0]:.0f}-{cpu_r[-1]:.0f} ms); the first page {fp['median_s']:.1f} s after starting the "
+            f"command ({fp['from_server_ready_median_s']:.1f} s after the server printed its address; goal <= "
+            f"{fp['goal_s']:g} s, {met(fp)}"
+            + (f"; the first start of the run, untimed, {fp['cold_start_s']:.1f} s" if "cold_start_s" in fp else "")
+            + f"). Source: `bench/results/view.json` ({rec['date_utc'][:10]}; "
+            f"{rec['machine'].get('cpu_model') or rec['machine'].get('cpu')}, {rec['machine'].get('cores_available') or rec['machine']['cores']} cores"
+            + (f", 1-min load {lo:.1f} at the start" if lo is not None else "") + ").\n")
+
+
+def view_docs_table(R) -> str:
+    rec = R("view")
+    res = rec["result"]
+    c = res["cases"]
+    fp, de, rc = c["first_page"], c["detector_update"], c["recon_update"]
+    load = res.get("load_average_1_5_15_min", {})
+
+    def goal(case):
+        return f"<= {case['goal_s']:g} s: {'met' if case['goal_met'] else 'not met'}"
+
+    def span(ms):
+        v = sorted(ms)
+        return f"{v[0] / 1000:.2f}-{v[-1] / 1000:.2f}"
+
+    return ("| case | median (worst) of %d, in the browser | server per update | goal |\n|---|---|---|---|\n" % res["repeats"]
+            + f"| detector update, {de['capture']} | {de['median_s']:.2f} s ({de['worst_s']:.2f} s) | "
+              f"{span(de['server_ms'])} s wall, {span(de['server_cpu_ms'])} s CPU | {goal(de)} |\n"
+            + f"| reconstruction update, {rc['voxels']} | {rc['median_s']:.2f} s ({rc['worst_s']:.2f} s) | "
+              f"{span(rc['server_ms'])} s wall, {span(rc['server_cpu_ms'])} s CPU | {goal(rc)} |\n"
+            + f"| first page, from the command's start | {fp['median_s']:.1f} s ({fp['worst_s']:.1f} s) | "
+              f"({fp['from_server_ready_median_s']:.1f} s median from the printed address"
+              + (f"; the first start of the run {fp['cold_start_s']:.1f} s, untimed" if "cold_start_s" in fp else "")
+              + f") | {goal(fp)} |\n\n"
+            + f"Source: `bench/results/view.json` ({rec['date_utc'][:10]}; {rec['machine'].get('cpu_model') or rec['machine'].get('cpu')}, "
+              f"{rec['machine'].get('cores_available') or rec['machine']['cores']} cores; 1-min load average {load.get('before', ['?'])[0]} before "
+              f"and {load.get('after', ['?'])[0]} after the run).\n")
+
+
+#: name -> (generator, records it reads, inline?)
+def fit_para(R) -> str:
+    rec = R("fit")
+    r = rec["result"]
+    m = r["metrics"]
+    f, b = m["fit"], m["backprojection"]
+    t = r["targets"]
+    err = r["parameters"]["error"]
+
+    def ok(good: bool) -> str:
+        return "met" if good else "missed"
+
+    cap = r["capture"]
+    rows = [
+        ("joint angles, largest error (mean)", f"{m['joint_error_max_deg']:.1f} deg ({m['joint_error_mean_deg']:.1f})",
+         "", f"<= {t['joint_error_max_deg']:g} deg: {ok(m['joint_error_max_deg'] <= t['joint_error_max_deg'])}"),
+        ("body centre, distance", f"{100 * m['position_error_m']:.2f} cm", "",
+         f"<= {100 * t['position_error_m']:g} cm: {ok(m['position_error_m'] <= t['position_error_m'])}"),
+        ("height, reflectance", f"{100 * err['height_m']:+.2f} cm, {err['albedo']:+.3f}", "", ""),
+        ("Chamfer (voxels, as the demo scores backprojection)", f"{100 * f['chamfer_m']:.2f} cm",
+         f"{100 * b['chamfer_m']:.2f} cm", f"<= {100 * t['chamfer_m']:g} cm: {ok(f['chamfer_m'] <= t['chamfer_m'])}"),
+        ("occupancy IoU", f"{f['iou']:.2f}", f"{b['iou']:.2f}", f">= {t['iou']:g}: {ok(f['iou'] >= t['iou'])}"),
+        ("Chamfer, fitted surface to true surface", f"{100 * f['chamfer_mesh_m']:.2f} cm", "", ""),
+        ("depth MAE, silhouette IoU", f"{100 * f['depth_mae_m']:.2f} cm, {f['silhouette_iou']:.2f}",
+         f"{100 * b['depth_mae_m']:.2f} cm, {b['silhouette_iou']:.2f}", ""),
+        ("time (fit command, wall)", f"{r['fit_wall_s']:.0f} s", "",
+         f"<= {t['fit_wall_s'] / 60:g} min: {ok(r['fit_wall_s'] <= t['fit_wall_s'])}"),
+    ]
+    head = "| | fit | backprojection (paper's filter) | target |\n|---|---|---|---|\n"
+    body = "\n".join(f"| {a} | {x} | {y} | {z} |" for a, x, y, z in rows)
+    st = r["settings"]
+    return (f"\nThe paper's scene ({cap['array']}x{cap['array']} array, 2 x 2 laser spots, the paper's detector for "
+            f"{cap['exposure_s'] * 1000:g} ms per spot, rendered to the demo's noise target) with the mannequin in a "
+            f"pose the fit does not start from (`{cap['defines'].get('joints', '')}`, turned "
+            f"{cap['defines']['rotation']} degrees, {cap['defines']['distance']} m from the wall); the fit ran "
+            f"{st['iterations']} iterations with its defaults:\n\n" + head + body
+            + f"\n\nPoisson NLL of the counts: {r['poisson_nll']['start']:.6g} at the start, {r['poisson_nll']['fit']:.6g} "
+            f"fitted. {provenance(rec)}\n")
