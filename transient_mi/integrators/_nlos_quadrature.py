@@ -21,29 +21,27 @@ Here it is integrated by quadrature instead of sampling:
 * **Arrival times: exact for the linearised path length.** Across a pair the optical path length is
   linear to second order; the pair's arrival-time distribution is the triangular distribution of the
   element's three vertex values convolved with the cell's two uniform components, integrated exactly over
-  every bin (:mod:`transient_mi.integrators._nlos_time_spread`), not deposited at the centre.
+  every bin (:mod:`transient_mi.integrators._nlos_time_spread`), not deposited at the centre. The leading
+  second-order term (the path length is convex) is removed from the mean: the knots are shifted by 3/4 of
+  the centroid's deviation from the vertex mean (exact for a quadratic over a triangle) and by 1/3 of the
+  cell's corner-mean deviation from its centre (exact for a quadratic over a square).
 * **Visibility.** ``V(p, X)`` and ``V(X, S)`` are tested by ray casts at the centroid and at three points
   near the element's corners (each leg from the cell centre and from the spot). Elements whose samples
   disagree for some pixel or spot are split in four, up to ``refine_levels`` times; a pair still mixed
-  then contributes the visible share of its samples, and its whole unoccluded weight is added to the bound.
+  then contributes the visible share of its samples (centroid 1/2, corners 1/6 each).
   Visibility is assumed constant over an element whose samples agree (an occluder smaller than an element
   can be missed: keep ``element_size_m`` below the smallest feature).
 
-Error bound (stored like the Monte Carlo variance, ``kind: "error_bound"``): per bin, the sum over pairs of
+Error (stored like the Monte Carlo variance, ``kind: "error_bound"``), per bin, the sum of
 
-1. mixed visibility: the unoccluded weight of each mixed pair, spread like its light;
-2. linearisation of the path length: its deviation ``delta`` over the pair is at most
-   ``(1/|X-p| + 1/|X-S|) h_e^2 / 2 + (1/|X-p| + 1/|p-D|) d_c^2 / 2 + h_e d_c / |X-p|`` (the Hessian of a
-   distance is bounded by the inverse distance; ``h_e`` the longest element edge, ``d_c`` the cell's
-   half-diagonal), so each bin edge within reach moves at most ``delta`` times the pair's largest density of
-   its light;
-3. the midpoint rule for the weight: ``SMOOTH_CONSTANT (h_e^2 / r_e^2 + d_c^2 / r_c^2)`` of the pair's
-   light, with ``r`` the shortest distance the element (cell) sees; this part assumes the BSDFs and textures
-   vary no faster than the geometric factors (true for the Lambertian and rough BSDFs of NLOS scenes; a
-   texture with detail finer than an element is not covered).
-
-Parts 2 and 3 fall as ``h^2``; the self-convergence tests check that a coarse level's error against a
-fine one stays under the coarse bound.
+1. **mixed visibility** (a bound): the whole unoccluded light of every pair whose samples disagree, times
+   ``max(share, 1 - share)``, spread like its light;
+2. **discretisation** (an a-posteriori estimate): ``|I_h - I_2h|``, the difference between the result and a
+   coarse level with each element's parent (twice the size) and half the cells per side. Both levels
+   converge at second order in the element size (midpoint rule for the weight, second-order path length),
+   so ``|I_h - I_2h|`` is about three times the fine level's own error; it bounds that error whenever the
+   coarse level's error is at least twice the fine one's. It is an estimate, not a guarantee: tested by
+   self-convergence (a level's error against a much finer one stays under its estimate).
 
 What it does not do (refused in one line; use ``estimator="monte_carlo"``): windows and media on the device
 legs or in hidden space, a divergent laser beam, a non-planar relay wall, shapes that are not meshes
@@ -62,7 +60,7 @@ import numpy as np
 
 from transient_core.units import C_M_PER_PS
 from transient_mi.integrators._lanes import to_mono
-from transient_mi.integrators._nlos_time_spread import spread_pairs, spread_spot
+from transient_mi.integrators._nlos_time_spread import spread_spot
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
 
@@ -70,8 +68,6 @@ from transient_mi.time_axis import apply_kernel
 VISIBILITY_REL_TOL = 1e-4
 #: Visibility samples near each corner sit this far from the centroid, as a share of the way to the corner.
 CORNER_SAMPLE = 0.95
-#: Constant of the midpoint-rule part of the bound (see the module docstring, part 3).
-SMOOTH_CONSTANT = 2.0
 #: Pairs (element, cell) evaluated per Dr.Jit launch.
 PAIRS_PER_CHUNK = 1 << 20
 #: Default longest element edge, m.
@@ -232,28 +228,6 @@ class _Geometry:
         self.N = float(setup.photons_per_pulse)
 
 
-def _wall_interactions(scene, g: _Geometry):
-    """Surface interactions at every cell centre, seen from the detector (``wi`` towards it)."""
-    ray = mi.Ray3f(mi.Point3f(_v3(np.broadcast_to(g.D, g.cell_p.shape))), _v3(g.dq))
-    si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
-    dr.eval(si)
-    return si
-
-
-def _gather_si(si, idx):
-    """The fields of ``si`` a BSDF evaluation needs, gathered at ``idx`` (mi.UInt32)."""
-    out = dr.zeros(mi.SurfaceInteraction3f)
-    out.p = dr.gather(mi.Point3f, si.p, idx)
-    out.n = dr.gather(mi.Normal3f, si.n, idx)
-    out.sh_frame = mi.Frame3f(dr.gather(mi.Vector3f, si.sh_frame.s, idx), dr.gather(mi.Vector3f, si.sh_frame.t, idx),
-                              dr.gather(mi.Normal3f, si.sh_frame.n, idx))
-    out.uv = dr.gather(mi.Point2f, si.uv, idx)
-    out.wi = dr.gather(mi.Vector3f, si.wi, idx)
-    out.t = dr.gather(mi.Float, si.t, idx)
-    out.shape = dr.gather(mi.ShapePtr, si.shape, idx)
-    return out
-
-
 class _SpotSide:
     """Per laser spot and element: the spot's surface interaction, visibility of the element's samples,
     the spot's intensity towards the centroid, distances."""
@@ -307,21 +281,19 @@ def _mixed_elements(scene, g: _Geometry, spot_side: _SpotSide, tri, shape_index,
     return mixed
 
 
-def build_elements(scene, setup, g: _Geometry, spots, element_size_m: float, refine_levels: int, hidden_ptrs):
-    """Elements after uniform subdivision and visibility refinement: ``(tri, shape_index, levels_used)``."""
-    tri, idx = mesh_triangles(setup.hidden_shapes)
-    tri, idx = subdivide(tri, idx, element_size_m)
+def refine_visibility(scene, setup, g: _Geometry, spots, tri, shape_index, refine_levels: int, hidden_ptrs):
+    """Split elements of mixed visibility in four, up to ``refine_levels`` times: ``(tri, shape_index, levels)``."""
     levels = 0
     for _ in range(refine_levels):
-        side = _SpotSide(scene, setup, spots, tri, idx, hidden_ptrs)
-        mixed = _mixed_elements(scene, g, side, tri, idx, hidden_ptrs)
+        side = _SpotSide(scene, setup, spots, tri, shape_index, hidden_ptrs)
+        mixed = _mixed_elements(scene, g, side, tri, shape_index, hidden_ptrs)
         if not mixed.any():
             break
         keep = ~mixed
         tri = np.concatenate([tri[keep], split4(tri[mixed])])
-        idx = np.concatenate([idx[keep], np.repeat(idx[mixed], 4)])
+        shape_index = np.concatenate([shape_index[keep], np.repeat(shape_index[mixed], 4)])
         levels += 1
-    return tri, idx, levels
+    return tri, shape_index, levels
 
 
 # ------------------------------------------------------------------ the render
@@ -330,33 +302,47 @@ def build_elements(scene, setup, g: _Geometry, spots, element_size_m: float, ref
 def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int]):
     """Render the three-bounce light of a group of spots by quadrature (see the module docstring).
 
-    Returns one :class:`~transient_mi.films.transient_film.TransientResult` per spot with ``error_bound`` and
-    ``total_error_bound`` set and no variance. ``options``: ``element_size_m``, ``patch_cells``,
-    ``refine_levels``, ``max_depth``.
+    Two levels are integrated: the *fine* one (elements of at most ``element_size_m``, ``patch_cells``
+    cells per patch side, visibility refinement) is the result; the *coarse* one (each fine element's
+    parent, of twice the size, and half the cells per side, at least one) serves the error estimate.
+
+    Returns one :class:`~transient_mi.films.transient_film.TransientResult` per spot with ``error_bound``
+    and ``total_error_bound`` set and no variance.
     """
     from transient_mi.films.transient_film import TransientResult
 
-    g = _Geometry(setup, film, options.get("patch_cells", DEFAULT_PATCH_CELLS))
+    m = 1 if setup.pixel_sampling == "center" else int(options.get("patch_cells", DEFAULT_PATCH_CELLS))
+    g = _Geometry(setup, film, m)
     confocal = setup.capture == "confocal"
     P = g.W * g.H
     max_depth = options.get("max_depth", 4)
     spot_ids = list(range(setup.n_spots)) if confocal else list(spots)
     G_out = 1 if confocal else len(spots)
-    hist = np.zeros((G_out, P, g.n_ext))
-    bound = np.zeros((G_out, P, g.n_ext))
-    steady = np.zeros((G_out, P))
-    tot_bound = np.zeros((G_out, P))
-    outside = np.zeros((G_out, P))
-    info = {"elements": 0, "refine_levels": 0, "pairs": 0}
+    zeros = np.zeros((G_out, P, g.n_ext))
+    fine = {"hist": zeros, "bound": zeros.copy(), "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)),
+            "outside": np.zeros((G_out, P)), "pairs": 0}
+    coarse = None
+    info = {"elements": 0, "coarse_elements": 0, "refine_levels": 0, "pairs": 0, "patch_cells": m}
+    h = float(options.get("element_size_m", DEFAULT_ELEMENT_SIZE_M))
     if setup.hidden_shapes and max_depth >= 4:
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
-        tri, idx, levels = build_elements(scene, setup, g, spot_ids,
-                                          float(options.get("element_size_m", DEFAULT_ELEMENT_SIZE_M)),
-                                          int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)), hidden_ptrs)
-        info.update(elements=len(tri), refine_levels=levels)
-        side = _SpotSide(scene, setup, spot_ids, tri, idx, hidden_ptrs)
-        _accumulate(scene, setup, g, side, tri, idx, hidden_ptrs, spot_ids, confocal, hist, bound, steady,
-                    tot_bound, outside, info)
+        tri0, idx0 = mesh_triangles(setup.hidden_shapes)
+        tri_c, idx_c = subdivide(tri0, idx0, 2.0 * h)
+        tri_f, idx_f = split4(tri_c), np.repeat(idx_c, 4)
+        tri_f, idx_f, levels = refine_visibility(scene, setup, g, spot_ids, tri_f, idx_f,
+                                                 int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)),
+                                                 hidden_ptrs)
+        fine = _level(scene, setup, g, tri_f, idx_f, hidden_ptrs, spot_ids, confocal, G_out)
+        g_c = _Geometry(setup, film, max(1, m // 2))
+        coarse = _level(scene, setup, g_c, tri_c, idx_c, hidden_ptrs, spot_ids, confocal, G_out)
+        info.update(elements=len(tri_f), coarse_elements=len(tri_c), refine_levels=levels,
+                    pairs=fine["pairs"] + coarse["pairs"])
+    hist = fine["hist"]
+    steady = fine["steady"]
+    outside = fine["outside"]
+    # error: the light of mixed visibility, plus the discretisation estimated by the coarse level
+    bound = fine["bound"] + (np.abs(fine["hist"] - coarse["hist"]) if coarse is not None else 0.0)
+    tot_bound = fine["vis_err"] + (np.abs(fine["steady"] - coarse["steady"]) if coarse is not None else 0.0)
     # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)
     wr = setup.wall_return
     for gi in range(G_out):
@@ -374,13 +360,13 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
                 outside[gi, pix] += ph
     results = []
     for gi in range(G_out):
-        h = apply_kernel(hist[gi], g.taps) if g.pad else hist[gi]
-        e = apply_kernel(bound[gi], g.taps) if g.pad else bound[gi]
-        in_hist = float(h.sum())
+        hk = apply_kernel(hist[gi], g.taps) if g.pad else hist[gi]
+        ek = apply_kernel(bound[gi], g.taps) if g.pad else bound[gi]
+        in_hist = float(hk.sum())
         tot = float(steady[gi].sum())
         frac = max(0.0, 1.0 - in_hist / tot) if tot > 0 else 0.0
         results.append(TransientResult(
-            histogram=h.astype(np.float32).reshape(g.H, g.W, g.n_bins),
+            histogram=hk.astype(np.float32).reshape(g.H, g.W, g.n_bins),
             steady=steady[gi].astype(np.float32).reshape(g.H, g.W),
             dropped_contributions=int((outside[gi] > 1e-12 * max(tot, 1e-300)).sum()),
             dropped_fraction=frac,
@@ -388,42 +374,50 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
             variance=None,
             total_variance=None,
             replicates=1,
-            error_bound=e.astype(np.float32).reshape(g.H, g.W, g.n_bins),
+            error_bound=ek.astype(np.float32).reshape(g.H, g.W, g.n_bins),
             total_error_bound=tot_bound[gi].astype(np.float32).reshape(g.H, g.W),
             estimator_info=dict(info),
         ))
     return results
 
 
-def _accumulate(scene, setup, g: _Geometry, side: _SpotSide, tri, idx, hidden_ptrs, spot_ids, confocal, hist, bound,
-                steady, tot_bound, outside, info):
-    """Evaluate every (element, cell) pair for every spot and deposit it (see :func:`render_spots_quadrature`)."""
+def _level(scene, setup, g: _Geometry, tri, idx, hidden_ptrs, spot_ids, confocal, G_out) -> dict:
+    """Integrate one level (elements ``tri``, the cells of ``g``) for every spot of the group.
+
+    Returns ``hist``, ``bound`` (light of mixed visibility, per bin) ``[G, P, n_ext]``, ``steady``,
+    ``vis_err``, ``outside`` ``[G, P]`` and ``pairs``.
+    """
+    P = g.W * g.H
+    out = {"hist": np.zeros((G_out, P, g.n_ext)), "bound": np.zeros((G_out, P, g.n_ext)),
+           "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)), "outside": np.zeros((G_out, P)),
+           "pairs": 0}
+    side = _SpotSide(scene, setup, spot_ids, tri, idx, hidden_ptrs)
     n = len(tri)
     pts = _sample_points(tri)
     X0 = pts[:, 0]
-    edge = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
-                     np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    nrm_all = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    nrm_all /= np.linalg.norm(nrm_all, axis=1, keepdims=True)
     C = len(g.cell_p)
     ctx = mi.BSDFContext()
     per = max(1, PAIRS_PER_CHUNK // C)
-    hd = g.cell_half_diag
+    t_origin = g.t0_m / g.bin_m - g.pad
+    corners = np.array([[-0.5, -0.5], [0.5, -0.5], [-0.5, 0.5], [0.5, 0.5]])
+    spot_weight = side.intensity / side.r_sx ** 2  # [G, n]
     for e0 in range(0, n, per):
         e1 = min(n, e0 + per)
         ne = e1 - e0
-        ce = np.repeat(np.arange(C), ne)  # pair -> cell
+        ce = np.repeat(np.arange(C), ne)  # pair -> cell (pairs sorted by cell, hence by pixel)
         ee = np.tile(np.arange(e0, e1), C)  # pair -> element
-        if confocal:  # the pixel's own spot only
-            spot_of_pair = g.cell_pixel[ce]
         p = g.cell_p[ce]
         # ---- detector side (spot-independent): visibility of the four samples, BSDF at the wall
         sp = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(idx[ee].astype(np.uint32)))
-        # the centroid's interaction (wi towards p) serves the BSDF at X for every spot
-        si_x, ok_c = _visible(scene, p, X0[ee], sp, g.normal)
+        si_x, ok_c = _visible(scene, p, X0[ee], sp, g.normal)  # wi towards p: the BSDF at X for every spot
         dr.eval(si_x, ok_c)
         sp3 = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(np.repeat(idx[ee], 3).astype(np.uint32)))
         _, ok3 = _visible(scene, np.repeat(p, 3, axis=0), pts[ee, 1:].reshape(-1, 3), sp3, g.normal)
-        vis_p = np.concatenate([np.asarray(ok_c).reshape(-1, 1), np.asarray(ok3).reshape(-1, 3)], axis=1)
+        vis_p = np.ascontiguousarray(np.concatenate([np.asarray(ok_c).reshape(-1, 1),
+                                                     np.asarray(ok3).reshape(-1, 3)], axis=1))
         del sp3, ok3
         to_x = X0[ee] - p
         r_px = np.linalg.norm(to_x, axis=1)
@@ -432,80 +426,56 @@ def _accumulate(scene, setup, g: _Geometry, side: _SpotSide, tri, idx, hidden_pt
         si_p = scene.ray_intersect(ray_p, ray_flags=mi.RayFlags.All, coherent=True)
         f_p = np.asarray(to_mono(si_p.bsdf().eval(ctx, si_p, si_p.to_local(_v3(d_px))), si_p.wavelengths),
                          dtype=np.float64)
-        # cos(theta_X) from the element's geometric normal (the triangle's; Mitsuba's si.n for flat faces)
-        nrm = np.cross(tri[ee, 1] - tri[ee, 0], tri[ee, 2] - tri[ee, 0])
-        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-        cos_x = np.abs(np.einsum("ij,ij->i", nrm, d_px))
-        base = g.N * g.cell_w0[ce] * area[ee] * f_p * cos_x / r_px ** 2  # photons per pulse, before the spot leg
-        # detector-side OPL at the cell centre, at the three vertices, and its gradient in p (cell widths)
+        # cos(theta_X) from the element's geometric normal (Mitsuba's si.n of a flat face)
+        cos_x = np.abs(np.einsum("ij,ij->i", nrm_all[ee], d_px))
+        base = g.N * g.cell_w0[ce] * area[ee] * f_p * cos_x / r_px ** 2  # photons per pulse before the spot leg
         opl_d = g.cell_opl_d[ce]
-        r_pv = np.linalg.norm(tri[ee] - p[:, None, :], axis=2)  # [n_pairs, 3]
+        r_pv = np.ascontiguousarray(np.linalg.norm(tri[ee] - p[:, None, :], axis=2))  # [pairs, 3]
         grad_p = g.fl * (p - g.D) / np.linalg.norm(p - g.D, axis=1, keepdims=True) - d_px
         w1 = np.abs(grad_p @ g.cell_ax) / g.bin_m
         w2 = np.abs(grad_p @ g.cell_ay) / g.bin_m
-        r_pd = np.linalg.norm(p - g.D, axis=1)
-        if not confocal:
-            pix = g.cell_pixel[ce]
-            pixel_start = np.searchsorted(pix, np.arange(len(steady[0]) + 1)).astype(np.int64)
-            hd_term = (1.0 / r_px + g.fl / r_pd) * hd ** 2 / 2.0
-            pd_term = hd ** 2 / np.minimum(r_px, r_pd) ** 2
-            vis_p = np.ascontiguousarray(vis_p)
-            r_pv = np.ascontiguousarray(r_pv)
-            t_origin = g.t0_m / g.bin_m - g.pad
-            for gi in range(len(spot_ids)):
-                to_s = side.S[gi] - X0[ee]
-                d_s = to_s / np.linalg.norm(to_s, axis=1, keepdims=True)
-                f_x = np.asarray(to_mono(si_x.bsdf().eval(ctx, si_x, si_x.to_local(_v3(d_s))), si_x.wavelengths),
-                                 dtype=np.float64)
-                spread_spot(hist[gi], bound[gi], steady[gi], tot_bound[gi], outside[gi], pixel_start,
-                            ee.astype(np.int64), base, vis_p, r_pv, r_px, opl_d, w1, w2, hd_term, pd_term, f_x,
-                            np.ascontiguousarray(side.vis[gi]), side.intensity[gi] / side.r_sx[gi] ** 2,
-                            np.ascontiguousarray(side.r_sv[gi]), side.r_sx[gi], g.fl * float(side.laser_leg[gi]),
-                            edge, hd, g.bin_m, t_origin, SMOOTH_CONSTANT, g.n_ext)
-                info["pairs"] += len(ee)
-            del si_x, si_p, ok_c
-            continue
-        groups = [None]
-        for gi in groups:
+        # mean deviation of the detector-side path length from its tangent plane over the cell: for a
+        # quadratic it is 1/3 of (mean over the four corners - centre)
+        if g.cell_half_diag > 0:
+            lc = opl_d + r_px
+            acc = np.zeros(len(ee))
+            for cu, cv in corners:
+                q = p + cu * g.cell_ax + cv * g.cell_ay
+                acc += g.fl * np.linalg.norm(q - g.D, axis=1) + np.linalg.norm(X0[ee] - q, axis=1)
+            cell_shift = (acc / 4.0 - lc) / 3.0
+        else:
+            cell_shift = np.zeros(len(ee))
+        pix = g.cell_pixel[ce]
+        pixel_start = np.searchsorted(pix, np.arange(P + 1)).astype(np.int64)
+        pe = ee.astype(np.int64)
+        if confocal:  # spot k lies on pixel k's patch: each pixel's pairs with their own spot
+            jobs = [(k, 0, slice(pixel_start[k], pixel_start[k + 1])) for k in range(P)]
+        else:
+            jobs = [(gi, gi, slice(0, len(ee))) for gi in range(len(spot_ids))]
+        for si_idx, gout, sl in jobs:
+            if sl.stop <= sl.start:
+                continue
+            to_s = side.S[si_idx] - X0[ee[sl]]
+            d_s = to_s / np.linalg.norm(to_s, axis=1, keepdims=True)
             if confocal:
-                gs = spot_of_pair  # [n_pairs] spot per pair
-                S = side.S[gs]
-                vis_s = side.vis[gs, ee]
-                inten = side.intensity[gs, ee]
-                leg = side.laser_leg[gs]
-                out_i = 0
+                sub = dr.gather(type(si_x), si_x, mi.UInt32(np.arange(sl.start, sl.stop, dtype=np.uint32)))
             else:
-                S = side.S[gi]
-                vis_s = side.vis[gi][ee]
-                inten = side.intensity[gi][ee]
-                leg = side.laser_leg[gi]
-                out_i = gi
-            to_s = S - X0[ee]
-            r_sx = np.linalg.norm(to_s, axis=-1)
-            d_s = to_s / r_sx[:, None]
-            f_x = np.asarray(to_mono(si_x.bsdf().eval(ctx, si_x, si_x.to_local(_v3(d_s))), si_x.wavelengths),
-                             dtype=np.float64)
-            full = base * f_x * inten / r_sx ** 2  # unoccluded weight of the pair
-            vis = vis_p & vis_s  # [n_pairs, 4]
-            # centroid 1/2, corner samples 1/6 each
-            frac = vis.astype(np.float64) @ np.array([0.5, 1.0 / 6.0, 1.0 / 6.0, 1.0 / 6.0])
-            mixed = vis.any(axis=1) & ~vis.all(axis=1)
-            weight = full * frac
-            err_w = np.where(mixed, full * np.maximum(frac, 1.0 - frac), 0.0)
-            # vertex arrival values (bins on the padded axis)
-            r_sv = np.linalg.norm(tri[ee] - (S[None, None, :] if S.ndim == 1 else S[:, None, :]), axis=2)
-            opl_v = opl_d[:, None] + r_pv + r_sv + g.fl * (leg if np.ndim(leg) == 0 else leg[:, None])
-            tv = np.sort((opl_v - g.t0_m) / g.bin_m + g.pad, axis=1)
-            r_min_e = np.minimum(r_px, r_sx)
-            he = edge[ee]
-            delta = ((1.0 / r_px + 1.0 / r_sx) * he ** 2 / 2.0 + (1.0 / r_px + g.fl / r_pd) * hd ** 2 / 2.0
-                     + he * hd / r_px) / g.bin_m
-            rel_smooth = SMOOTH_CONSTANT * (he ** 2 / r_min_e ** 2 + hd ** 2 / np.minimum(r_px, r_pd) ** 2)
-            pix = g.cell_pixel[ce]
-            out = spread_pairs(hist[out_i], bound[out_i], pix.astype(np.int64), weight, err_w, tv[:, 0],
-                               tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0], w1, w2, delta, rel_smooth, g.n_ext)
-            outside[out_i] += out
-            steady[out_i] += np.bincount(pix, weights=weight, minlength=len(steady[out_i]))
-            tot_bound[out_i] += np.bincount(pix, weights=err_w + weight * rel_smooth, minlength=len(steady[out_i]))
-            info["pairs"] += len(ee)
+                sub = si_x
+            f_sub = np.asarray(to_mono(sub.bsdf().eval(ctx, sub, sub.to_local(_v3(d_s))), sub.wavelengths),
+                               dtype=np.float64)
+            if confocal:
+                f_x = np.zeros(len(ee))
+                f_x[sl] = f_sub
+                ps = np.full(P + 1, sl.start, dtype=np.int64)
+                ps[si_idx + 1:] = sl.stop
+            else:
+                f_x = f_sub
+                ps = pixel_start
+            spread_spot(out["hist"][gout], out["bound"][gout], out["steady"][gout], out["vis_err"][gout],
+                        out["outside"][gout], ps, pe, base, vis_p, r_pv, r_px, opl_d, cell_shift, w1, w2, f_x,
+                        np.ascontiguousarray(side.vis[si_idx]), spot_weight[si_idx],
+                        np.ascontiguousarray(side.r_sv[si_idx]), side.r_sx[si_idx],
+                        g.fl * float(side.laser_leg[si_idx]), g.bin_m, t_origin)
+            out["pairs"] += sl.stop - sl.start
         del si_x, si_p, ok_c
+    return out

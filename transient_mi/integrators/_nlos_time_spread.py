@@ -185,26 +185,19 @@ def spread_pairs(hist, bound, pixel, weight, err_weight, t_lo, knot_a, knot_b, w
 
 
 @numba.njit(cache=True, fastmath=False)
-def _spread_one(hist_k, bound_k, f, fe, tlo, a, b, u1, u2, dl, rs, n_ext):
-    """Deposit one pair into one pixel's rows (see :func:`spread_pairs`); returns the mass outside."""
+def _spread_one(hist_k, bound_k, f, fe, tlo, a, b, u1, u2, n_ext):
+    """Deposit one pair's light ``f`` (and its visibility error ``fe``) into one pixel's rows; returns the light
+    arriving outside the padded axis."""
     spread = b + u1 + u2
     eps = REL_WIDTH_EPS * spread
     small1 = u1 <= eps
     small2 = u2 <= eps
     mu = (a + b) / 3.0
     var = (a * a + b * b - a * b) / 18.0
-    fmax = 1e300
-    if b > 0.0:
-        fmax = 2.0 / b
-    if not small1:
-        fmax = min(fmax, 1.0 / u1)
-    if not small2:
-        fmax = min(fmax, 1.0 / u2)
-    cdf_err = min(1.0, dl * fmax)
     lo = tlo - 0.5 * (u1 + u2)
     hi = tlo + b + 0.5 * (u1 + u2)
-    b0 = int(np.floor(lo - dl))
-    b1 = int(np.floor(hi + dl))
+    b0 = int(np.floor(lo))
+    b1 = int(np.floor(hi))
     prev = 0.0
     inside = 0.0
     for bin_ in range(b0, b1 + 1):
@@ -217,64 +210,67 @@ def _spread_one(hist_k, bound_k, f, fe, tlo, a, b, u1, u2, dl, rs, n_ext):
         prev = cur
         if 0 <= bin_ < n_ext:
             hist_k[bin_] += f * m
+            bound_k[bin_] += fe * m
             inside += m
-            e = (fe + f * rs) * m
-            if float(bin_) >= lo - dl and float(bin_) <= hi + dl:
-                e += f * cdf_err
-            if float(bin_ + 1) >= lo - dl and float(bin_ + 1) <= hi + dl:
-                e += f * cdf_err
-            bound_k[bin_] += e
     return f * (1.0 - inside)
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
-def spread_spot(hist, bound, steady, tot_bound, outside, pixel_start, pair_elem, base, vis_p, r_pv, r_px, opl_d, w1,
-                w2, hd_term, pd_term, f_x, vis_s, spot_weight, r_sv, r_sx, spot_opl, he, hd, bin_m, t_origin_bins,
-                smooth_const, n_ext):
-    """All pairs of one laser spot (array captures): weights, visibility, arrival knots, bounds, deposits.
+def spread_spot(hist, bound, steady, vis_err, outside, pixel_start, pair_elem, base, vis_p, r_pv, r_px, opl_d,
+                cell_shift, w1, w2, f_x, vis_s, spot_weight, r_sv, r_sx, spot_opl, bin_m, t_origin_bins):
+    """All pairs of one laser spot: weights, visibility, arrival knots, deposits.
 
-    Pairs are sorted by pixel (``pixel_start[k]:pixel_start[k + 1]``); one thread per pixel, pairs in order
-    (same inputs, same bytes). Per pair: ``pair_elem`` (element), ``base`` (photons per pulse before the spot
-    leg), ``vis_p[4]`` (detector-side visibility of the samples), ``r_pv[3]`` and ``r_px`` (m), ``opl_d``
-    (detector leg, m), ``w1, w2`` (cell widths, bins), ``hd_term`` (the cell's linearisation term, m),
-    ``pd_term`` (``1 / min(|p - X|, |p - D|)^2`` times the cell's squared half-diagonal), ``f_x`` (BSDF at the
-    element towards the spot). Per element (this spot): ``vis_s[4]``, ``spot_weight`` (``f_S cos / r^2``),
-    ``r_sv[3]``, ``r_sx`` (m). ``spot_opl``: the laser leg (m); ``he``: longest edge per element (m); ``hd``: the
-    cells' half-diagonal (m). ``t_origin_bins``: time zero of the padded axis in path-length bins.
+    Pairs are sorted by pixel (``pixel_start[k]:pixel_start[k + 1]``); one thread per pixel, its pairs in
+    order (same inputs, same bytes).
+
+    Per pair: ``pair_elem`` (element), ``base`` (photons per pulse before the spot leg), ``vis_p[4]``
+    (detector-side visibility of the element's samples), ``r_pv[3]`` and ``r_px`` (cell centre to the
+    element's vertices and centroid, m), ``opl_d`` (the detector leg to the cell centre, m),
+    ``cell_shift`` (mean deviation of the detector-side path length from its tangent plane over the cell, m),
+    ``w1, w2`` (the cell's uniform widths, bins), ``f_x`` (BSDF at the element towards the spot). Per element
+    (this spot): ``vis_s[4]``, ``spot_weight`` (``f_S cos / r^2``), ``r_sv[3]``, ``r_sx`` (m).
+    ``spot_opl``: the laser leg (m). ``t_origin_bins``: time zero of the padded axis in path-length bins.
+
+    The triangle's knots are the path lengths at its vertices, shifted by ``3/4`` of the centroid's deviation
+    from their mean: for a quadratic path length the linear interpolant's mean error over a triangle is
+    exactly ``3/4`` of its error at the centroid (``E[l_i l_j] = 1/12`` against ``1/9`` for barycentric
+    coordinates), so the shift removes the leading (convexity) bias of the arrival times; ``cell_shift`` does
+    the same for the cell. ``vis_err``: per pixel, the light whose visibility is uncertain (mixed samples).
     """
     n_pix = hist.shape[0]
     for k in numba.prange(n_pix):
         for i in range(pixel_start[k], pixel_start[k + 1]):
             e = pair_elem[i]
             full = base[i] * f_x[i] * spot_weight[e]
+            if full == 0.0:
+                continue
             nvis = 0
             frac = 0.0
             for s in range(4):
-                v = vis_p[i, s] and vis_s[e, s]
-                if v:
+                if vis_p[i, s] and vis_s[e, s]:
                     nvis += 1
                     frac += 0.5 if s == 0 else 1.0 / 6.0
-            if full == 0.0:
+            if nvis == 0:
                 continue
             f = full * frac
             fe = 0.0
-            if 0 < nvis < 4:
+            if nvis < 4:
                 fe = full * max(frac, 1.0 - frac)
-            t0 = (opl_d[i] + r_pv[i, 0] + r_sv[e, 0] + spot_opl) / bin_m - t_origin_bins
-            t1 = (opl_d[i] + r_pv[i, 1] + r_sv[e, 1] + spot_opl) / bin_m - t_origin_bins
-            t2 = (opl_d[i] + r_pv[i, 2] + r_sv[e, 2] + spot_opl) / bin_m - t_origin_bins
+            l0 = opl_d[i] + r_pv[i, 0] + r_sv[e, 0] + spot_opl
+            l1 = opl_d[i] + r_pv[i, 1] + r_sv[e, 1] + spot_opl
+            l2 = opl_d[i] + r_pv[i, 2] + r_sv[e, 2] + spot_opl
+            lc = opl_d[i] + r_px[i] + r_sx[e] + spot_opl
+            shift = 0.75 * (lc - (l0 + l1 + l2) / 3.0) + cell_shift[i]
+            t0 = (l0 + shift) / bin_m - t_origin_bins
+            t1 = (l1 + shift) / bin_m - t_origin_bins
+            t2 = (l2 + shift) / bin_m - t_origin_bins
             if t0 > t1:
                 t0, t1 = t1, t0
             if t1 > t2:
                 t1, t2 = t2, t1
             if t0 > t1:
                 t0, t1 = t1, t0
-            rpx = r_px[i]
-            rsx = r_sx[e]
-            h = he[e]
-            dl = ((1.0 / rpx + 1.0 / rsx) * h * h / 2.0 + hd_term[i] + h * hd / rpx) / bin_m
-            rmin = min(rpx, rsx)
-            rs = smooth_const * (h * h / (rmin * rmin) + pd_term[i])
-            outside[k] += _spread_one(hist[k], bound[k], f, fe, t0, t1 - t0, t2 - t0, w1[i], w2[i], dl, rs, n_ext)
+            outside[k] += _spread_one(hist[k], bound[k], f, fe, t0, t1 - t0, t2 - t0, w1[i], w2[i],
+                                      hist.shape[1])
             steady[k] += f
-            tot_bound[k] += fe + f * rs
+            vis_err[k] += fe

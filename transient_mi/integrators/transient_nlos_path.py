@@ -276,6 +276,29 @@ class TransientNLOSPath(mi.CppADIntegrator):
            the direction leaving the relay-wall patch point, in [0, 1]
            (default 0.8); 0 is BSDF sampling only. Unused in scenes without
            hidden geometry.
+       * - ``estimator``
+         - string
+         - ``monte_carlo`` (default: the path tracer above) or
+           ``quadrature``: the deterministic three-bounce estimator
+           (:mod:`transient_mi.integrators._nlos_quadrature`; no samples, no
+           noise: ``spp`` and the replicates are ignored, and the capture
+           stores an error estimate instead of a variance). It renders
+           ``max_depth <= 4`` of mesh hidden shapes behind a planar wall,
+           without windows, media or a divergent beam; other captures are
+           refused in one line.
+       * - ``element_size_m``
+         - float
+         - ``quadrature``: longest edge of a hidden-surface element, m, in
+           [1e-5, 10] (default 0.01). The error falls as its square, the cost
+           rises as its inverse square.
+       * - ``patch_cells``
+         - integer
+         - ``quadrature``: cells per side of a pixel's wall patch, in [1, 64]
+           (default 2; 1 with ``pixel_sampling="center"``).
+       * - ``refine_levels``
+         - integer
+         - ``quadrature``: times an element of mixed visibility is split in
+           four, in [0, 8] (default 3).
 
     Determinism: each SIMD lane accumulates its own histogram slot (see
     :mod:`transient_mi.integrators._lanes`), so the same seed gives the same

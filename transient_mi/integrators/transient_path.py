@@ -122,6 +122,11 @@ class TransientPath(mi.CppADIntegrator):
          - float
          - NLOS only: probability of hidden-geometry sampling (vs BSDF
            sampling) at the relay-wall patch point, in [0, 1] (default 0.8).
+       * - ``estimator``, ``element_size_m``, ``patch_cells``, ``refine_levels``
+         - string, float, integer, integer
+         - NLOS only: ``estimator="quadrature"`` renders three-bounce light
+           deterministically, with the quadrature's settings; as
+           ``transient_nlos_path`` (same names, defaults and ranges).
 
     Determinism: each SIMD lane accumulates its own histogram slot (see
     :mod:`transient_mi.integrators._lanes`), so the same seed gives the same
