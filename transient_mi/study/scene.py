@@ -35,7 +35,7 @@ QUICK_SPP = 64
 
 def paper_base(quick: bool):
     """The paper scene's study settings: the demo's full settings, or ``--quick`` (8 ps bins, 256 spp)."""
-    from transient_mi.demo import QUICK, DemoSettings
+    from transient_mi.paper import QUICK, DemoSettings
 
     s = QUICK if quick else DemoSettings()
     from transient_mi.paper import PaperConfig
