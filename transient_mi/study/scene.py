@@ -46,15 +46,15 @@ def paper_base(quick: bool):
 
 def resolve_scene_file(scene) -> Path:
     """Path of ``scene``: an existing XML file, or the name of a shipped scene (``scenes/``)."""
-    from transient_mi.scenes import SCENES_DIR, scene_path
+    from transient_mi.scenes import SCENES_DIR, shipped_scene
 
     if isinstance(scene, Path) or (isinstance(scene, str) and scene.strip()):
         p = Path(scene).expanduser()
         if p.is_file():
             return p.resolve()
-        name = str(scene)
-        if "/" not in name and (SCENES_DIR / (name if name.endswith(".xml") else f"{name}.xml")).is_file():
-            return scene_path(name)
+        shipped = shipped_scene(scene)
+        if shipped is not None:
+            return shipped
     avail = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.xml")))
     raise UserInputError(f"SCENE {str(scene)!r}: neither an existing file nor a shipped scene "
                          f"(shipped: {avail})")
