@@ -1,10 +1,9 @@
 """The :class:`Capture` type and the checks of every geometry it accepts; :mod:`recon.capture` is its public face.
 
-Over 500 lines on purpose: the type and the checks of every geometry it accepts (stack manifests, y-tal
-files, real captures) belong together; every reconstruction method relies on them. The readers of other
-formats (:mod:`recon.io.ytal`, :mod:`recon.io.real`) build their captures here, and
-:func:`recon.capture.load_capture`, which opens every format, sits above them, so no two of these modules
-import each other.
+The checks of stack manifests, y-tal files and real captures live with the type: every reconstruction
+method relies on them. The readers of other formats (:mod:`recon.io.ytal`, :mod:`recon.io.real`) build
+their captures here, and :func:`recon.capture.load_capture`, which opens every format, sits above them,
+so no two of these modules import each other.
 """
 
 from __future__ import annotations
