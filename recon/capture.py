@@ -27,7 +27,7 @@ from pathlib import Path
 from transient_core.errors import UserInputError
 
 # the type lives below the readers of other formats, which build captures too
-from ._capture_type import KINDS, MODES, PULSE_KEYS, Capture
+from ._capture_type import KINDS, MODES, PULSE_KEYS, Capture  # noqa: F401  (PULSE_KEYS: recon.preprocess reads it here)
 
 __all__ = ["Capture", "load_capture", "MODES", "KINDS"]
 
