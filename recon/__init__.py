@@ -23,9 +23,8 @@ Public API (imported lazily, so ``import recon`` stays cheap)::
 
 from __future__ import annotations
 
+from transient_core import __version__  # the distribution's version
 from transient_core.lazy_exports import lazy_exports
-
-__version__ = "0.1.0"
 
 _EXPORTS = {
     "Capture": "capture", "load_capture": "capture",

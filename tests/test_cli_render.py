@@ -89,6 +89,18 @@ def test_bad_input_one_line_error_no_output(tmp_path, args, message):
     assert not out.exists()
 
 
+def test_a_shipped_scene_is_rendered_by_name(rendered, tmp_path):
+    """``render cornell_box`` (no such file here): the shipped scene, the same bytes as by its path."""
+    assert not (ROOT / "cornell_box").exists()
+    out = tmp_path / "by_name"
+    r = cli("render", "cornell_box", "-o", out, *SMALL, "--seed", "7")
+    assert r.returncode == 0, r.stderr
+    assert np.array_equal(stack.read_stack(out)[1], stack.read_stack(rendered[0])[1])
+    assert stack.read_manifest(out)["render"]["scene_file"].endswith("transient_mi/scenes/cornell_box.xml")
+    r = cli("render", "no_such_scene", "-o", tmp_path / "o")
+    assert r.returncode == 2 and r.stderr.strip() == "error: scene file 'no_such_scene' does not exist"
+
+
 def test_missing_scene_and_unwritable_output(tmp_path):
     r = cli("render", tmp_path / "nope.xml", "-o", tmp_path / "o")
     assert r.returncode == 2 and r.stderr.strip() == f"error: scene file '{tmp_path / 'nope.xml'}' does not exist"

@@ -19,4 +19,6 @@ Dependency direction: ``transient_core`` <- ``spad_detector``, ``recon`` <-
 imports anything of those.
 """
 
+#: The version of the transient-mi distribution, stated here only: pyproject.toml reads it, and ``recon``,
+#: ``transient_mi`` and the manifests' software versions take it from here.
 __version__ = "0.1.0"

@@ -18,10 +18,9 @@ re-registers the plug-ins for the new variant.
 from __future__ import annotations
 
 
+from transient_core import __version__  # the distribution's version
 from ._llvm import LLVMNotFoundError, resolve_llvm as _resolve_llvm
 from .variant import DEFAULT_VARIANT, VariantError, requested_variant as _requested_variant
-
-__version__ = "0.1.0"
 
 _VARIANT = _requested_variant()
 _LLVM_ERROR: LLVMNotFoundError | None = None

@@ -32,37 +32,11 @@ from transient_core.errors import UserInputError
 
 from .experiment import (detect_counts, ground_truth, reconstruct, render_ideal, summed_histogram,
                          write_ground_truth)
-from .paper import (PAPER, PAPER_ARRAY_SIZES, PAPER_BOUNDS_M, PaperConfig, paper_detector)
+# DemoSettings and QUICK live in paper.py, beside the settings they start from, so the studies read them
+# without importing the demo
+from .paper import PAPER, PAPER_BOUNDS_M, QUICK, DemoSettings, paper_detector  # noqa: F401  (re-exported)
 from .noise_target import rendered_spp
 from .reporting import METRIC_KEYS, atomic_output_dir, save_figure as _savefig, subplots, write_csv
-
-
-@dataclass(frozen=True)
-class DemoSettings:
-    """What the demo renders, detects and reconstructs (defaults: the full run)."""
-
-    arrays: tuple[int, ...] = PAPER_ARRAY_SIZES
-    spp: int = 1024
-    bin_width_ps: float = 1.0
-    n_bins: int = 11500
-    t0_ps: float = 12500.0
-    spots: int = 2
-    power_w: float = 0.01
-    exposure_s: float = 0.01  # per laser spot: 5e5 pulses at 50 MHz
-    voxels: tuple[int, int, int] = (64, 64, 32)
-    threshold: str = "rel:0.3"
-    seed: int = 0
-    #: Largest ratio of rendering to photon variance (None: render ``spp`` and report the ratio); with a target,
-    #: ``spp`` is the pilot (transient_mi.noise_target).
-    noise_target: float | None = 0.1
-
-    def config(self, array: int) -> PaperConfig:
-        return PaperConfig(array=array, spots=self.spots, power_w=self.power_w, spp=self.spp,
-                           t0_ps=self.t0_ps, n_bins=self.n_bins, bin_width_ps=self.bin_width_ps)
-
-
-#: ``--quick``: coarser time bins and fewer samples (same physics), no noise target (the ratio is reported).
-QUICK = DemoSettings(spp=256, bin_width_ps=8.0, n_bins=1438, noise_target=None)
 
 
 @dataclass

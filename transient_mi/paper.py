@@ -6,6 +6,8 @@ experiment steps (:mod:`transient_mi.experiment`), the studies and the scene
 ``scenes/paper_mannequin.xml`` read it: the scene's ``<default>`` block is
 written from :func:`scene_defaults` (``python -m transient_mi.paper --write-xml``;
 ``tests/test_paper_settings.py`` fails when the file and this module disagree).
+:class:`DemoSettings` and :data:`QUICK`, what ``transient-mi demo`` and the paper scene's studies render,
+detect and reconstruct, are here too (:mod:`transient_mi.demo` re-exports them).
 
 Units: lengths in metres, times in picoseconds, rates in Hz, power in W.
 """
@@ -134,6 +136,34 @@ class PaperConfig:
 
 #: The scene file's own spp (a quick look; ``render --noise-target`` chooses the spp a budget needs).
 SCENE_SPP = 128
+
+
+@dataclass(frozen=True)
+class DemoSettings:
+    """What the demo renders, detects and reconstructs (defaults: the full run)."""
+
+    arrays: tuple[int, ...] = PAPER_ARRAY_SIZES
+    spp: int = 1024
+    bin_width_ps: float = 1.0
+    n_bins: int = 11500
+    t0_ps: float = 12500.0
+    spots: int = 2
+    power_w: float = 0.01
+    exposure_s: float = 0.01  # per laser spot: 5e5 pulses at 50 MHz
+    voxels: tuple[int, int, int] = (64, 64, 32)
+    threshold: str = "rel:0.3"
+    seed: int = 0
+    #: Largest ratio of rendering to photon variance (None: render ``spp`` and report the ratio); with a target,
+    #: ``spp`` is the pilot (transient_mi.noise_target).
+    noise_target: float | None = 0.1
+
+    def config(self, array: int) -> PaperConfig:
+        return PaperConfig(array=array, spots=self.spots, power_w=self.power_w, spp=self.spp,
+                           t0_ps=self.t0_ps, n_bins=self.n_bins, bin_width_ps=self.bin_width_ps)
+
+
+#: ``--quick``: coarser time bins and fewer samples (same physics), no noise target (the ratio is reported).
+QUICK = DemoSettings(spp=256, bin_width_ps=8.0, n_bins=1438, noise_target=None)
 
 
 def paper_detector(**overrides):

@@ -181,7 +181,7 @@ def _origin(v):
 
 def _version() -> str:
     try:
-        from .. import __version__
+        from transient_core import __version__
 
         return __version__
     except Exception:  # pragma: no cover
@@ -229,7 +229,7 @@ def read_ytal(path: str | os.PathLike):
     import h5py
     import yaml
 
-    from ..capture import Capture
+    from .._capture_type import Capture
 
     p = Path(path)
     where = str(p)
@@ -382,7 +382,7 @@ def _plain(v) -> bool:
 def _capture_from_parts(*, mode, kind, spots, spot_normals, pixel_centers, pixel_normals, laser_origin,
                         detector_origin, t0_ps, bin_width_ps, n_bins, include_first_last, n_files, spot_grid,
                         loader, source, extra):
-    from ..capture import _build
+    from .._capture_type import _build
 
     lo = None if laser_origin is None else np.asarray(laser_origin, dtype=np.float64).reshape(3)
     do = None if detector_origin is None else np.asarray(detector_origin, dtype=np.float64).reshape(3)

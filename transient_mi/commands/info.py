@@ -6,7 +6,7 @@ import typer
 
 
 def info(variant: str = typer.Option(None, "--variant", help="Mitsuba variant to select first.")) -> None:
-    """Print versions, the Mitsuba variant, the LLVM in use and the plug-ins."""
+    """Print versions, the Mitsuba variant, the LLVM in use, the plug-ins and the shipped scenes."""
     import drjit as dr
     import mitsuba as mi
 
@@ -21,6 +21,10 @@ def info(variant: str = typer.Option(None, "--variant", help="Mitsuba variant to
     typer.echo(f"LLVM {'.'.join(map(str, llvm)) if llvm[0] >= 0 else 'not loaded'} from {tm.LLVM_PATH}")
     for name, (kind, mod) in sorted(tm.plugin_names().items()):
         typer.echo(f"plugin {kind:10s} {name:16s} {mod}")
+    from transient_mi.scenes import SCENES_DIR
+
+    # what `transient-mi render NAME` takes by name
+    typer.echo(f"scenes {', '.join(sorted(p.stem for p in SCENES_DIR.glob('*.xml')))} (in {SCENES_DIR})")
 
 
 def register(app: typer.Typer) -> None:

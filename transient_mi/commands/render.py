@@ -11,7 +11,9 @@ from ._options import whole_number
 
 
 def render(
-    scene: Path = typer.Argument(..., help="Mitsuba XML scene (transient_path or transient_nlos_path integrator, transient_film/spad_film)."),
+    scene: Path = typer.Argument(..., help="Mitsuba XML scene (transient_path or transient_nlos_path integrator, "
+                                 "transient_film/spad_film), or the name of a shipped scene (e.g. nlos_point_targets; "
+                                 "`transient-mi info` lists them) when no such file exists."),
     out: Path = typer.Option(..., "-o", "--out", help="Output capture directory."),
     define: Optional[List[str]] = typer.Option(None, "-D", "--define", help="Scene parameter name=value ($name in the XML). Repeatable."),
     spp: Optional[int] = typer.Option(None, "--spp", parser=whole_number("--spp"), metavar="<int>", help="Samples per pixel, >= 1 (default: the scene's sampler "
@@ -33,7 +35,10 @@ def render(
     from transient_core.errors import UserInputError
     from transient_mi.render_capture import prepare_render, run_render
     from transient_mi.scene_io import parse_defines
+    from transient_mi.scenes import shipped_scene
 
+    if not scene.exists() and shipped_scene(scene) is not None:
+        scene = shipped_scene(scene)
     if spp is not None and spp < 1:
         raise UserInputError(f"--spp {spp}: must be >= 1 (omit --spp for the scene's sampler value)")
     spec = None

@@ -51,20 +51,14 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from transient_mi.integrators._lanes import (ChannelHistogram, LaneHistogram, LaneLayout, channel_values,
-                                             choose_streams, seed_rng)
+from transient_mi.integrators._lanes import (ChannelHistogram, LaneHistogram, LaneLayout, as_list,
+                                             channel_values, choose_streams, seed_rng)
 from transient_mi.integrators._ad_geometry import TimeAdjoint, TimeTangent, check_geometry, replay_geometry
+from transient_mi.integrators._mis import detached_mis_weight as _mis
 from transient_mi.integrators._optical_path import segment_index
 from transient_mi.integrators._pixel_filter import PixelFilter
 from transient_mi.integrators._time_origin import TimeOrigin
 from transient_mi.props import PluginParameterError
-
-
-def _mis(pdf_a, pdf_b):
-    """The primal's MIS weight (:func:`~transient_mi.integrators.transient_path.mis_weight`), detached."""
-    from transient_mi.integrators.transient_path import mis_weight
-
-    return dr.detach(mis_weight(pdf_a, pdf_b))
 
 
 def _check(integrator, sensor):
@@ -125,10 +119,6 @@ class _Adjoint:
                 for c, v in enumerate(values)]
 
 
-def _as_list(values) -> list:
-    return list(values) if isinstance(values, (list, tuple)) else [values]
-
-
 #: Wavelengths per path of a spectral variant (1 otherwise): the replay's adjoint sums and log-throughput
 #: derivatives are kept per (channel, wavelength), since a BSDF value's ratio differs per wavelength
 N_WL = dr.size_v(mi.Spectrum) if mi.is_spectral else 1
@@ -138,12 +128,12 @@ def _values(value, wavelengths, channels, rotation) -> list:
     """A contribution's recorded values: per channel (mono, rgb), or per (channel, wavelength) in spectral
     variants (the recorded value of each wavelength alone; the channels are linear in the spectrum)."""
     if not mi.is_spectral:
-        return _as_list(channel_values(value, wavelengths, channels, rotation))
+        return as_list(channel_values(value, wavelengths, channels, rotation))
     s = mi.unpolarized_spectrum(value)
     parts = []
     for i in range(N_WL):
         one = mi.Spectrum(*[s[j] if j == i else mi.Float(0) for j in range(N_WL)])
-        parts.append(_as_list(channel_values(one, wavelengths, channels, rotation)))
+        parts.append(as_list(channel_values(one, wavelengths, channels, rotation)))
     return [parts[i][c] for c in range(len(parts[0])) for i in range(N_WL)]
 
 

@@ -50,6 +50,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi.integrators._lanes import as_list, channel_values
+from transient_mi.integrators._mis import detached_mis_weight as _mis
 from transient_mi.integrators._nlos_ad_terms import TimeKernel
 from transient_mi.integrators._optical_path import segment_index
 from transient_mi.props import PluginParameterError
@@ -230,9 +232,6 @@ def replay_geometry(integrator, scene, rng, lane, ray, throughput, origin, adj, 
     back-propagates. ``forward``: ``extra`` is the derivative histogram and ``time_tangent`` a
     :class:`TimeTangent`; records the tangents.
     """
-    from transient_mi.integrators._ad import _as_list, _mis
-    from transient_mi.integrators._lanes import channel_values
-
     ctx = mi.BSDFContext()
     wavelengths = ray.wavelengths
     channels, rotation = integrator._channel_setup(ray)
@@ -281,7 +280,7 @@ def replay_geometry(integrator, scene, rng, lane, ray, throughput, origin, adj, 
                 em_pdf = scene.pdf_emitter_direction(prev_si, mi.DirectionSample3f(scene, si=si, ref=prev_si),
                                                      ~prev_bsdf_delta)
             Le = beta * _mis(prev_bsdf_pdf, em_pdf) * ds.emitter.eval(x, prev_bsdf_pdf > 0)
-            Le_v = _as_list(channel_values(Le, wavelengths, channels, rotation))
+            Le_v = as_list(channel_values(Le, wavelengths, channels, rotation))
             act_le = active & (ds.emitter != None)  # noqa: E711
 
             active_next = active & si.is_valid() & (depth + 1 < max_depth)
@@ -296,7 +295,7 @@ def replay_geometry(integrator, scene, rng, lane, ray, throughput, origin, adj, 
             bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, x, wo, active_em)
             mis_em = dr.select(ds.delta, 1, _mis(dr.detach(ds.pdf), dr.detach(bsdf_pdf)))
             Lr = beta * mis_em * bsdf_val * em_weight
-            Lr_v = _as_list(channel_values(Lr, wavelengths, channels, rotation))
+            Lr_v = as_list(channel_values(Lr, wavelengths, channels, rotation))
             n_em = dr.detach(segment_index(bsdf, si, dr.detach(wo), eta, active_em))
             seg_em = n_em * ds.dist
             opl_em = opl + dr.detach(seg_em)

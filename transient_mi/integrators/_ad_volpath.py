@@ -33,16 +33,12 @@ import drjit as dr
 import mitsuba as mi
 
 from transient_mi.integrators import _ad
-from transient_mi.integrators._ad import _mis, _values
+from transient_mi.integrators._ad import _values
 from transient_mi.integrators._ad_geometry import geometry_keys
+from transient_mi.integrators._media import index_spectrum as _index
+from transient_mi.integrators._mis import detached_mis_weight as _mis
 from transient_mi.integrators._optical_path import segment_index
 from transient_mi.props import PluginParameterError
-
-
-def _index(spec, channel):
-    from transient_mi.integrators.transient_volpath import index_spectrum
-
-    return index_spectrum(spec, channel)
 
 
 def check_volpath_ad(integrator, sensor, params) -> None:

@@ -330,6 +330,11 @@ def stokes_rotation(sensor, d):
     return mi.mueller.rotate_stokes_basis(-d, mi.mueller.stokes_basis(-d), dr.cross(d, up))
 
 
+def as_list(values) -> list:
+    """:func:`channel_values`' result as a list (one element in mono)."""
+    return list(values) if isinstance(values, (list, tuple)) else [values]
+
+
 def channel_values(value, wavelengths, channels, rotation=None):
     """A path contribution (``mi.Spectrum``) as the recorded values: one ``mi.Float`` (mono, see
     :func:`to_mono`) or a list of them, one per channel.

@@ -9,6 +9,7 @@ import numpy as np
 
 from transient_mi.integrators._lanes import (STOKES_CHANNELS, ChannelHistogram, LaneHistogram, LaneLayout,
                                              channel_values, choose_streams, seed_rng, stokes_rotation)
+from transient_mi.integrators._mis import mis_weight
 from transient_mi.integrators._path_options import (as_int, check_render_call, estimator_suffix, read_nlos_options,
                                                      read_path_params, render_tensor, replicates_for)
 from transient_mi.integrators._optical_path import segment_index
@@ -21,13 +22,6 @@ from transient_mi.integrators.transient_nlos_path import render_nlos
 from transient_mi.props import PluginParameterError
 
 PLUGIN = ("integrator", "transient_path", "TransientPath")
-
-
-def mis_weight(pdf_a, pdf_b):
-    """Power heuristic (as Mitsuba's ``path``)."""
-    a2 = dr.square(pdf_a)
-    w = a2 / (a2 + dr.square(pdf_b))
-    return dr.select(dr.isfinite(w), w, 0)
 
 
 class TransientPath(mi.CppADIntegrator):

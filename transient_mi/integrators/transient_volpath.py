@@ -6,12 +6,14 @@ import drjit as dr
 import mitsuba as mi
 
 from transient_mi.integrators._lanes import channel_values
+from transient_mi.integrators._media import index_spectrum
+from transient_mi.integrators._mis import mis_weight
 from transient_mi.integrators._optical_path import segment_index
 from transient_mi.integrators._path_options import (as_int, check_render_call, estimator_suffix, read_nlos_options,
                                                      read_path_params)
 from transient_mi.integrators._sensor_checks import is_nlos_sensor
 from transient_mi.integrators.transient_nlos_path import render_nlos
-from transient_mi.integrators.transient_path import TransientPath, mis_weight
+from transient_mi.integrators.transient_path import TransientPath
 from transient_mi.props import get_bool
 
 PLUGIN = ("integrator", "transient_volpath", "TransientVolPath")
@@ -21,14 +23,6 @@ def _has_heterogeneous_medium(scene, sensor_medium) -> bool:
     """Whether any medium of ``scene`` (inside or outside a shape, or the sensor's) is not homogeneous."""
     media = [sensor_medium] + [m for sh in scene.shapes() for m in (sh.interior_medium(), sh.exterior_medium())]
     return any(m is not None and not m.is_homogeneous() for m in media)
-
-
-def index_spectrum(spec, channel):
-    """Component ``channel`` of a spectrum (RGB: the sampled colour channel; mono/spectral: the first)."""
-    s = mi.unpolarized_spectrum(spec)
-    if mi.is_rgb:
-        return dr.select(channel == 0, s[0], dr.select(channel == 1, s[1], s[2]))
-    return s[0]
 
 
 class TransientVolPath(TransientPath):

@@ -20,3 +20,13 @@ def scene_path(name: str) -> Path:
         avail = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.xml")))
         raise UserInputError(f"scene {name!r} is not shipped with transient-mi; available: {avail}")
     return p
+
+
+def shipped_scene(name) -> Path | None:
+    """The shipped scene called ``name`` (``"cornell_box"`` or ``"cornell_box.xml"``, no directory part), or
+    None: how ``transient-mi render`` and the studies take a scene by name from an installed package."""
+    name = str(name)
+    if not name.strip() or "/" in name or "\\" in name:
+        return None
+    p = SCENES_DIR / (name if name.endswith(".xml") else f"{name}.xml")
+    return p if p.is_file() else None

@@ -35,7 +35,7 @@ QUICK_SPP = 64
 
 def paper_base(quick: bool):
     """The paper scene's study settings: the demo's full settings, or ``--quick`` (8 ps bins, 256 spp)."""
-    from transient_mi.demo import QUICK, DemoSettings
+    from transient_mi.paper import QUICK, DemoSettings
 
     s = QUICK if quick else DemoSettings()
     from transient_mi.paper import PaperConfig
@@ -46,15 +46,15 @@ def paper_base(quick: bool):
 
 def resolve_scene_file(scene) -> Path:
     """Path of ``scene``: an existing XML file, or the name of a shipped scene (``scenes/``)."""
-    from transient_mi.scenes import SCENES_DIR, scene_path
+    from transient_mi.scenes import SCENES_DIR, shipped_scene
 
     if isinstance(scene, Path) or (isinstance(scene, str) and scene.strip()):
         p = Path(scene).expanduser()
         if p.is_file():
             return p.resolve()
-        name = str(scene)
-        if "/" not in name and (SCENES_DIR / (name if name.endswith(".xml") else f"{name}.xml")).is_file():
-            return scene_path(name)
+        shipped = shipped_scene(scene)
+        if shipped is not None:
+            return shipped
     avail = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.xml")))
     raise UserInputError(f"SCENE {str(scene)!r}: neither an existing file nor a shipped scene "
                          f"(shipped: {avail})")
