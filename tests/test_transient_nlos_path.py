@@ -40,6 +40,10 @@ def _plugin(**params):
     ("hidden_geometry_prob", 1.5, "transient_nlos_path: hidden_geometry_prob=1.5 must be"),
     ("hidden_geometry_prob", -0.1, "transient_nlos_path: hidden_geometry_prob=-0.1 must be"),
     ("rqmc", "yes", "transient_nlos_path: rqmc="),
+    ("estimator", "simpson", "transient_nlos_path: estimator='simpson'; allowed: monte_carlo, quadrature"),
+    ("element_size_m", 0.0, "transient_nlos_path: element_size_m=0 must be"),
+    ("patch_cells", 1, "transient_nlos_path: patch_cells=1 must be"),
+    ("refine_levels", 9, "transient_nlos_path: refine_levels=9 must be"),
 ])
 def test_bad_parameters_fail_with_one_line_naming_parameter_and_value(name, value, text):
     with pytest.raises(PluginParameterError) as info:
@@ -56,11 +60,17 @@ def test_bad_parameters_fail_with_one_line_naming_parameter_and_value(name, valu
 def test_defaults_and_good_values():
     i = _plugin()
     assert (i.max_depth_param, i.rr_depth, i.variance_replicates, i.replicates_for(True)) == (-1, 5, None, 1)
-    assert i.nlos_options == {"rqmc": True, "hidden_geometry_prob": 0.8}
+    quad = {"estimator": "monte_carlo", "element_size_m": 0.01, "patch_cells": 4, "refine_levels": 3}
+    assert i.nlos_options == {"rqmc": True, "hidden_geometry_prob": 0.8, **quad}
     i = _plugin(max_depth=4, rr_depth=3, variance_replicates=8, rqmc=False, hidden_geometry_prob=0.0)
     assert (i.max_depth_param, i.rr_depth, i.replicates_for(True)) == (4, 3, 8)
-    assert i.nlos_options == {"rqmc": False, "hidden_geometry_prob": 0.0}
+    assert i.nlos_options == {"rqmc": False, "hidden_geometry_prob": 0.0, **quad}
     assert str(i).startswith("TransientNLOSPath[max_depth=4, rr_depth=3, variance_replicates=8")
+    q = _plugin(estimator="quadrature", element_size_m=0.02, patch_cells=2, refine_levels=0)
+    assert q.nlos_options == {"rqmc": True, "hidden_geometry_prob": 0.8, "estimator": "quadrature",
+                              "element_size_m": 0.02, "patch_cells": 2, "refine_levels": 0}
+    assert "estimator=quadrature, element_size_m=0.02, patch_cells=2, refine_levels=0" in q.to_string()
+    assert "estimator" not in _plugin().to_string()  # Monte Carlo configurations keep their digests
 
 
 def test_docstring_has_the_parameter_table():

@@ -39,6 +39,7 @@ from transient_core.errors import UserInputError
 from transient_core import stack
 
 from . import __version__
+from .capture_error import _replicates, estimator_of, variance_block, variance_summary
 from .scene_io import file_sha256, load_scene
 
 
@@ -244,90 +245,6 @@ def _resolve_noise_target(spec, integrator, spp: int, layout: dict, detect_kwarg
     spec.params = spec.params.validate()
     R = effective_replicates(spp, _replicates(integrator, nlos=True))
     return spec.validate(spp, R)
-
-
-def _replicates(integrator, nlos: bool) -> int:
-    from transient_mi.integrators._replicates import DEFAULT_REPLICATES
-
-    f = getattr(integrator, "replicates_for", None)
-    return f(nlos) if f is not None else DEFAULT_REPLICATES
-
-
-def estimator_of(integrator) -> str:
-    """``"quadrature"`` (the deterministic three-bounce estimator) or ``"monte_carlo"``."""
-    return (getattr(integrator, "nlos_options", None) or {}).get("estimator", "monte_carlo")
-
-
-def variance_block(integrator, spp: int, quantity: str) -> dict:
-    """The manifest's ``variance`` entry for a render of ``spp`` samples (summary filled in at the end).
-
-    A quadrature capture (``estimator="quadrature"``) stores its deterministic error bound the same way
-    (``kind: "error_bound"``, directory ``error_bound/``, read by the same reader).
-    """
-    from transient_mi.integrators._replicates import effective_replicates
-
-    if quantity == "photons_per_pulse" and estimator_of(integrator) == "quadrature":
-        o = integrator.nlos_options
-        return {
-            "directory": stack.ERROR_BOUND_DIR,
-            "kind": stack.ERROR_BOUND_KIND,
-            "replicates": 1,
-            "degrees_of_freedom": None,
-            "estimator": ("deterministic three-bounce quadrature (transient_mi.integrators._nlos_quadrature): the "
-                          "files bound the absolute error of every bin (mixed visibility, path-length "
-                          "linearisation, midpoint rule)"),
-            "settings": {"element_size_m": o["element_size_m"], "patch_cells": o["patch_cells"],
-                         "refine_levels": o["refine_levels"]},
-            "quantity": quantity,
-            "summary": None,
-        }
-
-    R = effective_replicates(spp, _replicates(integrator, nlos=quantity == "photons_per_pulse"))
-    block = {
-        "directory": stack.VARIANCE_DIR if R >= 2 else None,
-        "replicates": R,
-        "degrees_of_freedom": R - 1,
-        "estimator": "sample variance of the mean over independent replicates (unbiased; randomised QMC "
-                     "replicates have independent random shifts)",
-        "quantity": f"({quantity})^2",
-        "summary": None,
-    }
-    if R < 2:
-        block["reason"] = (f"spp={spp} and {_replicates(integrator, nlos=quantity == 'photons_per_pulse')} replicates "
-                           "(integrator parameter variance_replicates; default 8 for NLOS captures, 1 for cameras) "
-                           "give a single replicate: no variance is recorded")
-    return block
-
-
-def variance_summary(directory: Path, manifest: dict) -> dict | None:
-    """Relative Monte Carlo error of a complete capture (read back spot by spot).
-
-    ``pixel_total_rel_std``: median, 90th percentile and maximum over
-    (spot, pixel) of ``sqrt(Var(total)) / total`` for pixels whose total is
-    above 1e-6 of the largest; ``bin_rel_std_weighted``: the value-weighted
-    mean of ``sqrt(Var(x_b)) / x_b`` over all bins, i.e.
-    ``sum sqrt(Var(x_b)) / sum x_b``.
-    """
-    if not stack.has_variance(manifest):
-        return None
-    rel, sd_sum, x_sum = [], 0.0, 0.0
-    bound = stack.is_error_bound(manifest)
-    for j in range(manifest["n_files"]):
-        x = stack.read_spot(directory, j, manifest).astype(np.float64)
-        var, tvar = stack.read_variance(directory, j, manifest)
-        if bound:  # a bound is already an error (not squared)
-            var, tvar = np.square(var.astype(np.float64)), np.square(tvar.astype(np.float64))
-        tot = x.sum(axis=2)  # over time: [H, W] (or [H, W, C] per channel)
-        ok = tot > 1e-6 * max(float(tot.max()), 1e-300)
-        rel.extend((np.sqrt(tvar[ok].astype(np.float64)) / tot[ok]).tolist())
-        sd_sum += float(np.sqrt(var.astype(np.float64)).sum())
-        x_sum += float(x.sum())
-    if not rel:
-        return {"pixel_total_rel_std": None, "bin_rel_std_weighted": None}
-    r = np.asarray(rel)
-    return {"pixel_total_rel_std": {"median": float(np.median(r)), "p90": float(np.percentile(r, 90)),
-                                    "max": float(r.max())},
-            "bin_rel_std_weighted": sd_sum / x_sum if x_sum > 0 else None}
 
 
 def _check_resumable(old: dict, new: dict, where: Path) -> None:

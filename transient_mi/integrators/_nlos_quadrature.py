@@ -37,7 +37,9 @@ Error (stored like the Monte Carlo variance, ``kind: "error_bound"``), per bin, 
 1. **mixed visibility** (a bound): the whole unoccluded light of every pair whose samples disagree, times
    ``max(share, 1 - share)``, spread like its light;
 2. **discretisation** (an a-posteriori estimate): ``|I_h - I_2h|``, the difference between the result and a
-   coarse level with each element's parent (twice the size) and half the cells per side. Both levels
+   coarse level with each element's parent (twice the size) and half the cells per side, each bin taking
+   the largest difference within ``ESTIMATE_REACH_BINS`` bins (the difference crosses zero where the errors
+   do not). Both levels
    converge at second order in the element size (midpoint rule for the weight, second-order path length),
    so ``|I_h - I_2h|`` is about three times the fine level's own error; it bounds that error whenever the
    coarse level's error is at least twice the fine one's. It is an estimate, not a guarantee: tested by
@@ -57,10 +59,11 @@ import math
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+from scipy.ndimage import maximum_filter1d
 
 from transient_core.units import C_M_PER_PS
 from transient_mi.integrators._lanes import to_mono
-from transient_mi.integrators._nlos_time_spread import spread_spot
+from transient_mi.integrators._nlos_time_spread import pair_geometry, spread_spot, visibility_rays
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
 
@@ -68,12 +71,14 @@ from transient_mi.time_axis import apply_kernel
 VISIBILITY_REL_TOL = 1e-4
 #: Visibility samples near each corner sit this far from the centroid, as a share of the way to the corner.
 CORNER_SAMPLE = 0.95
+#: The discretisation estimate of a bin is the largest two-level difference within this many bins of it.
+ESTIMATE_REACH_BINS = 2
 #: Pairs (element, cell) evaluated per Dr.Jit launch.
 PAIRS_PER_CHUNK = 1 << 20
 #: Default longest element edge, m.
 DEFAULT_ELEMENT_SIZE_M = 0.01
 #: Default cells per patch side.
-DEFAULT_PATCH_CELLS = 2
+DEFAULT_PATCH_CELLS = 4
 #: Default visibility refinement levels.
 DEFAULT_REFINE_LEVELS = 3
 
@@ -182,6 +187,16 @@ def _visible(scene, origins: np.ndarray, targets: np.ndarray, target_shape, offs
     ray = mi.Ray3f(mi.Point3f(_v3(o)), _v3(d / dist[:, None]))
     si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False)
     dist_f = _f(dist)
+    ok = si.is_valid() & (si.shape == target_shape) & (dr.abs(si.t - dist_f) <= VISIBILITY_REL_TOL * dist_f)
+    return si, ok
+
+
+def _cast(scene, o: np.ndarray, d: np.ndarray, dist: np.ndarray, target_shape):
+    """As :func:`_visible` for prepared float32 rays (:func:`~._nlos_time_spread.visibility_rays`)."""
+    ray = mi.Ray3f(mi.Point3f(mi.Float(o[:, 0].copy()), mi.Float(o[:, 1].copy()), mi.Float(o[:, 2].copy())),
+                   mi.Vector3f(mi.Float(d[:, 0].copy()), mi.Float(d[:, 1].copy()), mi.Float(d[:, 2].copy())))
+    si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False)
+    dist_f = mi.Float(dist)
     ok = si.is_valid() & (si.shape == target_shape) & (dr.abs(si.t - dist_f) <= VISIBILITY_REL_TOL * dist_f)
     return si, ok
 
@@ -341,7 +356,12 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
     steady = fine["steady"]
     outside = fine["outside"]
     # error: the light of mixed visibility, plus the discretisation estimated by the coarse level
-    bound = fine["bound"] + (np.abs(fine["hist"] - coarse["hist"]) if coarse is not None else 0.0)
+    # (the difference of two levels crosses zero where their errors do not: each bin takes the largest
+    # difference within ESTIMATE_REACH_BINS bins of it)
+    bound = fine["bound"]
+    if coarse is not None:
+        bound = bound + maximum_filter1d(np.abs(fine["hist"] - coarse["hist"]), 2 * ESTIMATE_REACH_BINS + 1,
+                                         axis=-1, mode="constant")
     tot_bound = fine["vis_err"] + (np.abs(fine["steady"] - coarse["steady"]) if coarse is not None else 0.0)
     # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)
     wr = setup.wall_return
@@ -402,7 +422,6 @@ def _level(scene, setup, g: _Geometry, tri, idx, hidden_ptrs, spot_ids, confocal
     ctx = mi.BSDFContext()
     per = max(1, PAIRS_PER_CHUNK // C)
     t_origin = g.t0_m / g.bin_m - g.pad
-    corners = np.array([[-0.5, -0.5], [0.5, -0.5], [-0.5, 0.5], [0.5, 0.5]])
     spot_weight = side.intensity / side.r_sx ** 2  # [G, n]
     for e0 in range(0, n, per):
         e1 = min(n, e0 + per)
@@ -412,39 +431,21 @@ def _level(scene, setup, g: _Geometry, tri, idx, hidden_ptrs, spot_ids, confocal
         p = g.cell_p[ce]
         # ---- detector side (spot-independent): visibility of the four samples, BSDF at the wall
         sp = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(idx[ee].astype(np.uint32)))
-        si_x, ok_c = _visible(scene, p, X0[ee], sp, g.normal)  # wi towards p: the BSDF at X for every spot
-        dr.eval(si_x, ok_c)
+        si_x, ok_c = _cast(scene, *visibility_rays(ce, ee, g.cell_p, pts, g.normal, 0, 1), sp)
+        dr.eval(si_x, ok_c)  # wi towards p: the BSDF at X for every spot
         sp3 = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(np.repeat(idx[ee], 3).astype(np.uint32)))
-        _, ok3 = _visible(scene, np.repeat(p, 3, axis=0), pts[ee, 1:].reshape(-1, 3), sp3, g.normal)
+        _, ok3 = _cast(scene, *visibility_rays(ce, ee, g.cell_p, pts, g.normal, 1, 3), sp3)
         vis_p = np.ascontiguousarray(np.concatenate([np.asarray(ok_c).reshape(-1, 1),
                                                      np.asarray(ok3).reshape(-1, 3)], axis=1))
         del sp3, ok3
-        to_x = X0[ee] - p
-        r_px = np.linalg.norm(to_x, axis=1)
-        d_px = to_x / r_px[:, None]
+        d_px, r_px, geo, r_pv, opl_d, w1, w2, cell_shift = pair_geometry(
+            ce, ee, g.cell_p, g.cell_w0, X0, tri, nrm_all, area, g.D, g.cell_ax, g.cell_ay, g.fl, g.bin_m, g.N,
+            g.cell_half_diag > 0)
         ray_p = mi.Ray3f(mi.Point3f(_v3(np.broadcast_to(g.D, p.shape))), _v3(g.dq[ce]))
         si_p = scene.ray_intersect(ray_p, ray_flags=mi.RayFlags.All, coherent=True)
         f_p = np.asarray(to_mono(si_p.bsdf().eval(ctx, si_p, si_p.to_local(_v3(d_px))), si_p.wavelengths),
                          dtype=np.float64)
-        # cos(theta_X) from the element's geometric normal (Mitsuba's si.n of a flat face)
-        cos_x = np.abs(np.einsum("ij,ij->i", nrm_all[ee], d_px))
-        base = g.N * g.cell_w0[ce] * area[ee] * f_p * cos_x / r_px ** 2  # photons per pulse before the spot leg
-        opl_d = g.cell_opl_d[ce]
-        r_pv = np.ascontiguousarray(np.linalg.norm(tri[ee] - p[:, None, :], axis=2))  # [pairs, 3]
-        grad_p = g.fl * (p - g.D) / np.linalg.norm(p - g.D, axis=1, keepdims=True) - d_px
-        w1 = np.abs(grad_p @ g.cell_ax) / g.bin_m
-        w2 = np.abs(grad_p @ g.cell_ay) / g.bin_m
-        # mean deviation of the detector-side path length from its tangent plane over the cell: for a
-        # quadratic it is 1/3 of (mean over the four corners - centre)
-        if g.cell_half_diag > 0:
-            lc = opl_d + r_px
-            acc = np.zeros(len(ee))
-            for cu, cv in corners:
-                q = p + cu * g.cell_ax + cv * g.cell_ay
-                acc += g.fl * np.linalg.norm(q - g.D, axis=1) + np.linalg.norm(X0[ee] - q, axis=1)
-            cell_shift = (acc / 4.0 - lc) / 3.0
-        else:
-            cell_shift = np.zeros(len(ee))
+        base = geo * f_p  # photons per pulse before the element's BSDF and the spot leg
         pix = g.cell_pixel[ce]
         pixel_start = np.searchsorted(pix, np.arange(P + 1)).astype(np.int64)
         pe = ee.astype(np.int64)

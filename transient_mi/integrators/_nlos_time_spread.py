@@ -274,3 +274,93 @@ def spread_spot(hist, bound, steady, vis_err, outside, pixel_start, pair_elem, b
                                       hist.shape[1])
             steady[k] += f
             vis_err[k] += fe
+
+
+@numba.njit(cache=True, parallel=True, fastmath=False)
+def pair_geometry(ce, ee, cell_p, cell_w0, X0, tri, nrm, area, D, ax, ay, fl, bin_m, photons, has_cells):
+    """Detector-side geometry of every (cell, element) pair, float64 (one pair per iteration, in parallel).
+
+    Returns ``d_px[n, 3]`` (unit, cell centre to centroid), ``r_px``, ``geo`` (photons per pulse before the
+    two BSDFs at the wall and the element and the spot leg: ``N W0_cell A_e cos(theta_X) / r_px^2``),
+    ``r_pv[n, 3]``, ``opl_d`` (the detector leg, m), ``w1``, ``w2`` (the cell's uniform widths, bins) and
+    ``cell_shift`` (mean deviation of the detector-side path length from its tangent plane over the cell:
+    for a quadratic, 1/3 of the corner mean minus the centre, m).
+    """
+    n = ce.shape[0]
+    d_px = np.empty((n, 3))
+    r_px = np.empty(n)
+    geo = np.empty(n)
+    r_pv = np.empty((n, 3))
+    opl_d = np.empty(n)
+    w1 = np.empty(n)
+    w2 = np.empty(n)
+    cell_shift = np.zeros(n)
+    for i in numba.prange(n):
+        c = ce[i]
+        e = ee[i]
+        px, py, pz = cell_p[c, 0], cell_p[c, 1], cell_p[c, 2]
+        dx, dy, dz = X0[e, 0] - px, X0[e, 1] - py, X0[e, 2] - pz
+        r = np.sqrt(dx * dx + dy * dy + dz * dz)
+        dx /= r
+        dy /= r
+        dz /= r
+        d_px[i, 0] = dx
+        d_px[i, 1] = dy
+        d_px[i, 2] = dz
+        r_px[i] = r
+        cos_x = abs(nrm[e, 0] * dx + nrm[e, 1] * dy + nrm[e, 2] * dz)
+        geo[i] = photons * cell_w0[c] * area[e] * cos_x / (r * r)
+        for v in range(3):
+            ux, uy, uz = tri[e, v, 0] - px, tri[e, v, 1] - py, tri[e, v, 2] - pz
+            r_pv[i, v] = np.sqrt(ux * ux + uy * uy + uz * uz)
+        qx, qy, qz = px - D[0], py - D[1], pz - D[2]
+        rd = np.sqrt(qx * qx + qy * qy + qz * qz)
+        opl_d[i] = fl * rd
+        gx = fl * qx / rd - dx
+        gy = fl * qy / rd - dy
+        gz = fl * qz / rd - dz
+        w1[i] = abs(gx * ax[0] + gy * ax[1] + gz * ax[2]) / bin_m
+        w2[i] = abs(gx * ay[0] + gy * ay[1] + gz * ay[2]) / bin_m
+        if has_cells:
+            acc = 0.0
+            for cu in (-0.5, 0.5):
+                for cv in (-0.5, 0.5):
+                    sx = px + cu * ax[0] + cv * ay[0]
+                    sy = py + cu * ax[1] + cv * ay[1]
+                    sz = pz + cu * ax[2] + cv * ay[2]
+                    a1 = np.sqrt((sx - D[0]) ** 2 + (sy - D[1]) ** 2 + (sz - D[2]) ** 2)
+                    a2 = np.sqrt((X0[e, 0] - sx) ** 2 + (X0[e, 1] - sy) ** 2 + (X0[e, 2] - sz) ** 2)
+                    acc += fl * a1 + a2
+            cell_shift[i] = (acc / 4.0 - (fl * rd + r)) / 3.0
+    return d_px, r_px, geo, r_pv, opl_d, w1, w2, cell_shift
+
+
+@numba.njit(cache=True, parallel=True, fastmath=False)
+def visibility_rays(ce, ee, cell_p, pts, normal, first, count):
+    """Rays from every pair's cell centre (offset 1e-6 m along the wall normal) to the element's visibility
+    samples ``first .. first + count - 1`` (0 the centroid, 1-3 the corners): float32 origins, unit
+    directions ``[n * count, 3]`` and distances ``[n * count]``, sample-minor order."""
+    n = ce.shape[0]
+    o = np.empty((n * count, 3), dtype=np.float32)
+    d = np.empty((n * count, 3), dtype=np.float32)
+    dist = np.empty(n * count, dtype=np.float32)
+    for i in numba.prange(n):
+        c = ce[i]
+        e = ee[i]
+        ox = cell_p[c, 0] + 1e-6 * normal[0]
+        oy = cell_p[c, 1] + 1e-6 * normal[1]
+        oz = cell_p[c, 2] + 1e-6 * normal[2]
+        for s in range(count):
+            j = i * count + s
+            vx = pts[e, first + s, 0] - ox
+            vy = pts[e, first + s, 1] - oy
+            vz = pts[e, first + s, 2] - oz
+            r = np.sqrt(vx * vx + vy * vy + vz * vz)
+            o[j, 0] = ox
+            o[j, 1] = oy
+            o[j, 2] = oz
+            d[j, 0] = vx / r
+            d[j, 1] = vy / r
+            d[j, 2] = vz / r
+            dist[j] = r
+    return o, d, dist

@@ -293,8 +293,9 @@ class TransientNLOSPath(mi.CppADIntegrator):
            rises as its inverse square.
        * - ``patch_cells``
          - integer
-         - ``quadrature``: cells per side of a pixel's wall patch, in [1, 64]
-           (default 2; 1 with ``pixel_sampling="center"``).
+         - ``quadrature``: cells per side of a pixel's wall patch, in [2, 64]
+           (default 4; the error estimate compares with half as many; one
+           point, the centre, with ``pixel_sampling="center"``).
        * - ``refine_levels``
          - integer
          - ``quadrature``: times an element of mixed visibility is split in
@@ -394,5 +395,5 @@ class TransientNLOSPath(mi.CppADIntegrator):
         o = self.nlos_options
         return (f"TransientNLOSPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}, "
                 f"variance_replicates={self.variance_replicates or 'default'}, "
-                f"hidden_geometry_prob={o['hidden_geometry_prob']:g}, rqmc={str(o['rqmc']).lower()}]"
+                f"hidden_geometry_prob={o['hidden_geometry_prob']:g}, rqmc={str(o['rqmc']).lower()}"
                 f"{estimator_suffix(o)}]")

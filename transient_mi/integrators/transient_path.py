@@ -418,5 +418,5 @@ class TransientPath(mi.CppADIntegrator):
         o = self.nlos_options
         return (f"TransientPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}, "
                 f"variance_replicates={self.variance_replicates or 'default'}, hidden_geometry_prob={o['hidden_geometry_prob']:g}, "
-                f"rqmc={str(o['rqmc']).lower()}]"
+                f"rqmc={str(o['rqmc']).lower()}"
                 f"{estimator_suffix(o)}]")

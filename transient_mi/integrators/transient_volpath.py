@@ -406,5 +406,5 @@ class TransientVolPath(TransientPath):
         return (f"TransientVolPath[max_depth={self.max_depth_param}, rr_depth={self.rr_depth}, "
                 f"hide_emitters={str(self.hide_emitters).lower()}, "
                 f"variance_replicates={self.variance_replicates or 'default'}, "
-                f"hidden_geometry_prob={o['hidden_geometry_prob']:g}, rqmc={str(o['rqmc']).lower()}]"
+                f"hidden_geometry_prob={o['hidden_geometry_prob']:g}, rqmc={str(o['rqmc']).lower()}"
                 f"{estimator_suffix(o)}]")
