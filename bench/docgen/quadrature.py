@@ -39,3 +39,17 @@ def quadrature_table(R) -> str:
             f"({ref['time_s']:.0f} s). Monte Carlo would need about {mc['spp_for_0.01_at_10ms_extrapolated']:,} spp "
             f"(about {mc['time_for_0.01_at_10ms_extrapolated_s'] / 3600:.1f} h) for 0.01 at 10 ms on the README "
             f"capture (extrapolated from its variance, ~1/spp: not measured).\n\n" + provenance(rec))
+
+
+def quadrature_inline(R) -> str:
+    """One sentence for the README: the accuracy capture's actual ratio and render time against Monte Carlo's."""
+    rec = R("quadrature")
+    res = rec["result"]
+    a = res["accuracy"]
+    b = res["readme_capture"]
+    return (f"on the letter at 10 ms per spot its actual rendering error is "
+            f"{a['quadrature']['actual']['10ms']['ratio']:.2g}x the photon noise (variance ratio; 4096-spp Monte "
+            f"Carlo: {a['monte_carlo']['stated']['10ms']['ratio']:.3g}x), and the README's 16 x 16, 4 x 4-spot "
+            f"capture renders in {b['quadrature']['time_s']:.0f} s where Monte Carlo would need about "
+            f"{b['monte_carlo']['time_for_0.01_at_10ms_extrapolated_s'] / 3600:.1f} h (extrapolated) "
+            f"({provenance(rec, short=True)})")
