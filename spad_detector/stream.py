@@ -42,7 +42,7 @@ EXACT_MAX_EVENTS = 5e8
 MODEL_VERSION = 1
 _STANDARD_KEYS = {"format", "format_version", "status", "kind", "capture", "quantity", "width", "height",
                   "n_files", "time", "include_first_last", "geometry", "laser", "detector", "render",
-                  "source_ideal", "variance", "channels", "intensity"}
+                  "source_ideal", "variance", "error_bound", "channels", "intensity"}
 
 
 def spot_rng(seed: int, spot: int) -> np.random.Generator:

@@ -161,6 +161,13 @@ def test_pipeline_states_both_errors_and_resumes(tmp_path):
     assert rn["available"] and rn["estimator"] == "quadrature+monte_carlo"
     share = rn["parts"]["quadrature_error_bound"]["share_of_rendering_variance"]
     assert 0.0 < share < 1.0 and np.isfinite(rn["ratio"]) and rn["ratio"] > 0
+    # the in-memory detection of the studies states the same combined ratio
+    from spad_detector import DetectorParams
+    from transient_mi.study.detection import Detection, IdealCapture
+
+    mem = Detection(IdealCapture(a), DetectorParams(), exposure_s=1e-3).render_noise()
+    assert mem["ratio"] == pytest.approx(rn["ratio"], rel=1e-9)
+    assert mem["parts"]["quadrature_error_bound"]["share_of_rendering_variance"] == pytest.approx(share, rel=1e-9)
 
     # resume: spot 1's error bound lost -> the spot is incomplete and rendered again (same bytes)
     name = stack.spot_filename(1)
