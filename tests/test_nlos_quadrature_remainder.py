@@ -84,7 +84,8 @@ def test_remainder_plus_quadrature_agrees_with_monte_carlo(combined):
     bad = np.abs(d[lit]) > tb * se[lit] + bound[lit]
     assert not bad.any(), (d[lit][bad], se[lit][bad], bound[lit][bad])
     tot_d = float(combined.histogram.astype(np.float64).sum() - mc.histogram.astype(np.float64).sum())
-    tot_se = float(np.sqrt(combined.total_variance.astype(np.float64).sum() + mc.total_variance.astype(np.float64).sum()))
+    tot_se = float(np.sqrt(combined.total_variance.astype(np.float64).sum()
+                           + mc.total_variance.astype(np.float64).sum()))
     assert abs(tot_d) <= tb * tot_se + float(combined.total_error_bound.astype(np.float64).sum())
     assert combined.replicates == 8 and combined.estimator_info["remainder"] == "monte_carlo"
 

@@ -80,7 +80,8 @@ __all__ = [
     "config_digest", "spot_path", "write_spot", "read_spot", "spot_is_complete", "missing_spots",
     "iter_spots", "read_stack", "write_stack", "VARIANCE_DIR", "TOTAL_CHANNEL", "has_variance",
     "write_variance", "read_variance", "variance_is_complete", "is_error_bound", "ERROR_BOUND_KIND", "ERROR_BOUND_DIR",
-    "has_error_bound", "error_bound_view", "write_error_bound", "read_error_bound", "data_shape", "intensity", "CHANNEL_SETS",
+    "has_error_bound", "error_bound_view", "write_error_bound", "read_error_bound", "data_shape", "intensity",
+    "CHANNEL_SETS",
     "INTENSITY_RULES", "read_intensity", "band_name", "band_edges_nm", "intensity_rule",
 ]
 
@@ -733,7 +734,8 @@ def error_bound_view(manifest: dict) -> dict:
 
 def write_error_bound(directory: str | os.PathLike, index: int, bound: np.ndarray, total_bound: np.ndarray,
                       manifest: dict) -> Path:
-    """Atomically write the error bound of spot ``index`` (``error_bound/spot_NNNNN.exr``; see :func:`write_variance`)."""
+    """Atomically write the error bound of spot ``index`` (``error_bound/spot_NNNNN.exr``, as
+    :func:`write_variance`)."""
     return write_variance(directory, index, bound, total_bound, error_bound_view(manifest))
 
 

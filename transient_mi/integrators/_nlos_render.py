@@ -142,9 +142,12 @@ def render_spots(setup: "NLOSSetup", scene, film, options: dict, *, seed: int, s
         One per spot, histograms ``[height, width, n_bins]`` in photons per
         pulse per bin, with the variance of every bin estimated from the
         independent replicates (:mod:`._replicates`).
-    """
-    from transient_mi.films.transient_film import TransientResult
 
+    With ``estimator="quadrature"`` the three-bounce light and the wall return come from
+    :func:`~._nlos_quadrature.render_spots_quadrature` (an ``error_bound``, no variance); with ``max_depth``
+    above 4 (or -1) the Monte Carlo remainder (the same kernel with ``skip_three_bounce``: every other path)
+    is added by :func:`combine_remainder`, whose results carry both the bound and the remainder's variance.
+    """
     W, H = setup.width, setup.height
     spots = [int(j) for j in spots]
     confocal = setup.capture == "confocal"
