@@ -40,6 +40,16 @@ Rendering variance falls as ``1/spp`` for plain Monte Carlo (faster for the
 randomised QMC of the NLOS estimator), so ``spp * ratio / threshold``
 samples per pixel bring the ratio under ``threshold`` (a conservative
 estimate).
+
+A capture of two parts (``estimator="quadrature"`` beyond three bounces: the quadrature's three-bounce light
+plus the Monte Carlo remainder, see :mod:`transient_mi.capture_error`) has both a variance ``s_b^2`` (the
+remainder's) and a bound ``B_b`` (the quadrature's). Its rendering variance per bin is the sum of the two,
+
+.. math::
+
+    V_b = N^2 \sum_j k_j^2 (\eta g)^2_{b - j} s^2_{b - j} + N^2 \Big(\sum_j k_j (\eta g B)_{b - j}\Big)^2,
+
+and of a pixel total ``(N eta gbar)^2 (Var(sum_b x_b) + B_total^2)``; the report gives each part's share.
 """
 
 from __future__ import annotations
@@ -81,9 +91,13 @@ class NoiseRatio:
     #: sum over bins of mu^2 and of V (count-weighted relative rendering error: sqrt(var_sum / mu2_sum))
     mu2_sum: float = 0.0
     var_sum: float = 0.0
+    #: of ``var_sum``: the part from a bound given beside a variance (``add_spot(..., bound=...)``)
+    bound_var_sum: float = 0.0
+    two_parts: bool = False
 
     def add_spot(self, model: DetectorModel, ideal: np.ndarray, variance: np.ndarray, n_pulses: int,
-                 total_variance: np.ndarray | None = None, error_bound: bool = False) -> None:
+                 total_variance: np.ndarray | None = None, error_bound: bool = False,
+                 bound: np.ndarray | None = None, total_bound: np.ndarray | None = None) -> None:
         """Add one spot.
 
         Parameters
@@ -104,6 +118,10 @@ class NoiseRatio:
             A bound is a worst case, correlated between bins: it is carried
             through gate, PDE and jitter linearly, and its square stands for the
             rendering variance, ``V_b = N^2 (sum_j k_j (eta g B)_{b - j})^2``.
+        bound, total_bound : ndarray, shape (n_pixels, n_bins) and (n_pixels,), optional
+            A capture of two parts: the quadrature's bound beside the Monte Carlo remainder's ``variance``
+            (photon scale applied). Its linear-through-jitter square is added to the variance of every bin,
+            and ``total_bound^2`` to each total's.
         """
         x_all = np.asarray(ideal, dtype=np.float64)
         T = x_all.shape[-1]
@@ -126,6 +144,13 @@ class NoiseRatio:
         else:
             v_in = np.square(w) * np.asarray(variance, dtype=np.float64)[:, t_lo:t_hi]
             var = apply_jitter_kernel(v_in, model.kernel_first, np.square(model.kernel)) * float(n_pulses) ** 2
+        var_b = None
+        if bound is not None:
+            b_in = w * np.asarray(bound, dtype=np.float64)[:, t_lo:t_hi]
+            var_b = np.square(apply_jitter_kernel(b_in, model.kernel_first, model.kernel) * float(n_pulses))
+            var = var + var_b
+            self.bound_var_sum += float(var_b.sum())
+            self.two_parts = True
         bg_outside = float(n_pulses) * float(bg[:t_lo].sum() + bg[t_hi:].sum())
         for c, (lo, hi) in enumerate(BIN_CLASSES):
             sel = (mu > lo) & (mu <= hi)
@@ -143,7 +168,10 @@ class NoiseRatio:
             gbar = np.divide((x * model.gate_slots[None, t_lo:t_hi]).sum(axis=1), xs, out=np.zeros_like(xs),
                              where=xs > 0)
             tv = np.asarray(total_variance, dtype=np.float64)
-            pv = (float(n_pulses) * model.params.pde * gbar) ** 2 * (np.square(tv) if error_bound else tv)
+            tv = np.square(tv) if error_bound else tv
+            if total_bound is not None:
+                tv = tv + np.square(np.asarray(total_bound, dtype=np.float64))
+            pv = (float(n_pulses) * model.params.pde * gbar) ** 2 * tv
         self.total_mu += float(pm.sum())
         self.total_var += float(pv.sum())
         ok = pm > 1.0
@@ -173,9 +201,23 @@ class NoiseRatio:
         if estimator is not None:
             out["estimator"] = estimator
             out["definition"] = DEFINITION + "; rendering variance = square of the deterministic error bound"
+        if self.two_parts:
+            out["definition"] = (DEFINITION + "; rendering variance = Monte Carlo variance of the remainder + square "
+                                 "of the quadrature's error bound (carried linearly through gate, PDE and jitter)")
+            share_b = self.bound_var_sum / self.var_sum if self.var_sum > 0 else 0.0
+            out["parts"] = {"quadrature_error_bound": {"share_of_rendering_variance": share_b},
+                            "monte_carlo_remainder": {"share_of_rendering_variance": 1.0 - share_b
+                                                      if self.var_sum > 0 else 0.0}}
         if spp and estimator is None:
             out["spp"] = int(spp)
             out["spp_for_threshold"] = spp_for_threshold(spp, headline, self.threshold, replicates or 1)
+        elif spp and self.two_parts:
+            # only the remainder's part falls with spp (its share pooled over the lit bins: an approximation)
+            share_b = out["parts"]["quadrature_error_bound"]["share_of_rendering_variance"]
+            room = self.threshold - headline * share_b
+            out["spp"] = int(spp)
+            out["spp_for_threshold"] = (spp_for_threshold(spp, headline * (1.0 - share_b), room, replicates or 1)
+                                        if room > 0 else None)
         return out
 
 
@@ -204,6 +246,11 @@ def warning_line(report: dict) -> str | None:
     need = report.get("spp_for_threshold")
     hint = (f"; render with --spp {need} (now {spp}) or `transient-mi render --noise-target "
             f"{report['threshold']:g}` to bring it under" if spp and need else "")
+    if report.get("estimator") == "quadrature+monte_carlo":
+        share = report.get("parts", {}).get("quadrature_error_bound", {}).get("share_of_rendering_variance", 0.0)
+        return (f"warning: rendering error is {report['ratio']:.3g}x the photon noise at this budget (threshold "
+                f"{report['threshold']:g}); {share:.0%} of it is the quadrature's error bound (smaller "
+                f"element_size_m, more patch_cells), the rest the Monte Carlo remainder's variance{hint}")
     if report.get("estimator") == "quadrature":
         return (f"warning: the quadrature's error bound is {report['ratio']:.3g}x the photon noise (squared) at this "
                 f"budget (threshold {report['threshold']:g}): render with a smaller element_size_m or more "

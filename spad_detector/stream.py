@@ -23,7 +23,8 @@ from transient_core.progress import progress_bar
 from transient_core.atomic import check_output_location, temp_dir_beside
 from transient_core.lock import output_lock
 from transient_core.errors import UserInputError
-from transient_core.stack import (MANIFEST_NAME, StackError, has_variance, is_error_bound, missing_spots, new_manifest, read_intensity,
+from transient_core.stack import (MANIFEST_NAME, StackError, has_error_bound, has_variance, is_error_bound,
+                                  missing_spots, read_error_bound, new_manifest, read_intensity,
                                   read_manifest, read_variance, spot_filename, write_manifest, write_spot)
 
 from .budget import resolve_budget
@@ -41,7 +42,7 @@ EXACT_MAX_EVENTS = 5e8
 MODEL_VERSION = 1
 _STANDARD_KEYS = {"format", "format_version", "status", "kind", "capture", "quantity", "width", "height",
                   "n_files", "time", "include_first_last", "geometry", "laser", "detector", "render",
-                  "source_ideal", "variance", "channels", "intensity"}
+                  "source_ideal", "variance", "error_bound", "channels", "intensity"}
 
 
 def spot_rng(seed: int, spot: int) -> np.random.Generator:
@@ -210,8 +211,11 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
         engines_used, exact, regimes = [], True, {}
         # multi-channel ideal captures store per-channel variances, not the variance of the intensity the
         # detector sees (channel covariances are not recorded): no noise ratio for them
-        noise = NoiseRatio(threshold=float(noise_threshold)) if has_variance(m) and not m.get("channels") else None
         bound_kind = is_error_bound(m)
+        # quadrature + Monte Carlo remainder: the variance is the remainder's, the bound the quadrature's
+        two_parts = has_error_bound(m) and not bound_kind
+        noise = NoiseRatio(threshold=float(noise_threshold)) if (has_variance(m) or two_parts) \
+            and not m.get("channels") else None
         N = budget.n_pulses
         with progress_bar(f"detect {ideal.name}", total=m["n_files"] * N,
                           disable=None if progress else True) as advance:
@@ -222,14 +226,22 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
                     arr = arr * budget.photon_scale
                 spot_model = model if spot_gates is None else spot_model_for(m, run_params, spot_gates, j, budget)
                 if noise is not None:
-                    var, tvar = read_variance(ideal, j, m)
+                    if has_variance(m):
+                        var, tvar = read_variance(ideal, j, m)
+                    else:  # a remainder of a single replicate: its variance is unknown (only the bound counts)
+                        var, tvar = np.zeros((H, W, T), np.float32), np.zeros((H, W), np.float32)
                     # a bound scales with the photons, a variance with their square
                     vs = budget.photon_scale if bound_kind else budget.photon_scale ** 2
+                    bnd = tbnd = None
+                    if two_parts:
+                        bnd, tbnd = read_error_bound(ideal, j, m)
+                        bnd = bnd.reshape(H * W, T).astype(np.float64) * budget.photon_scale
+                        tbnd = tbnd.reshape(-1).astype(np.float64) * budget.photon_scale
                     noise.add_spot(spot_model, arr.reshape(H * W, T),
                                    var.reshape(H * W, T).astype(np.float64) * vs, N,
                                    total_variance=tvar.reshape(-1).astype(np.float64) * vs,
-                                   error_bound=bound_kind)
-                    del var, tvar
+                                   error_bound=bound_kind, bound=bnd, total_bound=tbnd)
+                    del var, tvar, bnd, tbnd
                 counts, info = run_spot(spot_model, arr.reshape(H * W, T), N, spot_rng(seed, j), engine, (H, W),
                                         advance=advance)
                 write_spot(tmp, j, to_uint32(counts, where=spot_filename(j)).reshape(H, W, T), manifest)
@@ -241,7 +253,8 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
             spp_used = m["variance"].get("spp_per_spot") or [(m.get("render") or {}).get("spp")]
             render_noise = noise.report(spp=max(spp_used) if None not in spp_used else None,
                                         replicates=m["variance"].get("replicates"),
-                                        estimator="quadrature" if bound_kind else None)
+                                        estimator="quadrature" if bound_kind else
+                                        "quadrature+monte_carlo" if two_parts else None)
         else:
             render_noise = unavailable("the ideal capture stores no variance (rendered with one replicate or by "
                                        "an older version): its rendering noise is unknown")

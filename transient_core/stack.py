@@ -79,7 +79,9 @@ __all__ = [
     "channel_names", "dtype_for", "new_manifest", "validate_manifest", "write_manifest", "read_manifest",
     "config_digest", "spot_path", "write_spot", "read_spot", "spot_is_complete", "missing_spots",
     "iter_spots", "read_stack", "write_stack", "VARIANCE_DIR", "TOTAL_CHANNEL", "has_variance",
-    "write_variance", "read_variance", "variance_is_complete", "is_error_bound", "ERROR_BOUND_KIND", "ERROR_BOUND_DIR", "data_shape", "intensity", "CHANNEL_SETS",
+    "write_variance", "read_variance", "variance_is_complete", "is_error_bound", "ERROR_BOUND_KIND", "ERROR_BOUND_DIR",
+    "has_error_bound", "error_bound_view", "write_error_bound", "read_error_bound", "data_shape", "intensity",
+    "CHANNEL_SETS",
     "INTENSITY_RULES", "read_intensity", "band_name", "band_edges_nm", "intensity_rule",
 ]
 
@@ -702,6 +704,48 @@ def is_error_bound(manifest: dict) -> bool:
     return isinstance(v, dict) and v.get("kind") == ERROR_BOUND_KIND
 
 
+def _sibling_bound(manifest: dict) -> dict | None:
+    """The manifest's top-level ``error_bound`` block (a capture with two error parts), or None."""
+    b = manifest.get("error_bound")
+    return b if isinstance(b, dict) and b.get("directory") else None
+
+
+def has_error_bound(manifest: dict) -> bool:
+    """True if the capture stores a deterministic error bound: as its ``variance`` (a pure quadrature capture,
+    :func:`is_error_bound`) or beside a Monte Carlo variance (manifest ``error_bound``, a capture of two parts:
+    the quadrature's three-bounce light and the Monte Carlo remainder beyond it)."""
+    return is_error_bound(manifest) or _sibling_bound(manifest) is not None
+
+
+def error_bound_view(manifest: dict) -> dict:
+    """The manifest as a pure quadrature capture's: ``variance`` is its error-bound block.
+
+    A capture of two parts keeps its Monte Carlo variance in ``variance`` and its error bound in a sibling
+    ``error_bound`` block of the same layout as a pure quadrature capture's ``variance`` block (``kind:
+    "error_bound"``, ``directory: "error_bound"``); every reader of ``variance`` reads the bound through this view.
+    """
+    if is_error_bound(manifest):
+        return manifest
+    b = _sibling_bound(manifest)
+    if b is None:
+        raise StackError("the capture stores no error bound")
+    return dict(manifest, variance=b)
+
+
+def write_error_bound(directory: str | os.PathLike, index: int, bound: np.ndarray, total_bound: np.ndarray,
+                      manifest: dict) -> Path:
+    """Atomically write the error bound of spot ``index`` (``error_bound/spot_NNNNN.exr``, as
+    :func:`write_variance`)."""
+    return write_variance(directory, index, bound, total_bound, error_bound_view(manifest))
+
+
+def read_error_bound(directory: str | os.PathLike, index: int, manifest: dict | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """``(bound[height, width, n_bins], total_bound[height, width])`` of spot ``index`` (see :func:`read_variance`)."""
+    m = read_manifest(Path(directory)) if manifest is None else manifest
+    return read_variance(directory, index, error_bound_view(m))
+
+
 def _variance_dir(directory, manifest: dict) -> Path:
     if not has_variance(manifest):
         raise StackError(f"{directory}: the capture stores no variance (rendered with a single replicate)")
@@ -754,7 +798,11 @@ def _total_layers(tot: np.ndarray, manifest: dict) -> dict:
 
 
 def variance_is_complete(directory: str | os.PathLike, index: int, manifest: dict) -> bool:
-    """True if the variance file of spot ``index`` exists and matches ``manifest`` (used by resume)."""
+    """True if the variance file of spot ``index`` exists and matches ``manifest`` (used by resume); in a
+    capture of two parts (:func:`has_error_bound`), the error-bound file too."""
+    if not is_error_bound(manifest) and _sibling_bound(manifest) is not None \
+            and not variance_is_complete(directory, index, error_bound_view(manifest)):
+        return False
     if not has_variance(manifest):
         return True
     header = _matching_header(_variance_dir(directory, manifest) / spot_filename(index), manifest, index)

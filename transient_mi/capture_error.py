@@ -4,6 +4,19 @@ A Monte Carlo capture stores the variance of every bin from independent replicat
 quadrature capture (``estimator="quadrature"``) stores its error estimate the same way (``kind:
 "error_bound"``, ``error_bound/``), read by the same reader (:mod:`transient_core.stack`). Used by the render
 pipeline (:mod:`transient_mi.render_capture`).
+
+A quadrature capture with ``max_depth`` above 4 (or -1) has two parts: the quadrature's three-bounce light
+(and the wall return) and the Monte Carlo remainder (every other path). Its manifest states both:
+
+* ``variance`` is the Monte Carlo block of the remainder (``directory: "variance"``, replicates, degrees of
+  freedom, ``part: "monte_carlo_remainder"``), as in a Monte Carlo capture;
+* ``error_bound`` (top level, beside it) is the quadrature's block, the same layout as a pure quadrature
+  capture's ``variance`` block (``kind: "error_bound"``, ``directory: "error_bound"``, ``part: "quadrature"``);
+  :func:`transient_core.stack.read_error_bound` reads it.
+
+A reader that knows only ``variance`` sees the remainder's variance (an understatement of the error);
+``detect`` combines both (:mod:`spad_detector.render_noise`: variance per bin = remainder's variance + the
+square of the bound carried linearly through gate, PDE and jitter).
 """
 
 from __future__ import annotations
@@ -27,6 +40,32 @@ def estimator_of(integrator) -> str:
     return (getattr(integrator, "nlos_options", None) or {}).get("estimator", "monte_carlo")
 
 
+def has_remainder(integrator) -> bool:
+    """True for ``estimator="quadrature"`` with ``max_depth`` above 4 or -1 (quadrature + Monte Carlo remainder)."""
+    from transient_mi.integrators._nlos_quadrature import needs_remainder
+
+    return estimator_of(integrator) == "quadrature" and \
+        needs_remainder({"max_depth": getattr(integrator, "max_depth_param", 4)})
+
+
+def error_bound_block(integrator, quantity: str) -> dict:
+    """The quadrature's error block: a pure quadrature capture's ``variance``, a two-part capture's ``error_bound``."""
+    o = integrator.nlos_options
+    return {
+        "directory": stack.ERROR_BOUND_DIR,
+        "kind": stack.ERROR_BOUND_KIND,
+        "replicates": 1,
+        "degrees_of_freedom": None,
+        "estimator": ("deterministic three-bounce quadrature (transient_mi.integrators._nlos_quadrature): the "
+                      "files bound the absolute error of every bin (mixed visibility, path-length "
+                      "linearisation, midpoint rule)"),
+        "settings": {"element_size_m": o["element_size_m"], "patch_cells": o["patch_cells"],
+                     "refine_levels": o["refine_levels"]},
+        "quantity": quantity,
+        "summary": None,
+    }
+
+
 def variance_block(integrator, spp: int, quantity: str) -> dict:
     """The manifest's ``variance`` entry for a render of ``spp`` samples (summary filled in at the end).
 
@@ -35,21 +74,8 @@ def variance_block(integrator, spp: int, quantity: str) -> dict:
     """
     from transient_mi.integrators._replicates import effective_replicates
 
-    if quantity == "photons_per_pulse" and estimator_of(integrator) == "quadrature":
-        o = integrator.nlos_options
-        return {
-            "directory": stack.ERROR_BOUND_DIR,
-            "kind": stack.ERROR_BOUND_KIND,
-            "replicates": 1,
-            "degrees_of_freedom": None,
-            "estimator": ("deterministic three-bounce quadrature (transient_mi.integrators._nlos_quadrature): the "
-                          "files bound the absolute error of every bin (mixed visibility, path-length "
-                          "linearisation, midpoint rule)"),
-            "settings": {"element_size_m": o["element_size_m"], "patch_cells": o["patch_cells"],
-                         "refine_levels": o["refine_levels"]},
-            "quantity": quantity,
-            "summary": None,
-        }
+    if quantity == "photons_per_pulse" and estimator_of(integrator) == "quadrature" and not has_remainder(integrator):
+        return error_bound_block(integrator, quantity)
 
     R = effective_replicates(spp, _replicates(integrator, nlos=quantity == "photons_per_pulse"))
     block = {
@@ -61,11 +87,23 @@ def variance_block(integrator, spp: int, quantity: str) -> dict:
         "quantity": f"({quantity})^2",
         "summary": None,
     }
+    if quantity == "photons_per_pulse" and has_remainder(integrator):
+        block["part"] = "monte_carlo_remainder"
+        block["estimator"] += ("; of the Monte Carlo remainder beyond three bounces only (the quadrature's error is "
+                               "the manifest's error_bound block)")
     if R < 2:
         block["reason"] = (f"spp={spp} and {_replicates(integrator, nlos=quantity == 'photons_per_pulse')} replicates "
                            "(integrator parameter variance_replicates; default 8 for NLOS captures, 1 for cameras) "
                            "give a single replicate: no variance is recorded")
     return block
+
+
+def error_blocks(integrator, spp: int, quantity: str) -> dict:
+    """The manifest's error blocks: ``{"variance": ...}``, plus ``"error_bound"`` for a two-part capture."""
+    out = {"variance": variance_block(integrator, spp, quantity)}
+    if quantity == "photons_per_pulse" and has_remainder(integrator):
+        out["error_bound"] = dict(error_bound_block(integrator, quantity), part="quadrature")
+    return out
 
 
 def variance_summary(directory: Path, manifest: dict) -> dict | None:

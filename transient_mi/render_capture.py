@@ -39,7 +39,7 @@ from transient_core.errors import UserInputError
 from transient_core import stack
 
 from . import __version__
-from .capture_error import _replicates, estimator_of, variance_block, variance_summary
+from .capture_error import _replicates, error_blocks, estimator_of, variance_summary
 from .scene_io import file_sha256, load_scene
 
 
@@ -214,7 +214,7 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         # colour or Stokes vectors per bin (camera renders in rgb, spectral, polarized variants); NLOS: one intensity
         channels=film.channel_names() if layout["capture"] == "camera" and hasattr(film, "channel_names") else None,
     )
-    manifest["variance"] = variance_block(integrator, spp, layout["quantity"])
+    manifest.update(error_blocks(integrator, spp, layout["quantity"]))
     manifest["render"]["estimator"] = (estimator_of(integrator) if layout["quantity"] == "photons_per_pulse"
                                        else "monte_carlo")
     if noise_target is not None:
@@ -360,7 +360,10 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
             for j, res in zip(group, results):
                 if j not in todo_set:
                     continue  # complete from an earlier run (and identical)
-                if stack.has_variance(m):  # first: a complete spot file implies a complete variance file
+                # first: a complete spot file implies complete error files (resume checks both)
+                if stack.has_error_bound(m) and not stack.is_error_bound(m):  # quadrature + MC remainder
+                    stack.write_error_bound(d, j, res.error_bound, res.total_error_bound, m)
+                if stack.has_variance(m):
                     if stack.is_error_bound(m):
                         stack.write_variance(d, j, res.error_bound, res.total_error_bound, m)
                     else:
@@ -394,6 +397,8 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
     write_preview(d / "preview.png", stack.intensity(preview_data[1], m), m, spot=preview_data[0], rgb=colour)
     if stack.has_variance(m):
         m["variance"] = dict(m["variance"], summary=variance_summary(d, m))
+    if stack.has_error_bound(m) and not stack.is_error_bound(m):
+        m["error_bound"] = dict(m["error_bound"], summary=variance_summary(d, stack.error_bound_view(m)))
     if job.noise_target is not None:
         spots_nt = m["render"]["noise_target"]["spots"]
         m["variance"]["spp_per_spot"] = [s_["spp"] for s_ in spots_nt]

@@ -110,6 +110,11 @@ class KernelConstants:
     #: standard deviation of each tangent-plane component of the beam direction, rad (``pulsed_laser``'s
     #: ``beam_sigma_rad``; used when ``divergent``)
     beam_sigma: object = None
+    #: the Monte Carlo *remainder* of ``estimator="quadrature"`` with ``max_depth`` > 4: leave out the
+    #: three-bounce connection (vertex 2 to the spot, ``D-p-X-S``) and the closed-form wall return, which the
+    #: quadrature gives (:mod:`~._nlos_quadrature`); every other path is recorded as usual. False by default:
+    #: the Monte Carlo kernel is then unchanged.
+    skip_three_bounce: bool = False
 
     @classmethod
     def build(cls, setup, options: dict, *, seed: int, n_group: int) -> "KernelConstants":
@@ -145,6 +150,7 @@ class KernelConstants:
             hidden_excludes=setup.hidden_excludes,
             divergent=divergent,
             beam_sigma=_of(setup.laser.beam_sigma_rad),
+            skip_three_bounce=bool(options.get("skip_three_bounce", False)),
         )
 
 
@@ -431,7 +437,9 @@ def nlos_pass(scene, hist, rng, layout, j0, j1, c: KernelConstants, ks: KernelSc
                                                  ctx)
         beta = beta * weight
         opl = opl + dr.norm(si2.p - si.p)
-        if dr.hint(c.spot_is_wall_point, mode="scalar"):
+        if dr.hint(c.skip_three_bounce, mode="scalar"):
+            pass  # the remainder of estimator=quadrature: the quadrature gives this connection
+        elif dr.hint(c.spot_is_wall_point, mode="scalar"):
             # the segment vertex 2 -> spot is the segment just traced from the spot: visible
             _connect_spots(scene, hist, lane, si2, beta, w0, opl, mi.Int32(2), active, c, spot, group, wall_ptr,
                            ctx, visible=mi.Bool(True), rng=rng)

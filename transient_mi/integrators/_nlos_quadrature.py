@@ -47,8 +47,11 @@ Error (stored like the Monte Carlo variance, ``kind: "error_bound"``), per bin, 
 
 What it does not do (refused in one line; use ``estimator="monte_carlo"``): windows and media on the device
 legs or in hidden space, a divergent laser beam, a non-planar relay wall, shapes that are not meshes
-(spheres, cylinders), ``max_depth`` above 4 (light beyond three bounces). The wall's first-bounce return is
-added in closed form as in the Monte Carlo estimator. Not differentiable (the radiometry is evaluated by
+(spheres, cylinders). The wall's first-bounce return is added in closed form as in the Monte Carlo estimator.
+With ``max_depth`` above 4 (or -1) the light beyond three bounces is added by the Monte Carlo estimator
+restricted to the remaining paths (``KernelConstants.skip_three_bounce``: without the three-bounce connection
+and the wall return); its variance, from the replicates, is stored beside the quadrature's error
+(:mod:`transient_mi.capture_error`). Not differentiable (the radiometry is evaluated by
 Mitsuba, the accumulation by a numba kernel).
 """
 
@@ -83,6 +86,14 @@ DEFAULT_PATCH_CELLS = 4
 DEFAULT_REFINE_LEVELS = 3
 
 
+def needs_remainder(options: dict) -> bool:
+    """True when ``max_depth`` (-1: unlimited) asks for light beyond three bounces: the capture is then the
+    quadrature's three-bounce light plus the Monte Carlo remainder (every other path, see
+    :func:`~._nlos_render.render_spots` and ``KernelConstants.skip_three_bounce``)."""
+    d = int(options.get("max_depth", 4))
+    return d == -1 or d > 4
+
+
 def check_supported(setup, options: dict, plugin: str) -> None:
     """Refuse, in one line naming the reason, a capture the quadrature does not render."""
     why = None
@@ -92,9 +103,6 @@ def check_supported(setup, options: dict, plugin: str) -> None:
         why = f"the laser beam diverges (divergence_mrad={setup.laser.divergence_mrad:g})"
     elif not setup.planar_wall:
         why = "the relay wall is not planar"
-    elif options.get("max_depth", -1) == -1 or options.get("max_depth", -1) > 4:
-        why = (f"max_depth={options.get('max_depth')} asks for light beyond three bounces (the quadrature renders "
-               "max_depth <= 4)")
     else:
         for s in setup.hidden_shapes:
             if not s.is_mesh():
@@ -339,7 +347,7 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
     coarse = None
     info = {"elements": 0, "coarse_elements": 0, "refine_levels": 0, "pairs": 0, "patch_cells": m}
     h = float(options.get("element_size_m", DEFAULT_ELEMENT_SIZE_M))
-    if setup.hidden_shapes and max_depth >= 4:
+    if setup.hidden_shapes and (max_depth >= 4 or max_depth == -1):
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
         tri0, idx0 = mesh_triangles(setup.hidden_shapes)
         tri_c, idx_c = subdivide(tri0, idx0, 2.0 * h)

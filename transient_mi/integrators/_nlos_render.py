@@ -142,9 +142,12 @@ def render_spots(setup: "NLOSSetup", scene, film, options: dict, *, seed: int, s
         One per spot, histograms ``[height, width, n_bins]`` in photons per
         pulse per bin, with the variance of every bin estimated from the
         independent replicates (:mod:`._replicates`).
-    """
-    from transient_mi.films.transient_film import TransientResult
 
+    With ``estimator="quadrature"`` the three-bounce light and the wall return come from
+    :func:`~._nlos_quadrature.render_spots_quadrature` (an ``error_bound``, no variance); with ``max_depth``
+    above 4 (or -1) the Monte Carlo remainder (the same kernel with ``skip_three_bounce``: every other path)
+    is added by :func:`combine_remainder`, whose results carry both the bound and the remainder's variance.
+    """
     W, H = setup.width, setup.height
     spots = [int(j) for j in spots]
     confocal = setup.capture == "confocal"
@@ -155,8 +158,9 @@ def render_spots(setup: "NLOSSetup", scene, film, options: dict, *, seed: int, s
             raise PluginParameterError(f"spad_array: spot={j} out of range [0, {setup.n_spots})")
     if len(set(spots)) != len(spots) or not spots:
         raise PluginParameterError(f"spad_array: spots={spots} must be distinct and non-empty")
-    if options.get("estimator") == "quadrature":  # deterministic three-bounce estimator: no samples, no replicates
-        from transient_mi.integrators._nlos_quadrature import check_supported, render_spots_quadrature
+    if options.get("estimator") == "quadrature":  # deterministic three-bounce estimator (+ the MC remainder)
+        from transient_mi.integrators._nlos_quadrature import (check_supported, needs_remainder,
+                                                               render_spots_quadrature)
 
         plugin = options.get("plugin", "transient_nlos_path")
         if options.get("medium") is not None:
@@ -164,9 +168,57 @@ def render_spots(setup: "NLOSSetup", scene, film, options: dict, *, seed: int, s
                                        "estimator=monte_carlo")
         check_supported(setup, options, plugin)
         results = render_spots_quadrature(setup, scene, film, options, spots)
-        if progress is not None:
-            progress(W * H * spp, W * H * spp)
-        return results
+        if not needs_remainder(options):
+            if progress is not None:
+                progress(W * H * spp, W * H * spp)
+            return results
+        # light beyond three bounces: the Monte Carlo estimator without the three-bounce connection and the
+        # wall return (KernelConstants.skip_three_bounce); the sum is unbiased up to the quadrature's error
+        rest = _render_monte_carlo(setup, scene, film, dict(options, skip_three_bounce=True), seed=seed, spp=spp,
+                                   spots=spots, progress=progress, replicate_offset=replicate_offset,
+                                   replicates=replicates)
+        return [combine_remainder(q, r) for q, r in zip(results, rest)]
+    return _render_monte_carlo(setup, scene, film, options, seed=seed, spp=spp, spots=spots, progress=progress,
+                               replicate_offset=replicate_offset, replicates=replicates)
+
+
+def combine_remainder(q, r):
+    """The capture of ``estimator="quadrature"`` beyond three bounces: the quadrature's result ``q`` (three-bounce
+    light and the wall return, with its ``error_bound``) plus the Monte Carlo remainder ``r`` (every other path,
+    with its replicate ``variance``). Both errors are kept, each of its own part."""
+    from transient_mi.films.transient_film import TransientResult
+
+    info = dict(q.estimator_info or {}, remainder="monte_carlo", remainder_samples=r.samples,
+                remainder_replicates=r.replicates, quadrature_pairs=q.samples)
+    return TransientResult(
+        histogram=(q.histogram.astype(np.float64) + r.histogram.astype(np.float64)).astype(np.float32),
+        steady=(q.steady.astype(np.float64) + r.steady.astype(np.float64)).astype(np.float32),
+        dropped_contributions=q.dropped_contributions + r.dropped_contributions,
+        dropped_fraction=_combined_fraction(q, r),
+        samples=r.samples,
+        variance=r.variance,
+        total_variance=r.total_variance,
+        replicates=r.replicates,
+        invalid_contributions=r.invalid_contributions,
+        negative_fraction=r.negative_fraction,
+        error_bound=q.error_bound,
+        total_error_bound=q.total_error_bound,
+        estimator_info=info,
+    )
+
+
+def _combined_fraction(q, r) -> float:
+    """Share of the combined light outside the histogram (each part's fraction weighted by its light)."""
+    tq, tr = float(q.steady.astype(np.float64).sum()), float(r.steady.astype(np.float64).sum())
+    return (q.dropped_fraction * tq + r.dropped_fraction * tr) / (tq + tr) if tq + tr > 0 else 0.0
+
+
+def _render_monte_carlo(setup: "NLOSSetup", scene, film, options: dict, *, seed: int, spp: int, spots, progress,
+                        replicate_offset: int, replicates: int | None):
+    """The Monte Carlo estimator of :func:`render_spots`: independent replicates of :func:`_render_replicate`."""
+    from transient_mi.films.transient_film import TransientResult
+
+    W, H = setup.width, setup.height
     R = replicates or effective_replicates(spp, options.get("variance_replicates", DEFAULT_REPLICATES))
     n = spp // R
     P = W * H
@@ -255,6 +307,8 @@ def _render_replicate(setup: "NLOSSetup", scene, film, options: dict, *, seed: i
     # closed-form first-bounce return of the wall (weighted by spp: collect() divides by it); a divergent
     # beam's footprint has M entries per spot (arrays [n_spots, M], flattened here)
     wr = setup.wall_return if fog is None else fog.wall_return(setup)
+    if c.skip_three_bounce:  # the remainder of estimator=quadrature: the quadrature adds the wall return
+        wr = dict(wr, photons=np.zeros_like(wr["photons"]))
     all_spots = np.arange(setup.n_spots) if confocal else np.array(spots)
     sub = np.zeros(len(all_spots), dtype=np.uint32) if confocal else np.arange(G, dtype=np.uint32)
     pix = wr["pixel"][all_spots]

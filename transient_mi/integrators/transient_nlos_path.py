@@ -282,10 +282,15 @@ class TransientNLOSPath(mi.CppADIntegrator):
            ``quadrature``: the deterministic three-bounce estimator
            (:mod:`transient_mi.integrators._nlos_quadrature`; no samples, no
            noise: ``spp`` and the replicates are ignored, and the capture
-           stores an error estimate instead of a variance). It renders
-           ``max_depth <= 4`` of mesh hidden shapes behind a planar wall,
-           without windows, media or a divergent beam; other captures are
-           refused in one line.
+           stores an error estimate instead of a variance). It renders mesh
+           hidden shapes behind a planar wall, without windows, media or a
+           divergent beam; other captures are refused in one line. With
+           ``max_depth`` above 4 (or -1) the light beyond three bounces is
+           added by this Monte Carlo estimator without the three-bounce
+           connection and the wall return (``spp`` and the replicates then
+           set its noise): the capture stores the remainder's variance and
+           the quadrature's error side by side
+           (:mod:`transient_mi.capture_error`).
        * - ``element_size_m``
          - float
          - ``quadrature``: longest edge of a hidden-surface element, m, in

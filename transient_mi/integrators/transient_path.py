@@ -119,7 +119,8 @@ class TransientPath(mi.CppADIntegrator):
        * - ``estimator``, ``element_size_m``, ``patch_cells``, ``refine_levels``
          - string, float, integer, integer
          - NLOS only: ``estimator="quadrature"`` renders three-bounce light
-           deterministically, with the quadrature's settings; as
+           deterministically, with the quadrature's settings (beyond
+           ``max_depth=4`` plus the Monte Carlo remainder); as
            ``transient_nlos_path`` (same names, defaults and ranges).
 
     Determinism: each SIMD lane accumulates its own histogram slot (see

@@ -129,21 +129,33 @@ class Detection:
     def render_noise(self) -> dict:
         """How much of this budget's count variance is the ideal capture's rendering noise
         (:mod:`spad_detector.render_noise`; ``available: false`` without stored variance)."""
-        from transient_core.stack import has_variance, read_variance
+        from transient_core.stack import has_error_bound, has_variance, is_error_bound, read_error_bound, read_variance
         from spad_detector.render_noise import NoiseRatio, unavailable
 
         m = self.ideal.manifest
-        if not has_variance(m):
+        bound_kind = is_error_bound(m)  # a pure quadrature capture: the "variance" files hold its error bound
+        two_parts = has_error_bound(m) and not bound_kind  # quadrature + Monte Carlo remainder
+        if not has_variance(m) and not two_parts:
             return unavailable("the ideal capture stores no variance")
         if m.get("channels"):
             return unavailable("a multi-channel capture stores per-channel variances, not its intensity's")
         _, H, W, T = self.ideal.shape
         nr = NoiseRatio()
-        s2 = self.budget.photon_scale ** 2
+        sc = self.budget.photon_scale
+        vs = sc if bound_kind else sc ** 2  # a bound scales with the photons, a variance with their square
         for j in range(self.ideal.n_files):
-            var, tvar = read_variance(self.ideal.path, j, m)
-            nr.add_spot(self.model(j), self.scaled_ideal(j), var.reshape(H * W, T).astype(np.float64) * s2,
-                        self.n_pulses, total_variance=tvar.reshape(-1).astype(np.float64) * s2)
+            if has_variance(m):
+                var, tvar = read_variance(self.ideal.path, j, m)
+            else:
+                var, tvar = np.zeros((H, W, T), np.float32), np.zeros((H, W), np.float32)
+            bnd = tbnd = None
+            if two_parts:
+                bnd, tbnd = read_error_bound(self.ideal.path, j, m)
+                bnd = bnd.reshape(H * W, T).astype(np.float64) * sc
+                tbnd = tbnd.reshape(-1).astype(np.float64) * sc
+            nr.add_spot(self.model(j), self.scaled_ideal(j), var.reshape(H * W, T).astype(np.float64) * vs,
+                        self.n_pulses, total_variance=tvar.reshape(-1).astype(np.float64) * vs,
+                        error_bound=bound_kind, bound=bnd, total_bound=tbnd)
         rep = nr.report()
         # rendering-noise ceiling on the SNR (independent of the budget): mu / sqrt(V) = 1 / relative error
         rep["snr_ceiling_bins"] = float(np.sqrt(nr.mu2_sum / nr.var_sum)) if nr.var_sum > 0 else None
