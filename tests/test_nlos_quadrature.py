@@ -225,3 +225,24 @@ def test_unsupported_captures_are_refused_in_one_line():
     # (max_depth > 4 is rendered: quadrature + Monte Carlo remainder, tests/test_nlos_quadrature_remainder.py)
     with pytest.raises(Exception, match="estimator='simpson'; allowed: monte_carlo, quadrature"):
         load_scene("scenes/nlos_letter.xml", {"estimator": "simpson"})
+
+
+def test_noise_target_refines_the_quadrature(tmp_path):
+    """`render --noise-target` with the quadrature refines element size and cells until the stated error ratio
+    (at the asked budget) meets the target, and the manifest records the settings each spot used."""
+    from transient_core import stack
+    from transient_mi.noise_target import NoiseTargetSpec
+    from transient_mi.render_capture import render
+    from spad_detector import DetectorParams
+
+    d = dict(LETTER, estimator="quadrature", width="3", height="3", spots_x="1")
+    spec = NoiseTargetSpec(target=0.05, params=DetectorParams(auto_gate=True), exposure_s=1e-3)
+    out = render("scenes/nlos_letter.xml", tmp_path / "nt", defines=d, noise_target=spec, progress=False)
+    m = stack.read_manifest(out)
+    nt = m["render"]["noise_target"]
+    (spot,) = nt["spots"]
+    assert spot["met"] and nt["met"] and spot["ratio"] <= 0.05
+    assert spot["rounds"] >= 2 and spot["element_size_m"] < 0.01 and spot["patch_cells"] > 4  # it refined
+    assert m["variance"]["settings_per_spot"] == [{"element_size_m": spot["element_size_m"],
+                                                   "patch_cells": spot["patch_cells"]}]
+    assert "spp_per_spot" not in m["variance"]

@@ -213,7 +213,8 @@ def rendered_spp(ideal_dir, default: int) -> int:
 
     m = json.loads((Path(ideal_dir) / "manifest.json").read_text())
     nt = (m.get("render") or {}).get("noise_target") or {}
-    return max(sp["spp"] for sp in nt["spots"]) if nt.get("spots") else int(default)
+    spots = [sp for sp in nt.get("spots") or [] if sp and "spp" in sp]  # (quadrature spots have no spp)
+    return max(sp["spp"] for sp in spots) if spots else int(default)
 
 
 def render_group(job, run: TargetRun, group: list[int], seed: int, digest: str, log=None, progress=None):
@@ -324,3 +325,63 @@ def _load_plan(path: Path, digest: str, n_spots: int):
         return meta["plan"], None
     state = GroupState.load(path, str(z["digest"]), n_spots)
     return (meta["plan"], state) if state is not None else None
+
+
+#: Refinements a quadrature render may take to meet its target.
+QUADRATURE_MAX_ROUNDS = 4
+#: Smallest factor one refinement may shrink the element size by (the cost grows about as its inverse square
+#: for the elements and as its square again for the cells).
+QUADRATURE_MIN_FACTOR = 0.35
+
+
+def quadrature_ratio(run: TargetRun, j: int, result) -> float:
+    """The rendering-error ratio of a quadrature result (its error estimate carried like ``detect`` does)."""
+    from spad_detector.render_noise import NoiseRatio
+
+    T = result.histogram.shape[-1]
+    s = run.budget.photon_scale
+    nr = NoiseRatio(threshold=run.spec.target)
+    nr.add_spot(run.model(j), result.histogram.reshape(-1, T).astype(np.float64) * s,
+                result.error_bound.reshape(-1, T).astype(np.float64) * s, run.budget.n_pulses,
+                total_variance=result.total_error_bound.reshape(-1).astype(np.float64) * s, error_bound=True)
+    return float(nr.report()["ratio"])
+
+
+def render_group_quadrature(job, run: TargetRun, group: list[int], log=None):
+    """Render one group of spots with the quadrature, refined until its error meets the target.
+
+    The quadrature has no samples to add: its error falls as the square of the element size ``h`` (and of the
+    cell size), so the ratio (a variance ratio) as ``h^4``. Each round shrinks ``h`` by
+    ``f = (PLAN_MARGIN target / ratio)^(1/4)`` (at least :data:`QUADRATURE_MIN_FACTOR`) and multiplies the
+    cells per side by ``1/f`` (rounded up), at most :data:`QUADRATURE_MAX_ROUNDS` times. The capture is the
+    last round's render (deterministic: no stopping-rule bias). Returns ``(results, info per spot)``; the
+    integrator's settings are restored afterwards.
+    """
+    opts = job.integrator.nlos_options
+    h0, m0 = float(opts["element_size_m"]), int(opts["patch_cells"])
+    h, m = h0, m0
+    say = log or (lambda line: None)
+    name = f"spots {group[0]}-{group[-1]}" if len(group) > 1 else f"spot {group[0]}"
+    try:
+        for rnd in range(QUADRATURE_MAX_ROUNDS + 1):
+            opts.update(element_size_m=h, patch_cells=m)
+            t0 = time.perf_counter()
+            if len(group) == 1:
+                res = [job.integrator.render_transient(job.scene, job.sensor, seed=0, spp=1, spot=group[0])]
+            else:
+                res = job.integrator.render_transient(job.scene, job.sensor, seed=0, spp=1, spots=group)
+            ratios = [quadrature_ratio(run, j, r) for j, r in zip(group, res)]
+            worst = max(ratios)
+            say(f"{name}: quadrature, element_size_m {h:.4g}, patch_cells {m}: error ratio {worst:.3g} (target "
+                f"{run.spec.target:g}), {time.perf_counter() - t0:.0f} s")
+            if worst <= run.spec.target or rnd == QUADRATURE_MAX_ROUNDS:
+                break
+            f = max(QUADRATURE_MIN_FACTOR, min(0.9, (PLAN_MARGIN * run.spec.target / worst) ** 0.25))
+            h, m = h * f, int(math.ceil(m / f))
+    finally:
+        opts.update(element_size_m=h0, patch_cells=m0)
+    info = [{"element_size_m": h, "patch_cells": m, "rounds": rnd + 1, "ratio": ratios[g],
+             "met": ratios[g] <= run.spec.target} for g in range(len(group))]
+    if worst > run.spec.target:
+        say(f"{name}: target {run.spec.target:g} NOT met after {rnd + 1} rounds (error ratio {worst:.3g})")
+    return res, info

@@ -160,13 +160,14 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
         raise UserInputError(f"{scene_file}: a spad_film needs an NLOS sensor (spad_array) that records "
                              "photons per laser pulse; under a camera use transient_film")
 
-    if noise_target is not None and layout["quantity"] == "photons_per_pulse" and \
-            estimator_of(integrator) == "quadrature":
-        raise UserInputError(f"--noise-target: {scene_file} renders with estimator=quadrature, which has no samples "
-                             "to add; its error bound is set by element_size_m and patch_cells (integrator "
-                             "parameters) and stated by `transient-mi detect`")
+    quadrature = layout["quantity"] == "photons_per_pulse" and estimator_of(integrator) == "quadrature"
+    if noise_target is not None and quadrature and _has_remainder(integrator):
+        raise UserInputError(f"--noise-target: {scene_file} renders with estimator=quadrature and max_depth="
+                             f"{integrator.max_depth_param} (a Monte Carlo remainder beside the quadrature); a noise "
+                             "target refines pure quadrature captures (max_depth <= 4) only")
     if noise_target is not None:
-        noise_target = _resolve_noise_target(noise_target, integrator, spp, layout, detect_kwargs, scene_file)
+        noise_target = _resolve_noise_target(noise_target, integrator, spp, layout, detect_kwargs, scene_file,
+                                             quadrature)
     axis = film.time_axis()
     config = {
         "scene_sha256": file_sha256(scene_file),
@@ -227,8 +228,17 @@ def prepare_render(scene_file, out_dir, *, defines=None, spp: int = 0, seed: int
     return job
 
 
-def _resolve_noise_target(spec, integrator, spp: int, layout: dict, detect_kwargs, scene_file):
-    """Validate a noise-target request; fill in the detector and budget from the scene's spad_film if unset."""
+def _has_remainder(integrator) -> bool:
+    """A quadrature render with a Monte Carlo remainder (light beyond three bounces)."""
+    d = getattr(integrator, "max_depth_param", 4)
+    return d == -1 or d > 4
+
+
+def _resolve_noise_target(spec, integrator, spp: int, layout: dict, detect_kwargs, scene_file,
+                          quadrature: bool = False):
+    """Validate a noise-target request; fill in the detector and budget from the scene's spad_film if unset.
+
+    ``quadrature``: the target is met by refining the quadrature (no replicates needed)."""
     from spad_detector import DetectorParams
     from transient_mi.integrators._replicates import effective_replicates
 
@@ -243,7 +253,7 @@ def _resolve_noise_target(spec, integrator, spp: int, layout: dict, detect_kwarg
         else:
             spec.params = DetectorParams(auto_gate=True)
     spec.params = spec.params.validate()
-    R = effective_replicates(spp, _replicates(integrator, nlos=True))
+    R = 2 if quadrature else effective_replicates(spp, _replicates(integrator, nlos=True))
     return spec.validate(spp, R)
 
 
@@ -342,7 +352,14 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
 
             seed_g = job.seed if n_files == 1 else spot_seed(job.seed, group[0])
             ckpt = None
-            if job.noise_target is not None:
+            if job.noise_target is not None and stack.is_error_bound(m):  # refine the quadrature
+                from .noise_target import render_group_quadrature
+
+                results, info = render_group_quadrature(job, target_run, group, log=log)
+                for j, inf in zip(group, info):
+                    m["render"]["noise_target"]["spots"][j] = inf
+                advance(len(group) * paths_per_spot)
+            elif job.noise_target is not None:
                 from .noise_target import render_group
 
                 results, info, ckpt = render_group(job, target_run, group, seed_g, m["render"]["config_sha256"],
@@ -401,8 +418,12 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
         m["error_bound"] = dict(m["error_bound"], summary=variance_summary(d, stack.error_bound_view(m)))
     if job.noise_target is not None:
         spots_nt = m["render"]["noise_target"]["spots"]
-        m["variance"]["spp_per_spot"] = [s_["spp"] for s_ in spots_nt]
-        m["variance"]["replicates_per_spot"] = [s_["replicates"] for s_ in spots_nt]
+        if stack.is_error_bound(m):  # the quadrature's settings per spot
+            m["variance"]["settings_per_spot"] = [{"element_size_m": s_["element_size_m"],
+                                                  "patch_cells": s_["patch_cells"]} for s_ in spots_nt]
+        else:
+            m["variance"]["spp_per_spot"] = [s_["spp"] for s_ in spots_nt]
+            m["variance"]["replicates_per_spot"] = [s_["replicates"] for s_ in spots_nt]
         m["render"]["noise_target"]["met"] = all(s_["met"] for s_ in spots_nt)
         shutil.rmtree(d / ".partial", ignore_errors=True)
     m["status"] = "complete"
