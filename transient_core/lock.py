@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Iterator
 
 from .errors import UserInputError
+from .fault import point as _fault
 
 LOCK_SUFFIX = ".lock"
 #: A lock file that cannot be parsed is treated as being written for this long, then as stale.
@@ -172,6 +173,7 @@ def acquire(out: str | os.PathLike, option: str = "-o", command: str | None = No
         try:
             if _create(path, rec):
                 _held[key] = 1
+                _fault("lock_acquired", out)
                 return path
         except OSError as e:
             raise UserInputError(f"{option} {out}: cannot create the lock file {path} ({e.strerror})") from None
@@ -219,8 +221,9 @@ def remove_stale_temporaries(out: str | os.PathLike) -> list[Path]:
     """Remove ``.<name>.XXXXXXXX.tmp`` / ``.old`` siblings of ``out`` (call only while holding its lock).
 
     They are the temporary and moved-aside directories (or files) of
-    :mod:`transient_core.atomic` that a killed run of the same output left behind.
-    Returns the removed paths.
+    :mod:`transient_core.atomic` that a killed run of the same output left behind. When ``out`` itself is
+    missing and a moved-aside ``.old`` holds it (a run killed inside :func:`~transient_core.atomic.replace_dir`),
+    the old output is first put back: nothing is lost. Returns the removed paths.
     """
     o = Path(out)
     parent = o.parent if str(o.parent) else Path(".")
@@ -230,6 +233,14 @@ def remove_stale_temporaries(out: str | os.PathLike) -> list[Path]:
         entries = list(parent.iterdir())
     except OSError:
         return removed
+    if not os.path.lexists(o):  # killed inside replace_dir after moving the old output aside: put it back
+        for p in entries:
+            if pattern.match(p.name) and p.name.endswith(".old") and (p / o.name).exists():
+                try:
+                    os.rename(p / o.name, o)
+                except OSError:
+                    pass
+                break
     for p in entries:
         if not pattern.match(p.name):
             continue
