@@ -163,6 +163,9 @@ def discover(path, ground_truth=None) -> Library:
         if root.suffix.lower() not in HDF5_SUFFIXES:
             raise UserInputError(f"PATH {str(path)!r} is a file with suffix {root.suffix!r}: expected a y-tal "
                                  f"HDF5 file ({', '.join(HDF5_SUFFIXES)}) or a directory")
+        from recon.capture import load_capture
+
+        load_capture(root)  # refuse a truncated or foreign file now, not with a page that cannot show it
         lib.captures.append(root)
         return lib
     n = 0

@@ -102,7 +102,7 @@ def write_video(capture_path, out, *, spot: int = 0, fps: float = 20.0, stride: 
     dict
         ``path``, ``n_frames``, ``width``, ``height`` (pixels), ``fps``, ``bins`` shown.
     """
-    from transient_core.atomic import atomic_file
+    from transient_core.atomic import atomic_file, check_output_location
 
     from .data import CaptureData
 
@@ -131,6 +131,9 @@ def write_video(capture_path, out, *, spot: int = 0, fps: float = 20.0, stride: 
                                  "(pip install 'transient-mi[view]') or write a .gif") from None
     if not out.parent.is_dir():
         raise UserInputError(f"-o {str(out)!r}: the directory {str(out.parent)!r} does not exist")
+    if out.is_dir():
+        raise UserInputError(f"-o {str(out)!r}: is a directory; give a file name ending in {suf}")
+    check_output_location(out, "-o")  # a place this process can write into (not /proc, not read-only)
     data = CaptureData(Path(capture_path))
     if not 0 <= int(spot) < data.n_files:
         raise UserInputError(f"--spot {spot}: this capture has spots 0..{data.n_files - 1}")
