@@ -8,3 +8,14 @@ model must not need Mitsuba.
 import os
 
 os.environ.setdefault("TRANSIENT_MI_PROGRESS", "0")
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The reliability suites' counts (docs/reliability.md), visible in CI's log whatever the capture mode."""
+    import sys
+
+    walk = sys.modules.get("test_bad_input_walk")
+    rep = getattr(walk, "REPORT", None)
+    if rep:
+        terminalreporter.write_line(f"reliability: bad-input walk: {rep['walked']} bad values over {rep['commands']} "
+                                    f"commands, {rep['handled']} refused in one line (exit 2, nothing written)")

@@ -157,6 +157,9 @@ def discover(path, ground_truth=None) -> Library:
         if not gt.is_file() or gt.suffix.lower() not in MESH_SUFFIXES:
             raise UserInputError(f"--ground-truth {str(ground_truth)!r}: expected a mesh file "
                                  f"({', '.join(MESH_SUFFIXES)})")
+        from recon.metrics import load_ground_truth
+
+        load_ground_truth(gt)  # a mesh that cannot be read is refused now, not by a panel later
         gt = gt.resolve()
     lib = Library(root=root, ground_truth=gt)
     if root.is_file():

@@ -45,6 +45,11 @@ def mannequin(
 
     from transient_mi.scenes.mannequin_skeleton import parse_joints
 
+    from transient_core.errors import UserInputError
+
+    for j in joint or []:
+        if not j.strip():
+            raise UserInputError("--joint '': expected name=degrees (e.g. --joint elbow_right=40)")
     joints = parse_joints(",".join(joint))
     params = dict(height_m=height_m, width_m=width_m, pose=pose, rotation_deg=rotation_deg,
                   position=_parse_position(position), detail=detail, joints=joints)
