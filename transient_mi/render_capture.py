@@ -22,7 +22,6 @@ detector model turns it into a counts capture in ``OUT/``.
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 import shutil
@@ -33,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from transient_core.atomic import atomic_file, check_output_location
+from transient_core.atomic import check_output_location
 from transient_core.lock import output_lock
 from transient_core.progress import progress_bar
 from transient_core.errors import UserInputError
@@ -41,6 +40,7 @@ from transient_core import stack
 
 from . import __version__
 from .noise_target import PARTIAL_DIR  # per-spot facts and noise-target checkpoints, removed at the end
+from .render_resume import read_spot_facts, remove_stale_temporaries, write_spot_facts
 from .scene_io import file_sha256, load_scene
 
 
@@ -345,14 +345,14 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
             sys.stderr.write(line + "\n")
             sys.stderr.flush()
     if job.resume:
-        _remove_stale_temporaries(d)
+        remove_stale_temporaries(d)
     m = dict(job.manifest)
     n_files = m["n_files"]
     # A spot is done when its spot file, its variance file and its facts (dropped light, noise-target result:
     # OUT/.partial/spot_NNNNN.json) are all written; they are written in the order facts, variance, spot, so a
     # complete spot file implies the other two. The capture's figures are summed from the facts of every spot,
     # so a resumed capture states the same as an uninterrupted one.
-    done = {j: _read_spot_facts(d, j, m["render"]["config_sha256"]) for j in range(n_files)} if job.resume else {}
+    done = {j: read_spot_facts(d, j, m["render"]["config_sha256"]) for j in range(n_files)} if job.resume else {}
     todo = [j for j in range(n_files) if not (job.resume and done[j] is not None and stack.spot_is_complete(d, j, m)
                                               and stack.variance_is_complete(d, j, m))]
     facts: list[dict | None] = [None if j in todo else done[j] for j in range(n_files)]
@@ -409,7 +409,7 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
                             "dropped_fraction": float(res.dropped_fraction),
                             "invalid_path_lengths": int(res.invalid_contributions),
                             "negative_fraction": float(res.negative_fraction), "noise_target": inf}
-                _write_spot_facts(d, j, m["render"]["config_sha256"], facts[j])
+                write_spot_facts(d, j, m["render"]["config_sha256"], facts[j])
                 if stack.has_variance(m):  # first: a complete spot file implies a complete variance file
                     stack.write_variance(d, j, res.variance, res.total_variance, m)
                 stack.write_spot(d, j, res.histogram, m)
@@ -456,45 +456,6 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
     return _detect_into(job, d)
 
 
-
-
-def _facts_path(d: Path, j: int) -> Path:
-    return d / PARTIAL_DIR / f"spot_{j:05d}.json"
-
-
-def _write_spot_facts(d: Path, j: int, digest: str, facts: dict) -> None:
-    path = _facts_path(d, j)
-    path.parent.mkdir(exist_ok=True)
-    with atomic_file(path, fsync=True) as tmp:
-        tmp.write_text(json.dumps({"config_sha256": digest, **facts}))
-
-
-def _read_spot_facts(d: Path, j: int, digest: str) -> dict | None:
-    """The facts an earlier run recorded for spot ``j`` with the same configuration, else None."""
-    try:
-        rec = json.loads(_facts_path(d, j).read_text())
-    except (OSError, ValueError):
-        return None
-    if not isinstance(rec, dict) or rec.pop("config_sha256", None) != digest:
-        return None
-    return rec
-
-
-def _remove_stale_temporaries(d: Path) -> None:
-    """Delete temporary files a killed render left behind (``.spot_NNNNN.exr.*.tmp`` and the like, also in
-    ``variance/`` and ``.partial/``)."""
-    for sub in (d, d / stack.VARIANCE_DIR, d / PARTIAL_DIR):
-        try:
-            entries = list(sub.iterdir())
-        except OSError:
-            continue
-        for p in entries:
-            name = p.name
-            if name.startswith((".spot_", f".{stack.MANIFEST_NAME}.", ".preview.png.", ".group_")) and p.is_file():
-                try:
-                    p.unlink()
-                except OSError:
-                    pass
 
 
 def _detect_into(job: RenderJob, ideal_dir: Path) -> Path:

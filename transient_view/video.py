@@ -103,6 +103,7 @@ def write_video(capture_path, out, *, spot: int = 0, fps: float = 20.0, stride: 
         ``path``, ``n_frames``, ``width``, ``height`` (pixels), ``fps``, ``bins`` shown.
     """
     from transient_core.atomic import atomic_file, check_output_location
+    from transient_core.lock import output_lock
 
     from .data import CaptureData
 
@@ -148,20 +149,21 @@ def write_video(capture_path, out, *, spot: int = 0, fps: float = 20.0, stride: 
                           pad_to=16 if suf == ".mp4" else 1)
     first = next(frames)
     h, w = first.shape[:2]
-    with atomic_file(out, suffix=".tmp" + suf) as tmp:
-        if suf == ".gif":
-            from PIL import Image
+    with output_lock(out, "-o"):  # one writer per output file (docs/reliability.md)
+        with atomic_file(out, suffix=".tmp" + suf) as tmp:
+            if suf == ".gif":
+                from PIL import Image
 
-            ims = [Image.fromarray(first)] + [Image.fromarray(f) for f in frames]
-            ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:],
-                        duration=max(1, round(1000.0 / fps)), loop=0, optimize=False, disposal=1)
-        else:
-            gen = writer.write_frames(str(tmp), (w, h), fps=float(fps), codec="libx264", pix_fmt_out="yuv420p",
-                                      macro_block_size=16, quality=7, ffmpeg_log_level="error")
-            gen.send(None)
-            gen.send(np.ascontiguousarray(first))
-            for f in frames:
-                gen.send(np.ascontiguousarray(f))
-            gen.close()
+                ims = [Image.fromarray(first)] + [Image.fromarray(f) for f in frames]
+                ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:],
+                            duration=max(1, round(1000.0 / fps)), loop=0, optimize=False, disposal=1)
+            else:
+                gen = writer.write_frames(str(tmp), (w, h), fps=float(fps), codec="libx264", pix_fmt_out="yuv420p",
+                                          macro_block_size=16, quality=7, ffmpeg_log_level="error")
+                gen.send(None)
+                gen.send(np.ascontiguousarray(first))
+                for f in frames:
+                    gen.send(np.ascontiguousarray(f))
+                gen.close()
     return {"path": str(out), "n_frames": len(bins), "width": w, "height": h, "fps": float(fps),
             "bins": [bins.start, bins.stop - 1, bins.step]}
