@@ -221,3 +221,10 @@ def test_fit_killed_after_its_checkpoint_resumes_to_the_end(tmp_path):
     # (not compared with an uninterrupted fit byte for byte: the fit is not bit-reproducible between runs,
     # docs/fit.md)
     assert_no_leftovers(tmp_path)
+
+
+#: (what was killed, where) for the test summary (tests/conftest.py's pytest_terminal_summary)
+KILL_POINTS = ([(f"render {r}", f) for r, f in RENDER_FAULTS] + [("detect", f) for f, _ in DETECT_FAULTS]
+               + [("recon", "before_rename@rec:1"), ("recon --overwrite", "before_rename@rec:1"),
+                  ("recon --overwrite", "replace_dir@rec:1"), ("study", "before_rename@study:1"),
+                  ("dataset", "before_rename@index.csv:1"), ("fit", "after_rename@checkpoint.json:2")])
