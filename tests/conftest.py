@@ -28,4 +28,5 @@ def pytest_terminal_summary(terminalreporter):
     rep = getattr(walk, "REPORT", None)
     if rep:
         terminalreporter.write_line(f"reliability: bad-input walk: {rep['walked']} bad values over {rep['commands']} "
-                                    f"commands, {rep['handled']} refused in one line (exit 2, nothing written)")
+                                    f"commands, {rep['handled']} handled: {rep['refused']} refused in one line (exit "
+                                    f"2, nothing written), {len(rep['accepted_huge'])} huge values accepted")

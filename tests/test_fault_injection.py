@@ -119,12 +119,18 @@ def test_detect_killed_then_rerun_equals_uninterrupted(tmp_path, reference, faul
 RECON = ["--voxels", "8", "--method", "bp", "--seed", "1"]
 
 
+@pytest.fixture(scope="module")
+def recon_ref(reference, tmp_path_factory):
+    ref = tmp_path_factory.mktemp("recon_ref") / "rec"
+    assert run_cli("recon", reference["nlos"], "-o", ref, *RECON).code == 0
+    return ref
+
+
 @pytest.mark.parametrize("fault, again", [("before_rename@rec:1", False), ("before_rename@rec:1", True),
                                           ("replace_dir@rec:1", True)])
-def test_recon_killed_leaves_the_old_output_or_none_and_rerun_equals_uninterrupted(tmp_path, reference, fault,
-                                                                                   again):
-    ref = tmp_path / "ref" / "rec"
-    assert run_cli("recon", reference["nlos"], "-o", ref, *RECON).code == 0
+def test_recon_killed_leaves_the_old_output_or_none_and_rerun_equals_uninterrupted(tmp_path, reference, recon_ref,
+                                                                                   fault, again):
+    ref = recon_ref
     out = tmp_path / "run" / "rec"
     extra = []
     if again:

@@ -24,6 +24,8 @@ FORMATS = (".gif", ".mp4")
 NORMALIZE = ("global", "frame")
 #: Frames are at least this many pixels wide unless ``scale`` is given.
 MIN_WIDTH_PX = 256
+#: Largest frame side a video is drawn at, pixels (a 4K frame is 3840 wide).
+MAX_SIDE_PX = 8192
 BANNER_PX = 24
 
 
@@ -145,6 +147,10 @@ def write_video(capture_path, out, *, spot: int = 0, fps: float = 20.0, stride: 
     bins = range(int(first_bin), last + 1, int(stride))
     hist = data.spot(int(spot))
     s = int(scale) if scale is not None else _scale_for(data.width, data.height)
+    if s * max(data.width, data.height) > MAX_SIDE_PX:
+        raise UserInputError(f"--scale {s}: frames of {s * data.width}x{s * data.height} px; at most {MAX_SIDE_PX} "
+                             f"px a side (--scale <= {max(1, MAX_SIDE_PX // max(data.width, data.height))} for this "
+                             "capture)")
     frames = video_frames(hist, data.times_ps, bins, scale=s, normalize=normalize, cmap=cmap,
                           pad_to=16 if suf == ".mp4" else 1)
     first = next(frames)
