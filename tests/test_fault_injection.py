@@ -15,6 +15,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fault_helpers import ROOT, assert_no_leftovers, assert_same_output, killed_cli, killed_python, run_cli, tree
@@ -229,8 +230,42 @@ def test_fit_killed_after_its_checkpoint_resumes_to_the_end(tmp_path):
     assert_no_leftovers(tmp_path)
 
 
+@pytest.mark.parametrize("command", ["video", "export"])
+def test_a_file_output_killed_before_its_rename_is_absent_and_the_rerun_leaves_no_temporary(tmp_path, reference,
+                                                                                           command):
+    name = {"video": "slices.gif", "export": "capture.h5"}[command]
+    args = {"video": ["video", reference["nlos"], "-o"], "export": ["export", reference["nlos"]]}[command]
+    tail = {"video": [], "export": ["--to", "ytal"]}[command]
+    ref = tmp_path / "ref" / name
+    ref.parent.mkdir()
+    assert run_cli(*args, ref, *tail).code == 0
+    out = tmp_path / "run" / name
+    out.parent.mkdir()
+    killed_cli(*args, out, *tail, fault=f"before_rename@{name}:1")
+    assert not out.exists()
+    r = run_cli(*args, out, *tail)
+    assert r.code == 0, r.err
+    if command == "video":
+        assert out.read_bytes() == ref.read_bytes()
+    else:  # HDF5 files hold their creation time: compare the data
+        import h5py
+
+        with h5py.File(ref) as a, h5py.File(out) as b:
+            names = []
+            a.visit(names.append)
+            for n in names:
+                if isinstance(a[n], h5py.Dataset):
+                    va, vb = np.asarray(a[n][()]), np.asarray(b[n][()])
+                    if va.dtype.kind in "fiucb":
+                        assert va.tobytes() == vb.tobytes(), n
+                    else:  # strings
+                        assert va.tolist() == vb.tolist(), n
+    assert_no_leftovers(tmp_path)
+
+
 #: (what was killed, where) for the test summary (tests/conftest.py's pytest_terminal_summary)
 KILL_POINTS = ([(f"render {r}", f) for r, f in RENDER_FAULTS] + [("detect", f) for f, _ in DETECT_FAULTS]
                + [("recon", "before_rename@rec:1"), ("recon --overwrite", "before_rename@rec:1"),
                   ("recon --overwrite", "replace_dir@rec:1"), ("study", "before_rename@study:1"),
-                  ("dataset", "before_rename@index.csv:1"), ("fit", "after_rename@checkpoint.json:2")])
+                  ("dataset", "before_rename@index.csv:1"), ("fit", "after_rename@checkpoint.json:2"),
+                  ("video", "before_rename@slices.gif:1"), ("export", "before_rename@capture.h5:1")])

@@ -228,7 +228,8 @@ def remove_stale_temporaries(out: str | os.PathLike) -> list[Path]:
     """
     o = Path(out)
     parent = o.parent if str(o.parent) else Path(".")
-    pattern = re.compile(rf"^\.{re.escape(o.name)}\.[A-Za-z0-9_]{{8}}\.(tmp|old)$")
+    # (a file's temporary may keep its suffix after .tmp, e.g. a video's .x.gif.XXXXXXXX.tmp.gif)
+    pattern = re.compile(rf"^\.{re.escape(o.name)}\.[A-Za-z0-9_]{{8}}\.(tmp|old)(\.[A-Za-z0-9]{{1,8}})?$")
     removed = []
     try:
         entries = list(parent.iterdir())
@@ -236,7 +237,7 @@ def remove_stale_temporaries(out: str | os.PathLike) -> list[Path]:
         return removed
     if not os.path.lexists(o):  # killed inside replace_dir after moving the old output aside: put it back
         for p in entries:
-            if pattern.match(p.name) and p.name.endswith(".old") and (p / o.name).exists():
+            if pattern.match(p.name) and p.name.endswith(".old") and (p / o.name).exists():  # (a directory)
                 try:
                     os.rename(p / o.name, o)
                 except OSError:

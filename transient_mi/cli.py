@@ -98,9 +98,9 @@ def main(argv: list[str] | None = None) -> int:
     except Exit as e:
         return e.exit_code
     except ClickException as e:
-        if type(e).__name__ == "NoArgsIsHelpError":  # `transient-mi` alone: the help, as before
+        if type(e).__name__ == "NoArgsIsHelpError":  # `transient-mi` (or `study`) alone: the help, as before
             e.show()
-            return 0 if not args else 2
+            return e.exit_code
         typer.echo(f"error: {usage_error_line(e, args)}", err=True)
         return e.exit_code
     except Abort:
