@@ -456,8 +456,6 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
     return _detect_into(job, d)
 
 
-
-
 def _detect_into(job: RenderJob, ideal_dir: Path) -> Path:
     """Run the film's detector model on the ideal capture; counts land in ``job.out_dir``.
 
