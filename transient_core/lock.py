@@ -1,9 +1,9 @@
 """One writer per output directory: an exclusive lock file beside the output.
 
 Every command that writes an output (directories: ``render``, ``detect``,
-``recon``, ``study``, ``demo``, ``dataset``, ``fit``; files: ``export``,
-``video``, ``mannequin``, ``scene-mesh``) holds :func:`output_lock` on it while it
-works. The lock is the file ``.<name>.lock`` next to ``<name>`` (beside, not
+``recon``, ``study``, ``demo``, ``fit``; files: ``export``, ``video``,
+``mannequin``, ``scene-mesh``) holds :func:`output_lock` on it while it
+works (``dataset`` holds its own ``flock`` on ``OUT/.dataset.lock``). The lock is the file ``.<name>.lock`` next to ``<name>`` (beside, not
 inside: outputs are swapped into place by renaming a temporary sibling). It
 is created with ``O_CREAT | O_EXCL`` and holds one JSON object naming its
 owner::
