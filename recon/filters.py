@@ -57,6 +57,10 @@ def negative_laplacian_of_gaussian(raw: np.ndarray, grid: VoxelGrid, sigma_m: fl
             raise UserInputError(f"sigma_m={sigma_m!r} must be a positive number (metres)")
         sig = sigma_m / vs
     a = np.asarray(raw, dtype=np.float64)
+    widest = 4.0 * float(np.max(np.array(a.shape) * vs))  # beyond this the filter flattens the whole volume
+    if sigma_m is not None and sigma_m > widest:
+        raise UserInputError(f"sigma_m={sigma_m!r} (--sigma-m): wider than 4 x the volume's largest side; allowed "
+                             f"0 < sigma_m <= {widest:.4g} m here")
     sig = np.where(np.array(a.shape) >= 3, sig, 0.0)
     smooth = gaussian_filter(a, sig, mode="nearest", truncate=4.0)
     out = np.zeros(a.shape, dtype=np.float64)

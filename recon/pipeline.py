@@ -179,6 +179,10 @@ def run(capture_path, out_dir, method: str = "bp", *, bounds=None, voxels=None, 
     """
     from .output import check_output_dir
 
+    if time_downsample is not None and (isinstance(time_downsample, bool) or int(time_downsample) != time_downsample
+                                        or time_downsample < 1):
+        raise UserInputError(f"--time-downsample {time_downsample!r}: must be a whole number >= 1 (bins summed "
+                             "per output bin; 1 keeps every bin)")
     check_output_dir(out_dir, overwrite)  # fail before any work (and before taking the lock)
     with output_lock(out_dir):
         return _run_locked(capture_path, out_dir, method, bounds=bounds, voxels=voxels, voxel_size_m=voxel_size_m,
@@ -206,7 +210,7 @@ def _run_locked(capture_path, out_dir, method, *, bounds, voxels, voxel_size_m, 
         raise UserInputError("--pulses and --blind-cycles are only used with --pileup-correction")
     if time_crop_ps is not None:
         cap = preprocess.crop_time(cap, *time_crop_ps)
-    if time_downsample:
+    if time_downsample is not None:
         cap = preprocess.downsample_time(cap, int(time_downsample))
     t_load = time.perf_counter()
     rec = reconstruct(cap, method, bounds=bounds, voxels=voxels, voxel_size_m=voxel_size_m, filter=filter,

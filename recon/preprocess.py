@@ -196,7 +196,8 @@ def downsample_time(capture: Capture, factor: int) -> Capture:
         return capture
     T = capture.n_bins // factor
     if T < 1:
-        raise UserInputError(f"time downsampling factor={factor} exceeds the {capture.n_bins} bins of the capture")
+        raise UserInputError(f"time downsampling factor (--time-downsample) {factor} exceeds the {capture.n_bins} "
+                             f"bins of the capture (allowed 1..{capture.n_bins})")
 
     def transform(j, h):
         H, W, _ = h.shape

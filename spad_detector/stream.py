@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from transient_core.progress import progress_bar
-from transient_core.atomic import check_output_location, temp_dir_beside
+from transient_core.atomic import check_output_location, rename_into_place, temp_dir_beside
 from transient_core.lock import output_lock
 from transient_core.errors import UserInputError
 from transient_core.stack import (MANIFEST_NAME, StackError, has_error_bound, has_variance, is_error_bound,
@@ -353,7 +353,7 @@ def spot_model_for(m: dict, run_params: DetectorParams, spot_gates, j: int, budg
 def _move_into_place(tmp: Path, out: Path, n_files: int) -> None:
     """Rename ``tmp`` to ``out``; into an existing ``out``, move spots first and the manifest last."""
     if not out.exists():
-        os.rename(tmp, out)
+        rename_into_place(tmp, out)
         return
     old = out / MANIFEST_NAME
     if old.exists():
@@ -361,6 +361,6 @@ def _move_into_place(tmp: Path, out: Path, n_files: int) -> None:
     for f in out.glob("spot_*.exr"):
         f.unlink()
     for j in range(n_files):
-        os.replace(tmp / spot_filename(j), out / spot_filename(j))
-    os.replace(tmp / MANIFEST_NAME, out / MANIFEST_NAME)
+        rename_into_place(tmp / spot_filename(j), out / spot_filename(j))
+    rename_into_place(tmp / MANIFEST_NAME, out / MANIFEST_NAME)
     shutil.rmtree(tmp, ignore_errors=True)

@@ -14,6 +14,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
+from .fault import point as _fault
+
 
 def umask() -> int:
     """The process umask (read without changing it for longer than a call)."""
@@ -65,10 +67,19 @@ def atomic_file(target: str | os.PathLike, suffix: str = ".tmp", fsync: bool = F
         if fsync:
             with open(tmp, "rb") as f:
                 os.fsync(f.fileno())
+        _fault("before_rename", target)
         os.replace(tmp, target)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    _fault("after_rename", target)
+
+
+def rename_into_place(tmp: str | os.PathLike, target: str | os.PathLike) -> None:
+    """``os.replace(tmp, target)`` for a finished temporary, with the fault points of :mod:`transient_core.fault`."""
+    _fault("before_rename", target)
+    os.replace(tmp, target)
+    _fault("after_rename", target)
 
 
 def replace_dir(tmp: str | os.PathLike, out: str | os.PathLike) -> None:
@@ -79,13 +90,17 @@ def replace_dir(tmp: str | os.PathLike, out: str | os.PathLike) -> None:
     result or the new one, never a mixture.
     """
     tmp, out = Path(tmp), Path(out)
+    _fault("before_rename", out)
     if not out.exists():
         os.replace(tmp, out)
+        _fault("after_rename", out)
         return
     parent = out.parent if str(out.parent) else Path(".")
     trash = Path(tempfile.mkdtemp(dir=parent, prefix=f".{out.name}.", suffix=".old"))
     os.replace(out, trash / out.name)
+    _fault("replace_dir", out)
     os.replace(tmp, out)
+    _fault("after_rename", out)
     shutil.rmtree(trash, ignore_errors=True)
 
 

@@ -1,8 +1,9 @@
 """One writer per output directory: an exclusive lock file beside the output.
 
-Every command that writes an output directory (``render``, ``detect``,
-``recon``, ``study``, ``demo``) holds :func:`output_lock` on it while it
-works. The lock is the file ``.<name>.lock`` next to ``<name>`` (beside, not
+Every command that writes an output (directories: ``render``, ``detect``,
+``recon``, ``study``, ``demo``, ``fit``; files: ``export``, ``video``,
+``mannequin``, ``scene-mesh``) holds :func:`output_lock` on it while it
+works (``dataset`` holds its own ``flock`` on ``OUT/.dataset.lock``). The lock is the file ``.<name>.lock`` next to ``<name>`` (beside, not
 inside: outputs are swapped into place by renaming a temporary sibling). It
 is created with ``O_CREAT | O_EXCL`` and holds one JSON object naming its
 owner::
@@ -40,6 +41,7 @@ from pathlib import Path
 from typing import Iterator
 
 from .errors import UserInputError
+from .fault import point as _fault
 
 LOCK_SUFFIX = ".lock"
 #: A lock file that cannot be parsed is treated as being written for this long, then as stale.
@@ -172,6 +174,7 @@ def acquire(out: str | os.PathLike, option: str = "-o", command: str | None = No
         try:
             if _create(path, rec):
                 _held[key] = 1
+                _fault("lock_acquired", out)
                 return path
         except OSError as e:
             raise UserInputError(f"{option} {out}: cannot create the lock file {path} ({e.strerror})") from None
@@ -219,17 +222,27 @@ def remove_stale_temporaries(out: str | os.PathLike) -> list[Path]:
     """Remove ``.<name>.XXXXXXXX.tmp`` / ``.old`` siblings of ``out`` (call only while holding its lock).
 
     They are the temporary and moved-aside directories (or files) of
-    :mod:`transient_core.atomic` that a killed run of the same output left behind.
-    Returns the removed paths.
+    :mod:`transient_core.atomic` that a killed run of the same output left behind. When ``out`` itself is
+    missing and a moved-aside ``.old`` holds it (a run killed inside :func:`~transient_core.atomic.replace_dir`),
+    the old output is first put back: nothing is lost. Returns the removed paths.
     """
     o = Path(out)
     parent = o.parent if str(o.parent) else Path(".")
-    pattern = re.compile(rf"^\.{re.escape(o.name)}\.[A-Za-z0-9_]{{8}}\.(tmp|old)$")
+    # (a file's temporary may keep its suffix after .tmp, e.g. a video's .x.gif.XXXXXXXX.tmp.gif)
+    pattern = re.compile(rf"^\.{re.escape(o.name)}\.[A-Za-z0-9_]{{8}}\.(tmp|old)(\.[A-Za-z0-9]{{1,8}})?$")
     removed = []
     try:
         entries = list(parent.iterdir())
     except OSError:
         return removed
+    if not os.path.lexists(o):  # killed inside replace_dir after moving the old output aside: put it back
+        for p in entries:
+            if pattern.match(p.name) and p.name.endswith(".old") and (p / o.name).exists():  # (a directory)
+                try:
+                    os.rename(p / o.name, o)
+                except OSError:
+                    pass
+                break
     for p in entries:
         if not pattern.match(p.name):
             continue

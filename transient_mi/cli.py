@@ -82,15 +82,30 @@ def command():
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``transient-mi`` console script.
 
-    Usage errors are reported by typer (exit status 2); a
-    :class:`~transient_core.errors.UserInputError` raised by a command becomes
-    ``error: <message>`` on stderr and exit status 2.
+    Usage errors (a malformed value, an unknown option, a missing argument) and a
+    :class:`~transient_core.errors.UserInputError` raised by a command become one line
+    ``error: <message>`` on stderr and exit status 2 (no traceback, no usage panel).
     """
+    from transient_view.commands import click_exceptions, usage_error_line
+
+    ClickException, Exit, Abort = click_exceptions()
+    args = sys.argv[1:] if argv is None else list(argv)
     try:
-        command()(args=argv, standalone_mode=True, prog_name="transient-mi")
+        command()(args=args, standalone_mode=False, prog_name="transient-mi")
     except (UserInputError, BadOptionValue) as e:
         typer.echo(f"error: {e}", err=True)
         return 2
+    except Exit as e:
+        return e.exit_code
+    except ClickException as e:
+        if type(e).__name__ == "NoArgsIsHelpError":  # `transient-mi` (or `study`) alone: the help, as before
+            e.show()
+            return e.exit_code
+        typer.echo(f"error: {usage_error_line(e, args)}", err=True)
+        return e.exit_code
+    except Abort:
+        typer.echo("Aborted!", err=True)
+        return 1
     return 0
 
 

@@ -38,6 +38,7 @@ from transient_core.errors import UserInputError
 
 #: Default cap on samples per pixel per spot.
 DEFAULT_MAX_SPP = 1 << 20
+#: Hidden directory of a capture being rendered (render_capture: per-spot facts; here: group checkpoints).
 PARTIAL_DIR = ".partial"
 #: The capture's spp is planned for ``PLAN_MARGIN * target``: the pilot's ratio is itself an estimate, and a
 #: plan aimed exactly at the target misses it about half the time by a hair.

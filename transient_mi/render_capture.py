@@ -40,6 +40,8 @@ from transient_core import stack
 
 from . import __version__
 from .capture_error import _replicates, error_blocks, estimator_of, variance_summary
+from .noise_target import PARTIAL_DIR  # per-spot facts and noise-target checkpoints, removed at the end
+from .render_resume import read_spot_facts, remove_stale_temporaries, write_spot_facts
 from .scene_io import file_sha256, load_scene
 
 
@@ -305,23 +307,24 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
             sys.stderr.write(line + "\n")
             sys.stderr.flush()
     if job.resume:
-        _remove_stale_temporaries(d)
+        remove_stale_temporaries(d)
     m = dict(job.manifest)
     n_files = m["n_files"]
-    todo = [j for j in range(n_files) if not (job.resume and stack.spot_is_complete(d, j, m)
+    # A spot is done when its spot file, its variance file and its facts (dropped light, noise-target result:
+    # OUT/.partial/spot_NNNNN.json) are all written; they are written in the order facts, variance, spot, so a
+    # complete spot file implies the other two. The capture's figures are summed from the facts of every spot,
+    # so a resumed capture states the same as an uninterrupted one.
+    done = {j: read_spot_facts(d, j, m["render"]["config_sha256"]) for j in range(n_files)} if job.resume else {}
+    todo = [j for j in range(n_files) if not (job.resume and done[j] is not None and stack.spot_is_complete(d, j, m)
                                               and stack.variance_is_complete(d, j, m))]
+    facts: list[dict | None] = [None if j in todo else done[j] for j in range(n_files)]
     if job.resume and stack.manifest_path(d).exists():
         old = stack.read_manifest(d)
-        m["dropped"] = old.get("dropped", m["dropped"])
         m["render"]["render_time_s"] = (old.get("render") or {}).get("render_time_s", 0.0)
     stack.write_manifest(d, dict(m, status="incomplete"))
     W, H = m["width"], m["height"]
     paths_per_spot = W * H * job.spp
     t_start = time.perf_counter()
-    dropped_n = int(m["dropped"]["contributions"])
-    frac_sum = float(m["dropped"]["fraction"]) * (n_files - len(todo))
-    invalid_n = int(m["dropped"].get("invalid_path_lengths", 0))
-    negative = float(m["dropped"].get("negative_fraction", 0.0))
     preview_data = None
     # Spots are rendered in fixed groups (NLOS array captures share sub-paths within a group); a group
     # with any spot missing is rendered again as a whole, so resumed captures keep the same bytes.
@@ -336,11 +339,6 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
         from .noise_target import TargetRun
 
         target_run = TargetRun(job.noise_target, m)
-        if job.resume and stack.manifest_path(d).exists():
-            old_nt = (stack.read_manifest(d).get("render") or {}).get("noise_target") or {}
-            for j, inf in enumerate(old_nt.get("spots") or []):
-                if inf is not None and j not in todo_set:
-                    m["render"]["noise_target"]["spots"][j] = inf
     with progress_bar(f"render {job.scene_file.name}", total=sum(len(g) for g in groups) * paths_per_spot,
                       disable=None if progress is None else not progress) as advance:
         for group in groups:
@@ -352,20 +350,17 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
 
             seed_g = job.seed if n_files == 1 else spot_seed(job.seed, group[0])
             ckpt = None
+            info = [None] * len(group)
             if job.noise_target is not None and stack.is_error_bound(m):  # refine the quadrature
                 from .noise_target import render_group_quadrature
 
                 results, info = render_group_quadrature(job, target_run, group, log=log)
-                for j, inf in zip(group, info):
-                    m["render"]["noise_target"]["spots"][j] = inf
                 advance(len(group) * paths_per_spot)
             elif job.noise_target is not None:
                 from .noise_target import render_group
 
                 results, info, ckpt = render_group(job, target_run, group, seed_g, m["render"]["config_sha256"],
                                                    log=log, progress=None)
-                for j, inf in zip(group, info):
-                    m["render"]["noise_target"]["spots"][j] = inf
                 advance(len(group) * paths_per_spot)
             elif len(group) == 1:
                 results = [job.integrator.render_transient(
@@ -374,10 +369,15 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
             else:
                 results = job.integrator.render_transient(job.scene, job.sensor, seed=seed_g, spp=job.spp,
                                                           spots=group, progress=cb)
-            for j, res in zip(group, results):
+            for j, res, inf in zip(group, results, info):
                 if j not in todo_set:
                     continue  # complete from an earlier run (and identical)
-                # first: a complete spot file implies complete error files (resume checks both)
+                facts[j] = {"dropped_contributions": int(res.dropped_contributions),
+                            "dropped_fraction": float(res.dropped_fraction),
+                            "invalid_path_lengths": int(res.invalid_contributions),
+                            "negative_fraction": float(res.negative_fraction), "noise_target": inf}
+                write_spot_facts(d, j, m["render"]["config_sha256"], facts[j])
+                # then the error files: a complete spot file implies complete error files (resume checks both)
                 if stack.has_error_bound(m) and not stack.is_error_bound(m):  # quadrature + MC remainder
                     stack.write_error_bound(d, j, res.error_bound, res.total_error_bound, m)
                 if stack.has_variance(m):
@@ -386,20 +386,21 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
                     else:
                         stack.write_variance(d, j, res.variance, res.total_variance, m)
                 stack.write_spot(d, j, res.histogram, m)
-                dropped_n += res.dropped_contributions
-                frac_sum += res.dropped_fraction
-                invalid_n += res.invalid_contributions
-                negative = min(negative, res.negative_fraction)
-                if preview_data is None:
+                if j == 0:
                     preview_data = (j, np.array(res.histogram))  # a copy: frees the group buffer
                 if on_spot is not None:
                     on_spot(j)
             del results
             if ckpt is not None:
-                stack.write_manifest(d, dict(m, status="incomplete"))  # per-spot noise-target results so far
                 ckpt.unlink(missing_ok=True)
     elapsed = time.perf_counter() - t_start
     m["render"]["render_time_s"] = float(m["render"].get("render_time_s", 0.0) or 0.0) + elapsed
+    dropped_n = sum(f["dropped_contributions"] for f in facts)
+    frac_sum = 0.0
+    for f in facts:  # in spot order, as an uninterrupted run adds them
+        frac_sum += f["dropped_fraction"]
+    invalid_n = sum(f["invalid_path_lengths"] for f in facts)
+    negative = min([0.0] + [f["negative_fraction"] for f in facts])
     m["dropped"] = {"contributions": dropped_n, "fraction": frac_sum / n_files,
                     "invalid_path_lengths": invalid_n, "negative_fraction": negative}
     if invalid_n or negative < 0:
@@ -417,7 +418,8 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
     if stack.has_error_bound(m) and not stack.is_error_bound(m):
         m["error_bound"] = dict(m["error_bound"], summary=variance_summary(d, stack.error_bound_view(m)))
     if job.noise_target is not None:
-        spots_nt = m["render"]["noise_target"]["spots"]
+        spots_nt = [f["noise_target"] for f in facts]
+        m["render"]["noise_target"]["spots"] = spots_nt
         if stack.is_error_bound(m):  # the quadrature's settings per spot
             m["variance"]["settings_per_spot"] = [{"element_size_m": s_["element_size_m"],
                                                   "patch_cells": s_["patch_cells"]} for s_ in spots_nt]
@@ -425,23 +427,12 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
             m["variance"]["spp_per_spot"] = [s_["spp"] for s_ in spots_nt]
             m["variance"]["replicates_per_spot"] = [s_["replicates"] for s_ in spots_nt]
         m["render"]["noise_target"]["met"] = all(s_["met"] for s_ in spots_nt)
-        shutil.rmtree(d / ".partial", ignore_errors=True)
     m["status"] = "complete"
     stack.write_manifest(d, m)
+    shutil.rmtree(d / PARTIAL_DIR, ignore_errors=True)
     if job.detect_kwargs is None:
         return d
     return _detect_into(job, d)
-
-
-def _remove_stale_temporaries(d: Path) -> None:
-    """Delete temporary files a killed render left behind (``.spot_NNNNN.exr.*.tmp`` and the like)."""
-    for p in d.iterdir():
-        name = p.name
-        if name.startswith((".spot_", f".{stack.MANIFEST_NAME}.", ".preview.png.")) and p.is_file():
-            try:
-                p.unlink()
-            except OSError:
-                pass
 
 
 def _detect_into(job: RenderJob, ideal_dir: Path) -> Path:

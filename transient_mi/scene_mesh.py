@@ -71,6 +71,11 @@ def hidden_mesh(scene_file, defines: dict | None = None) -> tuple[np.ndarray, np
     from .scene_io import load_scene
 
     scene = load_scene(Path(scene_file), defines)
+    sensors = scene.sensors()
+    if not any(hasattr(s, "capture_layout") for s in sensors):
+        kinds = ", ".join(sorted({type(s).__name__ for s in sensors})) or "no sensor"
+        raise UserInputError(f"{scene_file}: not an NLOS scene (sensor: {kinds}); scene-mesh needs a spad_array "
+                             "sensor looking at a relay wall in z = 0, whose hidden geometry it writes")
     verts, faces, ids, n = [], [], [], 0
     for shape in scene.shapes():
         if float(shape.bbox().max[2]) <= WALL_PLANE_TOL_M:
@@ -80,7 +85,7 @@ def hidden_mesh(scene_file, defines: dict | None = None) -> tuple[np.ndarray, np
         v, f = shape_triangles(shape)
         verts.append(v)
         faces.append(f + n)
-        ids.append(shape.id())
+        ids.append(shape.id() or f"<unnamed {type(shape).__name__} {len(ids)}>")
         n += len(v)
     if not verts:
         raise UserInputError(f"{scene_file}: no shape in the hidden space z > 0 (nothing to write)")

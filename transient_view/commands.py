@@ -14,7 +14,7 @@ from typing import Optional
 import typer
 import typer.main
 
-__all__ = ["view", "video", "main"]
+__all__ = ["view", "video", "main", "click_exceptions", "usage_error_line"]
 
 COMMANDS = ("view", "video")
 
@@ -87,12 +87,53 @@ def video(
                f"at {info['fps']:g} fps (bins {info['bins'][0]}..{info['bins'][1]} step {info['bins'][2]})")
 
 
+def click_exceptions():
+    """``(ClickException, Exit, Abort)`` of the click that typer runs on (typer >= 0.16 vendors its own)."""
+    import typer.core
+
+    ck = getattr(typer.core, "_click", None)
+    if ck is None:
+        import click as ck
+    exc = getattr(ck, "exceptions", ck)
+    return exc.ClickException, getattr(exc, "Exit", typer.Exit), getattr(exc, "Abort", typer.Abort)
+
+
+def _given_value(param, argv: list[str]):
+    """The text the user gave for option ``param`` (last occurrence), or None."""
+    opts = list(getattr(param, "opts", []) or []) + list(getattr(param, "secondary_opts", []) or [])
+    if getattr(param, "param_type_name", "") != "option":
+        return None
+    found = None
+    for i, a in enumerate(argv):
+        for o in opts:
+            if a == o and i + 1 < len(argv):
+                found = argv[i + 1]
+            elif a.startswith(o + "=") and o.startswith("--"):
+                found = a[len(o) + 1:]
+    return found
+
+
+def usage_error_line(e, argv: list[str]) -> str:
+    """One line for a click usage error: the parameter, the value given and what is allowed."""
+    msg = " ".join(e.format_message().split())
+    param = getattr(e, "param", None)
+    if param is not None and type(e).__name__ == "BadParameter":
+        name = (param.opts[-1] if getattr(param, "param_type_name", "") == "option" and param.opts
+                else (param.human_readable_name or param.name).upper())
+        value = _given_value(param, argv)
+        what = e.message if hasattr(e, "message") else msg
+        what = " ".join(str(what).split())
+        shown = f" {value!r}" if value is not None else ""
+        return f"{name}{shown}: {what[:1].lower() + what[1:]}"
+    cmd = getattr(getattr(e, "ctx", None), "command_path", None)
+    return f"{msg[:1].lower() + msg[1:]}" + (f" (see {cmd} --help)" if cmd else "")
+
+
 def main(argv: list[str]) -> int:
     """Run ``view`` or ``video`` (``argv[0]``) with the rest of ``argv``; the exit status."""
-    import click
-
     from transient_core.errors import UserInputError
 
+    ClickException, Exit, Abort = click_exceptions()
     app = typer.Typer(add_completion=False, pretty_exceptions_enable=False)
     app.command("view")(view)
     app.command("video")(video)
@@ -101,12 +142,12 @@ def main(argv: list[str]) -> int:
     except UserInputError as e:
         typer.echo(f"error: {e}", err=True)
         return 2
-    except click.exceptions.Exit as e:
+    except Exit as e:
         return e.exit_code
-    except click.ClickException as e:
-        e.show()
+    except ClickException as e:
+        typer.echo(f"error: {usage_error_line(e, list(argv))}", err=True)
         return e.exit_code
-    except click.exceptions.Abort:
+    except (Abort, KeyboardInterrupt):
         typer.echo("Aborted!", err=True)
         return 1
     return 0

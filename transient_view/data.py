@@ -157,12 +157,18 @@ def discover(path, ground_truth=None) -> Library:
         if not gt.is_file() or gt.suffix.lower() not in MESH_SUFFIXES:
             raise UserInputError(f"--ground-truth {str(ground_truth)!r}: expected a mesh file "
                                  f"({', '.join(MESH_SUFFIXES)})")
+        from recon.metrics import load_ground_truth
+
+        load_ground_truth(gt)  # a mesh that cannot be read is refused now, not by a panel later
         gt = gt.resolve()
     lib = Library(root=root, ground_truth=gt)
     if root.is_file():
         if root.suffix.lower() not in HDF5_SUFFIXES:
             raise UserInputError(f"PATH {str(path)!r} is a file with suffix {root.suffix!r}: expected a y-tal "
                                  f"HDF5 file ({', '.join(HDF5_SUFFIXES)}) or a directory")
+        from recon.capture import load_capture
+
+        load_capture(root)  # refuse a truncated or foreign file now, not with a page that cannot show it
         lib.captures.append(root)
         return lib
     n = 0

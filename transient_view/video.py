@@ -24,6 +24,8 @@ FORMATS = (".gif", ".mp4")
 NORMALIZE = ("global", "frame")
 #: Frames are at least this many pixels wide unless ``scale`` is given.
 MIN_WIDTH_PX = 256
+#: Largest frame side a video is drawn at, pixels (a 4K frame is 3840 wide).
+MAX_SIDE_PX = 8192
 BANNER_PX = 24
 
 
@@ -102,7 +104,8 @@ def write_video(capture_path, out, *, spot: int = 0, fps: float = 20.0, stride: 
     dict
         ``path``, ``n_frames``, ``width``, ``height`` (pixels), ``fps``, ``bins`` shown.
     """
-    from transient_core.atomic import atomic_file
+    from transient_core.atomic import atomic_file, check_output_location
+    from transient_core.lock import output_lock
 
     from .data import CaptureData
 
@@ -131,6 +134,9 @@ def write_video(capture_path, out, *, spot: int = 0, fps: float = 20.0, stride: 
                                  "(pip install 'transient-mi[view]') or write a .gif") from None
     if not out.parent.is_dir():
         raise UserInputError(f"-o {str(out)!r}: the directory {str(out.parent)!r} does not exist")
+    if out.is_dir():
+        raise UserInputError(f"-o {str(out)!r}: is a directory; give a file name ending in {suf}")
+    check_output_location(out, "-o")  # a place this process can write into (not /proc, not read-only)
     data = CaptureData(Path(capture_path))
     if not 0 <= int(spot) < data.n_files:
         raise UserInputError(f"--spot {spot}: this capture has spots 0..{data.n_files - 1}")
@@ -141,24 +147,29 @@ def write_video(capture_path, out, *, spot: int = 0, fps: float = 20.0, stride: 
     bins = range(int(first_bin), last + 1, int(stride))
     hist = data.spot(int(spot))
     s = int(scale) if scale is not None else _scale_for(data.width, data.height)
+    if s * max(data.width, data.height) > MAX_SIDE_PX:
+        raise UserInputError(f"--scale {s}: frames of {s * data.width}x{s * data.height} px; at most {MAX_SIDE_PX} "
+                             f"px a side (--scale <= {max(1, MAX_SIDE_PX // max(data.width, data.height))} for this "
+                             "capture)")
     frames = video_frames(hist, data.times_ps, bins, scale=s, normalize=normalize, cmap=cmap,
                           pad_to=16 if suf == ".mp4" else 1)
     first = next(frames)
     h, w = first.shape[:2]
-    with atomic_file(out, suffix=".tmp" + suf) as tmp:
-        if suf == ".gif":
-            from PIL import Image
+    with output_lock(out, "-o"):  # one writer per output file (docs/reliability.md)
+        with atomic_file(out, suffix=".tmp" + suf) as tmp:
+            if suf == ".gif":
+                from PIL import Image
 
-            ims = [Image.fromarray(first)] + [Image.fromarray(f) for f in frames]
-            ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:],
-                        duration=max(1, round(1000.0 / fps)), loop=0, optimize=False, disposal=1)
-        else:
-            gen = writer.write_frames(str(tmp), (w, h), fps=float(fps), codec="libx264", pix_fmt_out="yuv420p",
-                                      macro_block_size=16, quality=7, ffmpeg_log_level="error")
-            gen.send(None)
-            gen.send(np.ascontiguousarray(first))
-            for f in frames:
-                gen.send(np.ascontiguousarray(f))
-            gen.close()
+                ims = [Image.fromarray(first)] + [Image.fromarray(f) for f in frames]
+                ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:],
+                            duration=max(1, round(1000.0 / fps)), loop=0, optimize=False, disposal=1)
+            else:
+                gen = writer.write_frames(str(tmp), (w, h), fps=float(fps), codec="libx264", pix_fmt_out="yuv420p",
+                                          macro_block_size=16, quality=7, ffmpeg_log_level="error")
+                gen.send(None)
+                gen.send(np.ascontiguousarray(first))
+                for f in frames:
+                    gen.send(np.ascontiguousarray(f))
+                gen.close()
     return {"path": str(out), "n_frames": len(bins), "width": w, "height": h, "fps": float(fps),
             "bins": [bins.start, bins.stop - 1, bins.step]}

@@ -61,16 +61,22 @@ def _load_mat(path: Path, name: str) -> np.ndarray:
 
     where = str(path)
     if h5py.is_hdf5(path):  # v7.3: HDF5 with MATLAB's column-major arrays -> reversed axes in h5py
-        with h5py.File(path, "r") as f:
-            if name not in f:
-                raise UserInputError(f"{where}: no variable {name!r} (has {sorted(f.keys())[:8]})")
-            return np.asarray(f[name][()]).transpose()
+        try:
+            with h5py.File(path, "r") as f:
+                if name not in f:
+                    raise UserInputError(f"{where}: no variable {name!r} (has {sorted(f.keys())[:8]})")
+                return np.asarray(f[name][()]).transpose()
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise UserInputError(f"{where}: not a readable MATLAB v7.3 (HDF5) file ({e})") from None
     import scipy.io
 
     try:
         d = scipy.io.loadmat(path, variable_names=[name])
-    except (ValueError, OSError, NotImplementedError) as e:
-        raise UserInputError(f"{where}: not a readable MATLAB file ({e})") from None
+    except UserInputError:
+        raise
+    except Exception as e:  # scipy's MatReadError, IndexError, ValueError, ... on a file that is not MATLAB's
+        raise UserInputError(f"{where}: not a readable MATLAB file ({type(e).__name__}: {e}); expected a MATLAB "
+                             "v5 or v7.3 .mat file") from None
     if name not in d:
         raise UserInputError(f"{where}: no variable {name!r}")
     return np.asarray(d[name])

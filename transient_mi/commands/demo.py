@@ -25,13 +25,14 @@ def demo(
     """Render, detect and reconstruct the paper's mannequin for 4x4 to 32x32 SPAD arrays; write figures,
     a metrics table against the ground-truth mesh, and summary.md."""
     import dataclasses
+    import math
 
     from transient_core.errors import UserInputError
     from transient_mi.demo import QUICK, DemoSettings, run_demo
 
     s = QUICK if quick else DemoSettings()
     changes = {"seed": seed}
-    if arrays:
+    if arrays is not None:
         try:
             changes["arrays"] = tuple(int(a) for a in arrays.split(","))
         except ValueError:
@@ -39,8 +40,8 @@ def demo(
         if not changes["arrays"] or min(changes["arrays"]) < 1 or max(changes["arrays"]) > 256:
             raise UserInputError(f"--arrays {arrays!r}: sizes must be between 1 and 256")
     if exposure_ms is not None:
-        if not exposure_ms > 0:
-            raise UserInputError(f"--exposure-ms {exposure_ms:g}: must be > 0")
+        if not (math.isfinite(exposure_ms) and exposure_ms > 0):
+            raise UserInputError(f"--exposure-ms {exposure_ms:g}: must be a finite number > 0")
         changes["exposure_s"] = exposure_ms * 1e-3
     if spots is not None:
         if not 1 <= spots <= 64:

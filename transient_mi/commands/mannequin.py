@@ -45,10 +45,18 @@ def mannequin(
 
     from transient_mi.scenes.mannequin_skeleton import parse_joints
 
+    from transient_core.errors import UserInputError
+
+    for j in joint or []:
+        if not j.strip():
+            raise UserInputError("--joint '': expected name=degrees (e.g. --joint elbow_right=40)")
     joints = parse_joints(",".join(joint))
     params = dict(height_m=height_m, width_m=width_m, pose=pose, rotation_deg=rotation_deg,
                   position=_parse_position(position), detail=detail, joints=joints)
-    path = mq.write_mannequin(output, **params)
+    from transient_core.lock import output_lock
+
+    with output_lock(output, "-o"):  # one writer per output file (docs/reliability.md)
+        path = mq.write_mannequin(output, **params)
     mesh = mq.make_mannequin(**params)
     lo, hi = mesh.bounds
     typer.echo(

@@ -94,6 +94,8 @@ def recon_command(
     from recon.grid import parse_bounds
     from recon.pipeline import run
 
+    if threshold is not None and not threshold.strip():
+        raise UserInputError("--threshold '': expected none, otsu, rel:F (0 < F <= 1) or abs:V (V >= 0)")
     if voxels is not None and voxel_size_m is not None:
         raise UserInputError("give either --voxels or --voxel-size-m, not both")
     options = {"wavelength_m": wavelength_m, "pulse_sigma_m": pulse_sigma_m, "snr": snr, "fbp_sigma_m": fbp_sigma_m,

@@ -21,7 +21,10 @@ def scene_mesh(
     from transient_mi.scenes._ply import write_ply
 
     v, f, ids = hidden_mesh(scene, parse_defines(define))
-    path = write_ply(output, v, f)
+    from transient_core.lock import output_lock
+
+    with output_lock(output, "-o"):  # one writer per output file (docs/reliability.md)
+        path = write_ply(output, v, f)
     lo, hi = v.min(0), v.max(0)
     typer.echo(f"wrote {path}: {len(f)} faces from {len(ids)} shape(s) ({', '.join(ids)}), "
                f"x {lo[0]:.3f}..{hi[0]:.3f} m, y {lo[1]:.3f}..{hi[1]:.3f} m, z {lo[2]:.3f}..{hi[2]:.3f} m")

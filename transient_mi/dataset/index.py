@@ -22,6 +22,8 @@ import json
 import os
 from pathlib import Path
 
+from transient_core.atomic import rename_into_place
+
 from .worker import CAPTURE_NAME, PARAMS_NAME, RESULT_NAME
 
 INDEX_CSV = "index.csv"
@@ -77,7 +79,7 @@ def _atomic_write(path: Path, data: bytes) -> None:
         f.write(data)
         f.flush()
         os.fsync(f.fileno())
-    os.replace(tmp, path)
+    rename_into_place(tmp, path)
 
 
 def write_index(root: Path, rows: dict[str, dict]) -> tuple[Path, Path]:

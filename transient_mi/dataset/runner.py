@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from transient_core.progress import progress_bar
+from transient_core.atomic import rename_into_place
 from transient_core.errors import UserInputError
 
 from .index import INDEX_CSV, INDEX_JSONL, item_row, write_index
@@ -143,20 +144,26 @@ def output_lock(out: Path):
 
 
 def clean_temporaries(items_dir: Path) -> int:
-    """Delete temporary item directories left by killed workers or interrupted runs; return how many."""
+    """Delete temporary item directories left by killed workers or interrupted runs, and the temporary index and
+    dataset files (``.index.csv.tmp-PID``) of a run killed while writing them beside ``items_dir``; return how
+    many."""
     n = 0
     if items_dir.is_dir():
         for p in items_dir.iterdir():
             if p.name.startswith(TMP_PREFIX):
                 shutil.rmtree(p, ignore_errors=True)
                 n += 1
+    if items_dir.parent.is_dir():
+        for p in items_dir.parent.iterdir():
+            if re.fullmatch(r"\..+\.tmp-\d+", p.name) and p.is_file():
+                p.unlink(missing_ok=True)
     return n
 
 
 def _atomic_json(path: Path, obj) -> None:
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     tmp.write_text(json.dumps(obj, indent=2, allow_nan=False) + "\n")
-    os.replace(tmp, path)
+    rename_into_place(tmp, path)
 
 
 # ----------------------------------------------------------------------------- scene checks

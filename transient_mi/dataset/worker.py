@@ -41,7 +41,9 @@ from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
+from transient_core.atomic import rename_into_place
 from transient_core.errors import UserInputError
+from transient_core.fault import point as _fault
 
 from .items import params_digest
 from .objects import MESH_NAME, OBJECT_KINDS
@@ -77,7 +79,7 @@ def _write_json(path: Path, obj) -> None:
         f.write(_json_bytes(obj))
         f.flush()
         os.fsync(f.fileno())
-    os.replace(tmp, path)
+    rename_into_place(tmp, path)
 
 
 def configure_threads(threads: int | None) -> int | None:
@@ -221,7 +223,9 @@ def build_item(task: dict) -> dict:
         try:
             result = _build_into(tmp, rec, Path(task["scene_file"]))
             try:
+                _fault("before_rename", final)
                 os.rename(tmp, final)
+                _fault("after_rename", final)
             except OSError:
                 # another attempt finished first (or a damaged item sits there): keep a valid one
                 if item_status(final, rec["params_sha256"]) != "valid":
