@@ -1,6 +1,6 @@
 """Kill -9 at named points (``TRANSIENT_MI_FAULT``, :mod:`transient_core.fault`), then rerun or ``--resume``.
 
-For every command that writes (render: NLOS array, ``--noise-target``, camera, fog; detect, recon, study, dataset,
+For every command that writes (render: NLOS array, ``--noise-target``, camera, fog, quadrature; detect, recon, study, dataset,
 fit) a child process is killed (SIGKILL: no clean-up runs) after the first file is in place, between a temporary
 and its rename, and while the manifest is being written. Then: the output is the old one, absent, or marked
 incomplete; the rerun (or ``--resume``) in this process finishes; every data file equals, byte for byte, that of an
@@ -33,8 +33,13 @@ FOG = ROOT / "scenes" / "fog_nlos.xml"
 FOG_D = ["-D", "width=4", "-D", "height=4", "-D", "spots_x=2", "-D", "spots_y=1", "-D", "n_bins=64",
          "-D", "bin_width_ps=64", "--spp", "8", "--seed", "2"]
 
+QUAD = ROOT / "scenes" / "nlos_letter.xml"  # the deterministic estimator (error_bound/ beside the spots)
+QUAD_D = ["-D", "width=3", "-D", "height=3", "-D", "spots_x=3", "-D", "spots_y=1", "-D", "n_bins=64",
+          "-D", "bin_width_ps=64", "-D", "t0_ps=10000", "-D", "estimator=quadrature", "-D", "element_size_m=0.04",
+          "-D", "patch_cells=2"]
+
 RENDERS = {"nlos": (NLOS, NLOS_D), "noise_target": (NLOS, NOISE_D), "camera": (CAMERA, CAMERA_D),
-           "fog": (FOG, FOG_D)}
+           "fog": (FOG, FOG_D), "quadrature": (QUAD, QUAD_D)}
 #: (render, fault point): after the first file, between a temporary and its rename, during the manifest
 RENDER_FAULTS = [
     ("nlos", "after_rename@cap/spot_*.exr:1"),
@@ -47,6 +52,8 @@ RENDER_FAULTS = [
     ("camera", "before_rename@cap/spot_*.exr:1"),
     ("camera", "before_rename@preview.png:1"),
     ("fog", "after_rename@variance/spot_*.exr:1"),
+    ("quadrature", "after_rename@cap/spot_*.exr:1"),
+    ("quadrature", "before_rename@error_bound/spot_*.exr:2"),
 ]
 
 
