@@ -27,7 +27,8 @@ Here it is integrated by quadrature instead of sampling:
   cell's corner-mean deviation from its centre (exact for a quadratic over a square).
 * **Visibility.** ``V(p, X)`` and ``V(X, S)`` are tested by ray casts at the centroid and at three points
   near the element's corners (each leg from the cell centre and from the spot). Elements whose samples
-  disagree for some pixel or spot are split in four, up to ``refine_levels`` times; a pair still mixed
+  disagree for some pixel or spot (tested from the coarse level's cell centres) are split in four, up to
+  ``refine_levels`` times; a pair still mixed
   then contributes the visible share of its samples (centroid 1/2, corners 1/6 each).
   Visibility is assumed constant over an element whose samples agree (an occluder smaller than an element
   can be missed: keep ``element_size_m`` below the smallest feature).
@@ -352,11 +353,13 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
         tri0, idx0 = mesh_triangles(setup.hidden_shapes)
         tri_c, idx_c = subdivide(tri0, idx0, 2.0 * h)
         tri_f, idx_f = split4(tri_c), np.repeat(idx_c, 4)
-        tri_f, idx_f, levels = refine_visibility(scene, setup, g, spot_ids, tri_f, idx_f,
+        g_c = _Geometry(setup, film, max(1, m // 2))
+        # which elements to split is decided from the coarse level's cells (a quarter of the rays); pairs that
+        # are still mixed at the fine level's cells are bounded there
+        tri_f, idx_f, levels = refine_visibility(scene, setup, g_c, spot_ids, tri_f, idx_f,
                                                  int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)),
                                                  hidden_ptrs)
         fine = _level(scene, setup, g, tri_f, idx_f, hidden_ptrs, spot_ids, confocal, G_out)
-        g_c = _Geometry(setup, film, max(1, m // 2))
         coarse = _level(scene, setup, g_c, tri_c, idx_c, hidden_ptrs, spot_ids, confocal, G_out)
         info.update(elements=len(tri_f), coarse_elements=len(tri_c), refine_levels=levels,
                     pairs=fine["pairs"] + coarse["pairs"])
