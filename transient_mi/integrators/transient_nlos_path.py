@@ -336,11 +336,18 @@ class TransientNLOSPath(mi.CppADIntegrator):
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
         """Reverse mode (what ``dr.backward`` after ``mi.render(scene, params)`` calls): propagate ``grad_in``
         (``[height, width, n_bins]``, spot 0 or the confocal capture) to the scene parameters. What is
-        differentiated: :mod:`transient_mi.integrators._nlos_ad` (a finite ``max_depth``)."""
+        differentiated: :mod:`transient_mi.integrators._nlos_ad` (a finite ``max_depth``); with
+        ``estimator="quadrature"``, :mod:`transient_mi.integrators._nlos_quadrature_ad` (BSDF values and
+        ``pulse_energy_j``, no geometry)."""
         from transient_mi.integrators._nlos_ad import nlos_backward
 
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
+        if self.nlos_options.get("estimator") == "quadrature":
+            from transient_mi.integrators._nlos_quadrature_ad import quadrature_backward
+
+            quadrature_backward(self, scene, params, grad_in, sensor)
+            return
         nlos_backward(self, scene, params, grad_in, sensor, as_int(seed), as_int(spp))
 
     def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
@@ -349,6 +356,10 @@ class TransientNLOSPath(mi.CppADIntegrator):
 
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
+        if self.nlos_options.get("estimator") == "quadrature":
+            from transient_mi.integrators._nlos_quadrature_ad import quadrature_forward
+
+            return quadrature_forward(self, scene, params, sensor)
         return nlos_forward(self, scene, params, sensor, as_int(seed), as_int(spp))
 
     def render_transient(self, scene, sensor, *, seed: int = 0, spp: int = 0, spot: int | None = None,
