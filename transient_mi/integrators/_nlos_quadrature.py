@@ -48,8 +48,8 @@ Error (stored like the Monte Carlo variance, ``kind: "error_bound"``), per bin, 
 What it does not do (refused in one line; use ``estimator="monte_carlo"``): windows and media on the device
 legs or in hidden space, a divergent laser beam, a non-planar relay wall, shapes that are not meshes
 (spheres, cylinders), ``max_depth`` above 4 (light beyond three bounces). The wall's first-bounce return is
-added in closed form as in the Monte Carlo estimator. Not differentiable (the radiometry is evaluated by
-Mitsuba, the accumulation by a numba kernel).
+added in closed form as in the Monte Carlo estimator. Differentiable with respect to BSDF values and the
+pulse energy, not geometry (:mod:`transient_mi.integrators._nlos_quadrature_ad`).
 """
 
 from __future__ import annotations

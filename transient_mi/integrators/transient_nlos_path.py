@@ -163,7 +163,9 @@ relay-wall reflectances) and the laser's ``pulse_energy_j`` (exposed by ``mi.tra
 hidden-shape geometry up to three-bounce light (``max_depth <= 4``; translation, rotation: the interior
 derivative, with the arrival time through the film's temporal kernel; visibility and silhouette terms
 are not differentiated). See :mod:`transient_mi.integrators._nlos_ad` and
-``docs/differentiable.md``.
+``docs/differentiable.md``. With ``estimator="quadrature"`` the derivative is that of the deterministic
+estimator (BSDF values and ``pulse_energy_j``; geometry refused):
+:mod:`transient_mi.integrators._nlos_quadrature_ad`.
 """
 
 from __future__ import annotations
