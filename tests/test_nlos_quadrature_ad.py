@@ -28,6 +28,7 @@ import mitsuba as mi  # noqa: E402
 
 import nlos_helpers as nh  # noqa: E402
 from ad_helpers import detach_all  # noqa: E402
+from stats_helpers import ALPHA, mean_se, t_bound  # noqa: E402
 from transient_core.units import C_M_PER_PS  # noqa: E402
 from transient_mi.props import PluginParameterError  # noqa: E402
 
@@ -37,9 +38,10 @@ REL_TOL = 1e-4
 KEYS = ("target.bsdf.reflectance.value", "relay_wall.bsdf.reflectance.value", "laser.pulse_energy_j")
 
 
-def _scene(capture="array"):
-    hidden = [nh.square(TARGET, 0.2, 0.6, id_="target"),
-              nh.square((TARGET[0] + 0.08, TARGET[1], 0.3), 0.1, 0.3, id_="occluder")]
+def _scene(capture="array", occluder=True, element_size_m=0.04):
+    hidden = [nh.square(TARGET, 0.2, 0.6, id_="target")]
+    if occluder:
+        hidden.append(nh.square((TARGET[0] + 0.08, TARGET[1], 0.3), 0.1, 0.3, id_="occluder"))
     orig = mi.load_dict
 
     def load(d, **kw):
@@ -52,7 +54,7 @@ def _scene(capture="array"):
                               capture=capture, max_depth=4)
     finally:
         mi.load_dict = orig
-    scene.integrator().nlos_options.update(estimator="quadrature", element_size_m=0.04, patch_cells=2,
+    scene.integrator().nlos_options.update(estimator="quadrature", element_size_m=element_size_m, patch_cells=2,
                                            refine_levels=1)
     return scene
 
@@ -79,16 +81,21 @@ def _weights(scene, shape):
     return w.astype(np.float32), w3.astype(np.float32)
 
 
-def _derivatives(scene, params, key, x0, v0, w, w3):
-    """Reverse mode (loss ``<w3, capture>``) and forward mode (tangent image), along ``key = x0 (1 + t)``,
-    divided by ``v0`` (so per unit of the parameter)."""
+def _reverse(scene, params, key, x0, v0, w):
+    """Reverse mode: the derivative of ``<w, capture>`` along ``key = x0 (1 + t)``, divided by ``v0``."""
     th = mi.Float(0.0)
     dr.enable_grad(th)
     params[key] = x0 * (1.0 + th)
     params.update()
     img = mi.render(scene, params)
-    dr.backward(dr.sum(img * mi.TensorXf(w3), axis=None))
-    rev = float(dr.grad(th)[0]) / v0
+    dr.backward(dr.sum(img * mi.TensorXf(w), axis=None))
+    return float(dr.grad(th)[0]) / v0
+
+
+def _derivatives(scene, params, key, x0, v0, w, w3):
+    """Reverse mode (losses ``<w3, capture>`` and ``<w, capture>``) and forward mode (tangent image), along
+    ``key = x0 (1 + t)``, divided by ``v0`` (so per unit of the parameter)."""
+    rev = (_reverse(scene, params, key, x0, v0, w3), _reverse(scene, params, key, x0, v0, w))
     th = mi.Float(0.0)
     dr.enable_grad(th)
     params[key] = x0 * (1.0 + th)
@@ -103,14 +110,15 @@ def _derivatives(scene, params, key, x0, v0, w, w3):
 
 @pytest.mark.parametrize("capture", ["array", "confocal"])
 def test_gradients_equal_central_differences(capture):
-    """Hidden reflectance, wall reflectance and pulse energy: reverse mode on the loss without the wall
-    return's bins, forward mode on both losses (the full one holds the wall return's derivative), against
-    central differences of the quadrature's own primal."""
+    """Hidden reflectance, wall reflectance and pulse energy: reverse and forward mode on the loss without
+    the wall return's bins and on the full one (which holds the wall return's derivative), against central
+    differences of the quadrature's own primal. (Confocal: the two reflectances, whose terms depend on the
+    pixel's own spot; the pulse energy scales every term alike, checked on the array capture.)"""
     scene = _scene(capture)
     params = mi.traverse(scene)
     img = _render(scene)
     w, w3 = _weights(scene, img.shape)
-    for key in KEYS:
+    for key in KEYS if capture == "array" else KEYS[:2]:
         kind = type(params[key])
         x0 = kind(dr.detach(params[key]))
         v0 = float(np.asarray(x0).ravel()[0])
@@ -124,7 +132,8 @@ def test_gradients_equal_central_differences(capture):
         params.update()
         fd = (imgs[0] - imgs[1]) / (2 * REL_STEP * v0)
         fd3, fd_full = float(np.sum(fd * w3)), float(np.sum(fd * w))
-        assert fd3 != 0 and rev == pytest.approx(fd3, rel=REL_TOL), (key, "reverse")
+        assert fd3 != 0 and rev[0] == pytest.approx(fd3, rel=REL_TOL), (key, "reverse")
+        assert rev[1] == pytest.approx(fd_full, rel=REL_TOL), (key, "reverse, wall return")
         assert float(np.sum(tangent * w3)) == pytest.approx(fd3, rel=REL_TOL), (key, "forward")
         assert float(np.sum(tangent * w)) == pytest.approx(fd_full, rel=REL_TOL), (key, "forward, wall return")
     detach_all(params)
@@ -146,3 +155,39 @@ def test_geometry_is_refused_in_one_line():
                 call()
             assert "\n" not in str(e.value)
         detach_all(params)
+
+
+def test_hidden_reflectance_gradient_agrees_with_monte_carlo():
+    """The quadrature's gradient of the hidden reflectance against the Monte Carlo estimator's AD gradient
+    (8 seeds x 128 spp, array capture without the occluder, loss without the wall return's bins). The capture
+    is linear in the reflectance, so the gradient is the target's light divided by the reflectance and the
+    quadrature's error is that of its capture: the bound is the Student-t quantile (rate ``ALPHA``) times the Monte Carlo
+    standard error, plus the quadrature's stored error estimate weighted like the loss (5 % of the gradient
+    at these coarse elements). Measured: 367.7 against 367.0 +- 2.9."""
+    scene = _scene("array", occluder=False)
+    params = mi.traverse(scene)
+    key = KEYS[0]
+    x0 = type(params[key])(dr.detach(params[key]))
+    v0 = float(np.asarray(x0).ravel()[0])
+    sensor = scene.sensors()[0]
+    res = scene.integrator().render_transient(scene, sensor, seed=0, spp=1, spot=0)
+    w, w3 = _weights(scene, np.asarray(res.histogram).shape)
+    quad = _reverse(scene, params, key, x0, v0, w3)
+    quad_err = float(np.sum(np.abs(w3) * np.asarray(res.error_bound, dtype=np.float64))) / v0
+    assert quad_err < 0.1 * abs(quad)  # (measured: 5 %)
+    scene.integrator().nlos_options.update(estimator="monte_carlo", hidden_geometry_prob=0.8)
+    mc = []
+    for seed in range(1, 9):
+        th = mi.Float(0.0)
+        dr.enable_grad(th)
+        params[key] = x0 * (1.0 + th)
+        params.update()
+        img = mi.render(scene, params, seed=seed, spp=128)
+        dr.backward(dr.sum(img * mi.TensorXf(w3), axis=None))
+        mc.append(float(dr.grad(th)[0]) / v0)
+    params[key] = x0
+    params.update()
+    m, se, n = mean_se(mc)
+    print(f"quadrature {quad:.6g} +- {quad_err:.3g} (estimate), Monte Carlo {m:.6g} +- {se:.3g}")
+    assert abs(quad - m) <= t_bound(n, ALPHA) * se + quad_err, (quad, m, se, quad_err)
+    detach_all(params)
