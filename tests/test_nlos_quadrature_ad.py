@@ -161,9 +161,9 @@ def test_hidden_reflectance_gradient_agrees_with_monte_carlo():
     """The quadrature's gradient of the hidden reflectance against the Monte Carlo estimator's AD gradient
     (8 seeds x 128 spp, array capture without the occluder, loss without the wall return's bins). The capture
     is linear in the reflectance, so the gradient is the target's light divided by the reflectance and the
-    quadrature's error is that of its capture: the bound is the Student-t quantile (rate ``ALPHA``) times the Monte Carlo
-    standard error, plus the quadrature's stored error estimate weighted like the loss (5 % of the gradient
-    at these coarse elements). Measured: 367.7 against 367.0 +- 2.9."""
+    quadrature's error is that of its capture: the bound is the Student-t quantile (rate ``ALPHA``) times the
+    Monte Carlo standard error, plus the quadrature's stored error estimate weighted like the loss (5 % of the
+    gradient at these coarse elements). Measured: 367.7 against 367.0 +- 2.9."""
     scene = _scene("array", occluder=False)
     params = mi.traverse(scene)
     key = KEYS[0]
