@@ -172,7 +172,7 @@ def quadrature_backward(integrator, scene, params, grad_in, sensor) -> None:
         for ch, spot_of, f_x, jobs in lv.chunks(scene):
             g = np.zeros(len(ch.ee))
             for si_idx, sl, ps in jobs:
-                g[sl] += adjoint_spot(grad_ext, ps, ch.pe, *ch.spread_args(), *lv.spot_args(si_idx))[sl]
+                adjoint_spot(g, grad_ext, ps, ch.pe, *ch.spread_args(), *lv.spot_args(si_idx))  # (g[sl])
             sw = lv.spot_weight[spot_of, ch.ee]
             gg = g * ch.geo
             total += float(np.sum(gg * ch.f_p * f_x * sw))

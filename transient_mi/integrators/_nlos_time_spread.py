@@ -309,16 +309,17 @@ def spread_spot(hist, bound, steady, vis_err, outside, pixel_start, pair_elem, b
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
-def adjoint_spot(grad_ext, pixel_start, pair_elem, vis_p, r_pv, r_px, opl_d, cell_shift, w1, w2, vis_s, r_sv,
+def adjoint_spot(g, grad_ext, pixel_start, pair_elem, vis_p, r_pv, r_px, opl_d, cell_shift, w1, w2, vis_s, r_sv,
                  r_sx, spot_opl, bin_m, t_origin_bins):
     """The adjoint of :func:`spread_spot` with respect to the pairs' weights ``full = base f_x spot_weight``:
     per pair ``g = share * sum_b grad_ext[k, b] m_b`` (``k`` its pixel, ``m_b`` the masses of :func:`_masses`,
     ``share`` its visible share), so that ``sum(grad_ext * hist) = sum(g * full)``. ``grad_ext``
-    ``[n_pixels, n_ext]``: the adjoint of the padded histograms. The other arguments as :func:`spread_spot`.
-    Pairs of zero weight get their ``g`` too (a weight's derivative need not vanish with it)."""
+    ``[n_pixels, n_ext]``: the adjoint of the padded histograms. ``g`` (float64, one per pair): written for
+    the pairs of ``pixel_start`` that see the spot and the cell, left as it is for the others. The other
+    arguments as :func:`spread_spot`. Pairs of zero weight get their ``g`` too (a weight's derivative need not
+    vanish with it)."""
     n_pix = grad_ext.shape[0]
     n_ext = grad_ext.shape[1]
-    g = np.zeros(pair_elem.shape[0])
     for k in numba.prange(n_pix):
         buf = np.empty(n_ext)
         for i in range(pixel_start[k], pixel_start[k + 1]):
@@ -332,7 +333,6 @@ def adjoint_spot(grad_ext, pixel_start, pair_elem, vis_p, r_pv, r_px, opl_d, cel
             for bin_ in range(first, last + 1):
                 acc += grad_ext[k, bin_] * buf[bin_]
             g[i] = frac * acc
-    return g
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
