@@ -38,7 +38,7 @@ REL_TOL = 1e-4
 KEYS = ("target.bsdf.reflectance.value", "relay_wall.bsdf.reflectance.value", "laser.pulse_energy_j")
 
 
-def _scene(capture="array", occluder=True, element_size_m=0.04):
+def _scene(capture="array", occluder=True, element_size_m=0.04, integrator="transient_nlos_path"):
     hidden = [nh.square(TARGET, 0.2, 0.6, id_="target")]
     if occluder:
         hidden.append(nh.square((TARGET[0] + 0.08, TARGET[1], 0.3), 0.1, 0.3, id_="occluder"))
@@ -51,7 +51,7 @@ def _scene(capture="array", occluder=True, element_size_m=0.04):
     mi.load_dict = load
     try:
         scene = nh.nlos_scene(hidden=hidden, n_bins=128, width=2, height=2, bin_width_ps=50.0, t0_ps=9000.0,
-                              capture=capture, max_depth=4)
+                              capture=capture, max_depth=4, integrator=integrator)
     finally:
         mi.load_dict = orig
     scene.integrator().nlos_options.update(estimator="quadrature", element_size_m=element_size_m, patch_cells=2,
@@ -137,6 +137,20 @@ def test_gradients_equal_central_differences(capture):
         assert float(np.sum(tangent * w3)) == pytest.approx(fd3, rel=REL_TOL), (key, "forward")
         assert float(np.sum(tangent * w)) == pytest.approx(fd_full, rel=REL_TOL), (key, "forward, wall return")
     detach_all(params)
+
+
+def test_transient_path_under_a_spad_array_gives_the_same_gradient():
+    """``transient_path`` under a ``spad_array`` dispatches to the same derivative (same bytes)."""
+    out = []
+    for integrator in ("transient_nlos_path", "transient_path"):
+        scene = _scene(occluder=False, integrator=integrator)
+        params = mi.traverse(scene)
+        key = KEYS[0]
+        x0 = type(params[key])(dr.detach(params[key]))
+        w = np.random.default_rng(5).random((2, 2, 128)).astype(np.float32)
+        out.append(_reverse(scene, params, key, x0, 1.0, w))
+        detach_all(params)
+    assert out[0] != 0 and out[0] == out[1]
 
 
 def test_geometry_is_refused_in_one_line():
