@@ -113,10 +113,14 @@ class _FineLevel:
         self.spot_weight = self.side.intensity / self.side.r_sx ** 2  # [G, n]
         self.t_origin = self.g.t0_m / self.g.bin_m - self.g.pad
 
-    def intensity_ad(self, scene, gi: int) -> "mi.Float":
-        """Spot ``gi``'s intensity towards every element's centroid (attached; call inside ``resume_grad``)."""
+    def intensity_ad(self, scene, spots) -> "mi.Float":
+        """The intensities of the spots ``spots`` (indices into ``spot_ids``) towards every element's centroid,
+        spot-major ``[len(spots) * n]``, in one launch (attached; call inside ``resume_grad``)."""
         s = self.side
-        return spot_intensity(scene, s.Lo, s.beam[gi], s.S[gi], self.X0)
+        n = len(self.X0)
+        spots = np.asarray(spots, dtype=np.int64)
+        return spot_intensity(scene, s.Lo, np.repeat(s.beam[spots], n, axis=0), np.repeat(s.S[spots], n, axis=0),
+                              np.tile(self.X0, (len(spots), 1)))
 
     def chunks(self, scene):
         """``(chunk, spot_of_pair, f_x, [(spot, pair slice, job pixel_start)])`` per chunk (primal values)."""
@@ -182,9 +186,10 @@ def quadrature_backward(integrator, scene, params, grad_in, sensor) -> None:
                        + mi.Float((gg * ch.f_p * sw).astype(np.float32)) * lv.f_x_ad(ch, spot_of))
                 dr.backward_from(obj, flags=_FLAGS)
         with dr.resume_grad():
-            for gi in range(len(lv.spot_ids)):
-                if np.any(C[gi] != 0.0):
-                    dr.backward_from(mi.Float(C[gi].astype(np.float32)) * lv.intensity_ad(scene, gi), flags=_FLAGS)
+            lit = np.flatnonzero(np.any(C != 0.0, axis=1))
+            if len(lit):
+                dr.backward_from(mi.Float(C[lit].ravel().astype(np.float32)) * lv.intensity_ad(scene, lit),
+                                 flags=_FLAGS)
             if total != 0.0:
                 dr.backward_from(n_att() * (total / lv.g.N), flags=_FLAGS)
     inp = wall_return_inputs(setup, [0])
@@ -216,7 +221,7 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
         if inp is not None:
             values.append(wall_return_photons(scene, setup.relay_wall.bsdf(), inp, n_att))
         if lv.active:
-            values += [lv.intensity_ad(scene, gi) for gi in range(len(lv.spot_ids))]
+            values.append(lv.intensity_ad(scene, np.arange(len(lv.spot_ids))))
             for ch, spot_of, f_x, jobs in lv.chunks(scene):
                 values += [bsdf_value(ch.si_p, ch.d_px), lv.f_x_ad(ch, spot_of)]
                 del ch.si_p, ch.si_x  # (the surface interactions are no longer needed)
@@ -234,9 +239,8 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
             if 0 <= b < g.n_ext:
                 hist[k, b] += d
     if lv.active:
-        G = len(lv.spot_ids)
-        d_int = np.stack(tangents[i:i + G])
-        i += G
+        d_int = tangents[i].reshape(len(lv.spot_ids), len(lv.tri))
+        i += 1
         scratch = np.zeros((P, g.n_ext))
         z = np.zeros(P)
         ones_e = np.ones(len(lv.tri))
