@@ -52,8 +52,8 @@ legs or in hidden space, a divergent laser beam, a non-planar relay wall, shapes
 With ``max_depth`` above 4 (or -1) the light beyond three bounces is added by the Monte Carlo estimator
 restricted to the remaining paths (``KernelConstants.skip_three_bounce``: without the three-bounce connection
 and the wall return); its variance, from the replicates, is stored beside the quadrature's error
-(:mod:`transient_mi.capture_error`). Not differentiable (the radiometry is evaluated by
-Mitsuba, the accumulation by a numba kernel).
+(:mod:`transient_mi.capture_error`). Differentiable with respect to BSDF values and the pulse energy, not
+geometry (:mod:`transient_mi.integrators._nlos_quadrature_ad`).
 """
 
 from __future__ import annotations
@@ -210,10 +210,28 @@ def _cast(scene, o: np.ndarray, d: np.ndarray, dist: np.ndarray, target_shape):
     return si, ok
 
 
+def bsdf_value(si, wo: np.ndarray) -> "mi.Float":
+    """``f cos`` of the BSDF at ``si`` (``wi`` as traced) towards the world directions ``wo`` ``[n, 3]``, mono
+    (Mitsuba's ``bsdf.eval``: attached to the BSDF's parameters inside ``dr.resume_grad``)."""
+    return to_mono(si.bsdf().eval(mi.BSDFContext(), si, si.to_local(_v3(wo))), si.wavelengths)
+
+
+def spot_intensity(scene, laser_origin: np.ndarray, beam_dir: np.ndarray, spot: np.ndarray,
+                   targets: np.ndarray) -> "mi.Float":
+    """``f_S cos(theta_SX)`` of the wall at the laser spot (hit along ``beam_dir`` from ``laser_origin``, ``wi``
+    towards the laser) towards each of ``targets`` ``[n, 3]`` seen from ``spot`` (radiant intensity per photon)."""
+    n = len(targets)
+    ray = mi.Ray3f(mi.Point3f(_v3(np.broadcast_to(laser_origin, (n, 3)))), _v3(np.broadcast_to(beam_dir, (n, 3))))
+    sig = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
+    to_x = targets - spot
+    return bsdf_value(sig, to_x / np.linalg.norm(to_x, axis=1, keepdims=True))
+
+
 class _Geometry:
     """The capture's fixed geometry in numpy float64 (world frame, metres)."""
 
     def __init__(self, setup, film, cells: int):
+        self._setup, self._film = setup, film
         fr = setup.frame
         W, H = setup.width, setup.height
         self.W, self.H = W, H
@@ -251,6 +269,10 @@ class _Geometry:
         self.t0_m = axis.t0_ps * C_M_PER_PS
         self.N = float(setup.photons_per_pulse)
 
+    def with_cells(self, cells: int) -> "_Geometry":
+        """The same capture with ``cells`` cells per patch side."""
+        return _Geometry(self._setup, self._film, cells)
+
 
 class _SpotSide:
     """Per laser spot and element: the spot's surface interaction, visibility of the element's samples,
@@ -267,7 +289,7 @@ class _SpotSide:
         d = tg - Lo
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         shape_ptr = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(np.repeat(shape_index, 4).astype(np.uint32)))
-        ctx = mi.BSDFContext()
+        self.Lo, self.beam = Lo, d
         self.vis = np.zeros((len(spots), n, 4), dtype=bool)
         self.intensity = np.zeros((len(spots), n))  # f_S cos(theta_SX) towards the centroid
         for g in range(len(spots)):
@@ -275,12 +297,7 @@ class _SpotSide:
             _, ok = _visible(scene, np.broadcast_to(S, (n * 4, 3)), pts.reshape(-1, 3), shape_ptr, normal)
             self.vis[g] = np.asarray(ok).reshape(n, 4)
             # the laser ray to this spot, once per element (wi towards the laser)
-            ray = mi.Ray3f(mi.Point3f(_v3(np.broadcast_to(Lo, (n, 3)))), _v3(np.broadcast_to(d[g], (n, 3))))
-            sig = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
-            to_x = pts[:, 0] - S
-            dx = to_x / np.linalg.norm(to_x, axis=1, keepdims=True)
-            val = to_mono(sig.bsdf().eval(ctx, sig, sig.to_local(_v3(dx))), sig.wavelengths)
-            self.intensity[g] = np.asarray(val, dtype=np.float64)
+            self.intensity[g] = np.asarray(spot_intensity(scene, Lo, d[g], S, pts[:, 0]), dtype=np.float64)
         self.r_sv = np.linalg.norm(tri[None, :, :, :] - self.S[:, None, None, :], axis=3)  # [G, n, 3]
         self.r_sx = np.linalg.norm(pts[None, :, 0, :] - self.S[:, None, :], axis=2)  # [G, n]
 
@@ -323,6 +340,26 @@ def refine_visibility(scene, setup, g: _Geometry, spots, tri, shape_index, refin
 # ------------------------------------------------------------------ the render
 
 
+def patch_cells(setup, options: dict) -> int:
+    """Cells per patch side of the fine level (one with ``pixel_sampling="center"``)."""
+    return 1 if setup.pixel_sampling == "center" else int(options.get("patch_cells", DEFAULT_PATCH_CELLS))
+
+
+def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_ptrs):
+    """The elements of both levels: ``(tri_c, idx_c, tri_f, idx_f, refine_levels_used)`` (coarse: edges of at
+    most twice ``element_size_m``; fine: each coarse one split in four, then refined where visibility is
+    mixed)."""
+    h = float(options.get("element_size_m", DEFAULT_ELEMENT_SIZE_M))
+    tri0, idx0 = mesh_triangles(setup.hidden_shapes)
+    tri_c, idx_c = subdivide(tri0, idx0, 2.0 * h)
+    tri_f, idx_f = split4(tri_c), np.repeat(idx_c, 4)
+    # which elements to split is decided from the coarse level's cells (a quarter of the rays); pairs that are
+    # still mixed at the fine level's cells are bounded there
+    tri_f, idx_f, levels = refine_visibility(scene, setup, g.with_cells(max(1, g.m // 2)), spot_ids, tri_f, idx_f,
+                                             int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)), hidden_ptrs)
+    return tri_c, idx_c, tri_f, idx_f, levels
+
+
 def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int]):
     """Render the three-bounce light of a group of spots by quadrature (see the module docstring).
 
@@ -335,7 +372,7 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
     """
     from transient_mi.films.transient_film import TransientResult
 
-    m = 1 if setup.pixel_sampling == "center" else int(options.get("patch_cells", DEFAULT_PATCH_CELLS))
+    m = patch_cells(setup, options)
     g = _Geometry(setup, film, m)
     confocal = setup.capture == "confocal"
     P = g.W * g.H
@@ -347,18 +384,10 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
             "outside": np.zeros((G_out, P)), "pairs": 0}
     coarse = None
     info = {"elements": 0, "coarse_elements": 0, "refine_levels": 0, "pairs": 0, "patch_cells": m}
-    h = float(options.get("element_size_m", DEFAULT_ELEMENT_SIZE_M))
     if setup.hidden_shapes and (max_depth >= 4 or max_depth == -1):
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
-        tri0, idx0 = mesh_triangles(setup.hidden_shapes)
-        tri_c, idx_c = subdivide(tri0, idx0, 2.0 * h)
-        tri_f, idx_f = split4(tri_c), np.repeat(idx_c, 4)
-        g_c = _Geometry(setup, film, max(1, m // 2))
-        # which elements to split is decided from the coarse level's cells (a quarter of the rays); pairs that
-        # are still mixed at the fine level's cells are bounded there
-        tri_f, idx_f, levels = refine_visibility(scene, setup, g_c, spot_ids, tri_f, idx_f,
-                                                 int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)),
-                                                 hidden_ptrs)
+        tri_c, idx_c, tri_f, idx_f, levels = level_elements(scene, setup, g, options, spot_ids, hidden_ptrs)
+        g_c = g.with_cells(max(1, g.m // 2))
         fine = _level(scene, setup, g, tri_f, idx_f, hidden_ptrs, spot_ids, confocal, G_out)
         coarse = _level(scene, setup, g_c, tri_c, idx_c, hidden_ptrs, spot_ids, confocal, G_out)
         info.update(elements=len(tri_f), coarse_elements=len(tri_c), refine_levels=levels,
@@ -412,6 +441,83 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
     return results
 
 
+def element_terms(tri: np.ndarray):
+    """``(pts [n, 4, 3] visibility samples (centroid first), area [n], unit normal [n, 3])`` of elements."""
+    pts = _sample_points(tri)
+    nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = 0.5 * np.linalg.norm(nrm, axis=1)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return pts, area, nrm
+
+
+def chunk_starts(g: _Geometry, n: int):
+    """``(e0, e1)`` element ranges of the chunks (``PAIRS_PER_CHUNK`` pairs each at most)."""
+    per = max(1, PAIRS_PER_CHUNK // len(g.cell_p))
+    return [(e0, min(n, e0 + per)) for e0 in range(0, n, per)]
+
+
+class Chunk:
+    """The detector side of the pairs (every cell x the elements ``e0:e1``), sorted by cell (hence by pixel):
+    visibility of the element's samples from the cell, pair geometry (:func:`~._nlos_time_spread.pair_geometry`),
+    the surface interactions at the element (``si_x``, ``wi`` towards the cell) and at the wall (``si_p``,
+    ``wi`` towards the detector) and the wall BSDF ``f_p`` towards the element."""
+
+    def __init__(self, scene, g: _Geometry, tri, idx, hidden_ptrs, pts, area, nrm, e0: int, e1: int):
+        C = len(g.cell_p)
+        ne = e1 - e0
+        X0 = pts[:, 0]
+        self.ce = ce = np.repeat(np.arange(C), ne)  # pair -> cell
+        self.ee = ee = np.tile(np.arange(e0, e1), C)  # pair -> element
+        sp = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(idx[ee].astype(np.uint32)))
+        self.si_x, ok_c = _cast(scene, *visibility_rays(ce, ee, g.cell_p, pts, g.normal, 0, 1), sp)
+        dr.eval(self.si_x, ok_c)  # wi towards p: the BSDF at X for every spot
+        sp3 = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(np.repeat(idx[ee], 3).astype(np.uint32)))
+        _, ok3 = _cast(scene, *visibility_rays(ce, ee, g.cell_p, pts, g.normal, 1, 3), sp3)
+        self.vis_p = np.ascontiguousarray(np.concatenate([np.asarray(ok_c).reshape(-1, 1),
+                                                          np.asarray(ok3).reshape(-1, 3)], axis=1))
+        del sp3, ok3, ok_c
+        (self.d_px, self.r_px, self.geo, self.r_pv, self.opl_d, self.w1, self.w2,
+         self.cell_shift) = pair_geometry(ce, ee, g.cell_p, g.cell_w0, X0, tri, nrm, area, g.D, g.cell_ax,
+                                          g.cell_ay, g.fl, g.bin_m, g.N, g.cell_half_diag > 0)
+        ray_p = mi.Ray3f(mi.Point3f(_v3(np.broadcast_to(g.D, (len(ce), 3)))), _v3(g.dq[ce]))
+        self.si_p = scene.ray_intersect(ray_p, ray_flags=mi.RayFlags.All, coherent=True)
+        self.f_p = np.asarray(bsdf_value(self.si_p, self.d_px), dtype=np.float64)
+        pix = g.cell_pixel[ce]
+        self.pixel_start = np.searchsorted(pix, np.arange(g.W * g.H + 1)).astype(np.int64)
+        self.pe = ee.astype(np.int64)
+
+    def jobs(self, confocal: bool, n_spots: int):
+        """``(spot index, output index, pair slice)``: confocal, each pixel's pairs with its own spot (spot
+        ``k`` lies on pixel ``k``'s patch); otherwise every pair with every spot of the group."""
+        ps = self.pixel_start
+        if confocal:
+            return [(k, 0, slice(ps[k], ps[k + 1])) for k in range(len(ps) - 1)]
+        return [(gi, gi, slice(0, len(self.ee))) for gi in range(n_spots)]
+
+    def job_pixel_start(self, confocal: bool, si_idx: int, sl: slice) -> np.ndarray:
+        """The ``pixel_start`` of a job: a confocal job's pairs all belong to pixel ``si_idx``."""
+        if not confocal:
+            return self.pixel_start
+        ps = np.full(len(self.pixel_start), sl.start, dtype=np.int64)
+        ps[si_idx + 1:] = sl.stop
+        return ps
+
+    def to_spot(self, X0: np.ndarray, S: np.ndarray, sl: slice) -> np.ndarray:
+        """Unit directions from the elements of the pairs ``sl`` to the spot ``S``."""
+        to_s = S - X0[self.ee[sl]]
+        return to_s / np.linalg.norm(to_s, axis=1, keepdims=True)
+
+    def si_x_of(self, confocal: bool, sl: slice):
+        """The element-side interactions of the pairs ``sl`` (all of them outside confocal captures)."""
+        if confocal:
+            return dr.gather(type(self.si_x), self.si_x, mi.UInt32(np.arange(sl.start, sl.stop, dtype=np.uint32)))
+        return self.si_x
+
+    def spread_args(self):
+        """The per-pair arguments of :func:`~._nlos_time_spread.spread_spot` after ``base``."""
+        return (self.vis_p, self.r_pv, self.r_px, self.opl_d, self.cell_shift, self.w1, self.w2)
+
+
 def _level(scene, setup, g: _Geometry, tri, idx, hidden_ptrs, spot_ids, confocal, G_out) -> dict:
     """Integrate one level (elements ``tri``, the cells of ``g``) for every spot of the group.
 
@@ -423,71 +529,28 @@ def _level(scene, setup, g: _Geometry, tri, idx, hidden_ptrs, spot_ids, confocal
            "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)), "outside": np.zeros((G_out, P)),
            "pairs": 0}
     side = _SpotSide(scene, setup, spot_ids, tri, idx, hidden_ptrs)
-    n = len(tri)
-    pts = _sample_points(tri)
+    pts, area, nrm = element_terms(tri)
     X0 = pts[:, 0]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    nrm_all = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    nrm_all /= np.linalg.norm(nrm_all, axis=1, keepdims=True)
-    C = len(g.cell_p)
-    ctx = mi.BSDFContext()
-    per = max(1, PAIRS_PER_CHUNK // C)
     t_origin = g.t0_m / g.bin_m - g.pad
     spot_weight = side.intensity / side.r_sx ** 2  # [G, n]
-    for e0 in range(0, n, per):
-        e1 = min(n, e0 + per)
-        ne = e1 - e0
-        ce = np.repeat(np.arange(C), ne)  # pair -> cell (pairs sorted by cell, hence by pixel)
-        ee = np.tile(np.arange(e0, e1), C)  # pair -> element
-        p = g.cell_p[ce]
-        # ---- detector side (spot-independent): visibility of the four samples, BSDF at the wall
-        sp = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(idx[ee].astype(np.uint32)))
-        si_x, ok_c = _cast(scene, *visibility_rays(ce, ee, g.cell_p, pts, g.normal, 0, 1), sp)
-        dr.eval(si_x, ok_c)  # wi towards p: the BSDF at X for every spot
-        sp3 = dr.gather(mi.ShapePtr, hidden_ptrs, mi.UInt32(np.repeat(idx[ee], 3).astype(np.uint32)))
-        _, ok3 = _cast(scene, *visibility_rays(ce, ee, g.cell_p, pts, g.normal, 1, 3), sp3)
-        vis_p = np.ascontiguousarray(np.concatenate([np.asarray(ok_c).reshape(-1, 1),
-                                                     np.asarray(ok3).reshape(-1, 3)], axis=1))
-        del sp3, ok3
-        d_px, r_px, geo, r_pv, opl_d, w1, w2, cell_shift = pair_geometry(
-            ce, ee, g.cell_p, g.cell_w0, X0, tri, nrm_all, area, g.D, g.cell_ax, g.cell_ay, g.fl, g.bin_m, g.N,
-            g.cell_half_diag > 0)
-        ray_p = mi.Ray3f(mi.Point3f(_v3(np.broadcast_to(g.D, p.shape))), _v3(g.dq[ce]))
-        si_p = scene.ray_intersect(ray_p, ray_flags=mi.RayFlags.All, coherent=True)
-        f_p = np.asarray(to_mono(si_p.bsdf().eval(ctx, si_p, si_p.to_local(_v3(d_px))), si_p.wavelengths),
-                         dtype=np.float64)
-        base = geo * f_p  # photons per pulse before the element's BSDF and the spot leg
-        pix = g.cell_pixel[ce]
-        pixel_start = np.searchsorted(pix, np.arange(P + 1)).astype(np.int64)
-        pe = ee.astype(np.int64)
-        if confocal:  # spot k lies on pixel k's patch: each pixel's pairs with their own spot
-            jobs = [(k, 0, slice(pixel_start[k], pixel_start[k + 1])) for k in range(P)]
-        else:
-            jobs = [(gi, gi, slice(0, len(ee))) for gi in range(len(spot_ids))]
-        for si_idx, gout, sl in jobs:
+    for e0, e1 in chunk_starts(g, len(tri)):
+        ch = Chunk(scene, g, tri, idx, hidden_ptrs, pts, area, nrm, e0, e1)
+        base = ch.geo * ch.f_p  # photons per pulse before the element's BSDF and the spot leg
+        for si_idx, gout, sl in ch.jobs(confocal, len(spot_ids)):
             if sl.stop <= sl.start:
                 continue
-            to_s = side.S[si_idx] - X0[ee[sl]]
-            d_s = to_s / np.linalg.norm(to_s, axis=1, keepdims=True)
+            sub = ch.si_x_of(confocal, sl)
+            f_sub = np.asarray(bsdf_value(sub, ch.to_spot(X0, side.S[si_idx], sl)), dtype=np.float64)
             if confocal:
-                sub = dr.gather(type(si_x), si_x, mi.UInt32(np.arange(sl.start, sl.stop, dtype=np.uint32)))
-            else:
-                sub = si_x
-            f_sub = np.asarray(to_mono(sub.bsdf().eval(ctx, sub, sub.to_local(_v3(d_s))), sub.wavelengths),
-                               dtype=np.float64)
-            if confocal:
-                f_x = np.zeros(len(ee))
+                f_x = np.zeros(len(ch.ee))
                 f_x[sl] = f_sub
-                ps = np.full(P + 1, sl.start, dtype=np.int64)
-                ps[si_idx + 1:] = sl.stop
             else:
                 f_x = f_sub
-                ps = pixel_start
             spread_spot(out["hist"][gout], out["bound"][gout], out["steady"][gout], out["vis_err"][gout],
-                        out["outside"][gout], ps, pe, base, vis_p, r_pv, r_px, opl_d, cell_shift, w1, w2, f_x,
-                        np.ascontiguousarray(side.vis[si_idx]), spot_weight[si_idx],
+                        out["outside"][gout], ch.job_pixel_start(confocal, si_idx, sl), ch.pe, base,
+                        *ch.spread_args(), f_x, np.ascontiguousarray(side.vis[si_idx]), spot_weight[si_idx],
                         np.ascontiguousarray(side.r_sv[si_idx]), side.r_sx[si_idx],
                         g.fl * float(side.laser_leg[si_idx]), g.bin_m, t_origin)
             out["pairs"] += sl.stop - sl.start
-        del si_x, si_p, ok_c
+        del ch
     return out

@@ -185,9 +185,11 @@ def spread_pairs(hist, bound, pixel, weight, err_weight, t_lo, knot_a, knot_b, w
 
 
 @numba.njit(cache=True, fastmath=False)
-def _spread_one(hist_k, bound_k, f, fe, tlo, a, b, u1, u2, n_ext):
-    """Deposit one pair's light ``f`` (and its visibility error ``fe``) into one pixel's rows; returns the light
-    arriving outside the padded axis."""
+def _masses(buf, tlo, a, b, u1, u2, n_ext):
+    """Bin masses of one pair's arrival distribution (knots ``tlo``, ``tlo + a``, ``tlo + b``, widths ``u1``,
+    ``u2``, bins of the padded axis) written to ``buf[first:last + 1]`` for the bins inside ``[0, n_ext)``;
+    returns ``(first, last, inside)``, ``inside`` the mass inside (summed in bin order). The one mass
+    computation of the primal (:func:`spread_spot`) and its adjoint (:func:`adjoint_spot`)."""
     spread = b + u1 + u2
     eps = REL_WIDTH_EPS * spread
     small1 = u1 <= eps
@@ -198,6 +200,8 @@ def _spread_one(hist_k, bound_k, f, fe, tlo, a, b, u1, u2, n_ext):
     hi = tlo + b + 0.5 * (u1 + u2)
     b0 = int(np.floor(lo))
     b1 = int(np.floor(hi))
+    first = max(b0, 0)
+    last = min(b1, n_ext - 1)
     prev = 0.0
     inside = 0.0
     for bin_ in range(b0, b1 + 1):
@@ -209,10 +213,55 @@ def _spread_one(hist_k, bound_k, f, fe, tlo, a, b, u1, u2, n_ext):
         m = cur - prev
         prev = cur
         if 0 <= bin_ < n_ext:
-            hist_k[bin_] += f * m
-            bound_k[bin_] += fe * m
+            buf[bin_] = m
             inside += m
+    return first, last, inside
+
+
+@numba.njit(cache=True, fastmath=False)
+def _spread_one(buf, hist_k, bound_k, f, fe, tlo, a, b, u1, u2, n_ext):
+    """Deposit one pair's light ``f`` (and its visibility error ``fe``) into one pixel's rows; returns the light
+    arriving outside the padded axis (``buf``: scratch of ``n_ext`` bins for :func:`_masses`)."""
+    first, last, inside = _masses(buf, tlo, a, b, u1, u2, n_ext)
+    for bin_ in range(first, last + 1):
+        m = buf[bin_]
+        hist_k[bin_] += f * m
+        bound_k[bin_] += fe * m
     return f * (1.0 - inside)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _visible_share(vis_p, vis_s, i, e):
+    """``(nvis, share)``: how many of pair ``i``'s four visibility samples see both the cell and the spot, and
+    their share of the pair (centroid 1/2, corners 1/6 each)."""
+    nvis = 0
+    frac = 0.0
+    for s in range(4):
+        if vis_p[i, s] and vis_s[e, s]:
+            nvis += 1
+            frac += 0.5 if s == 0 else 1.0 / 6.0
+    return nvis, frac
+
+
+@numba.njit(cache=True, fastmath=False)
+def _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins):
+    """Pair ``i`` (element ``e``): its smallest knot (bins on the padded axis) and the other two relative to
+    it, ``(t_lo, a, b)``, ``0 <= a <= b`` (see :func:`spread_spot`)."""
+    l0 = opl_d[i] + r_pv[i, 0] + r_sv[e, 0] + spot_opl
+    l1 = opl_d[i] + r_pv[i, 1] + r_sv[e, 1] + spot_opl
+    l2 = opl_d[i] + r_pv[i, 2] + r_sv[e, 2] + spot_opl
+    lc = opl_d[i] + r_px[i] + r_sx[e] + spot_opl
+    shift = 0.75 * (lc - (l0 + l1 + l2) / 3.0) + cell_shift[i]
+    t0 = (l0 + shift) / bin_m - t_origin_bins
+    t1 = (l1 + shift) / bin_m - t_origin_bins
+    t2 = (l2 + shift) / bin_m - t_origin_bins
+    if t0 > t1:
+        t0, t1 = t1, t0
+    if t1 > t2:
+        t1, t2 = t2, t1
+    if t0 > t1:
+        t0, t1 = t1, t0
+    return t0, t1 - t0, t2 - t0
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
@@ -238,42 +287,52 @@ def spread_spot(hist, bound, steady, vis_err, outside, pixel_start, pair_elem, b
     the same for the cell. ``vis_err``: per pixel, the light whose visibility is uncertain (mixed samples).
     """
     n_pix = hist.shape[0]
+    n_ext = hist.shape[1]
     for k in numba.prange(n_pix):
+        buf = np.empty(n_ext)
         for i in range(pixel_start[k], pixel_start[k + 1]):
             e = pair_elem[i]
             full = base[i] * f_x[i] * spot_weight[e]
             if full == 0.0:
                 continue
-            nvis = 0
-            frac = 0.0
-            for s in range(4):
-                if vis_p[i, s] and vis_s[e, s]:
-                    nvis += 1
-                    frac += 0.5 if s == 0 else 1.0 / 6.0
+            nvis, frac = _visible_share(vis_p, vis_s, i, e)
             if nvis == 0:
                 continue
             f = full * frac
             fe = 0.0
             if nvis < 4:
                 fe = full * max(frac, 1.0 - frac)
-            l0 = opl_d[i] + r_pv[i, 0] + r_sv[e, 0] + spot_opl
-            l1 = opl_d[i] + r_pv[i, 1] + r_sv[e, 1] + spot_opl
-            l2 = opl_d[i] + r_pv[i, 2] + r_sv[e, 2] + spot_opl
-            lc = opl_d[i] + r_px[i] + r_sx[e] + spot_opl
-            shift = 0.75 * (lc - (l0 + l1 + l2) / 3.0) + cell_shift[i]
-            t0 = (l0 + shift) / bin_m - t_origin_bins
-            t1 = (l1 + shift) / bin_m - t_origin_bins
-            t2 = (l2 + shift) / bin_m - t_origin_bins
-            if t0 > t1:
-                t0, t1 = t1, t0
-            if t1 > t2:
-                t1, t2 = t2, t1
-            if t0 > t1:
-                t0, t1 = t1, t0
-            outside[k] += _spread_one(hist[k], bound[k], f, fe, t0, t1 - t0, t2 - t0, w1[i], w2[i],
-                                      hist.shape[1])
+            tlo, a, b = _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins)
+            outside[k] += _spread_one(buf, hist[k], bound[k], f, fe, tlo, a, b, w1[i], w2[i], n_ext)
             steady[k] += f
             vis_err[k] += fe
+
+
+@numba.njit(cache=True, parallel=True, fastmath=False)
+def adjoint_spot(g, grad_ext, pixel_start, pair_elem, vis_p, r_pv, r_px, opl_d, cell_shift, w1, w2, vis_s, r_sv,
+                 r_sx, spot_opl, bin_m, t_origin_bins):
+    """The adjoint of :func:`spread_spot` with respect to the pairs' weights ``full = base f_x spot_weight``:
+    per pair ``g = share * sum_b grad_ext[k, b] m_b`` (``k`` its pixel, ``m_b`` the masses of :func:`_masses`,
+    ``share`` its visible share), so that ``sum(grad_ext * hist) = sum(g * full)``. ``grad_ext``
+    ``[n_pixels, n_ext]``: the adjoint of the padded histograms. ``g`` (float64, one per pair): written for
+    the pairs of ``pixel_start`` that see the spot and the cell, left as it is for the others. The other
+    arguments as :func:`spread_spot`. Pairs of zero weight get their ``g`` too (a weight's derivative need not
+    vanish with it)."""
+    n_pix = grad_ext.shape[0]
+    n_ext = grad_ext.shape[1]
+    for k in numba.prange(n_pix):
+        buf = np.empty(n_ext)
+        for i in range(pixel_start[k], pixel_start[k + 1]):
+            e = pair_elem[i]
+            nvis, frac = _visible_share(vis_p, vis_s, i, e)
+            if nvis == 0:
+                continue
+            tlo, a, b = _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins)
+            first, last, _ = _masses(buf, tlo, a, b, w1[i], w2[i], n_ext)
+            acc = 0.0
+            for bin_ in range(first, last + 1):
+                acc += grad_ext[k, bin_] * buf[bin_]
+            g[i] = frac * acc
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)

@@ -163,7 +163,9 @@ relay-wall reflectances) and the laser's ``pulse_energy_j`` (exposed by ``mi.tra
 hidden-shape geometry up to three-bounce light (``max_depth <= 4``; translation, rotation: the interior
 derivative, with the arrival time through the film's temporal kernel; visibility and silhouette terms
 are not differentiated). See :mod:`transient_mi.integrators._nlos_ad` and
-``docs/differentiable.md``.
+``docs/differentiable.md``. With ``estimator="quadrature"`` the derivative is that of the deterministic
+estimator (BSDF values and ``pulse_energy_j``; geometry refused):
+:mod:`transient_mi.integrators._nlos_quadrature_ad`.
 """
 
 from __future__ import annotations
@@ -341,11 +343,18 @@ class TransientNLOSPath(mi.CppADIntegrator):
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
         """Reverse mode (what ``dr.backward`` after ``mi.render(scene, params)`` calls): propagate ``grad_in``
         (``[height, width, n_bins]``, spot 0 or the confocal capture) to the scene parameters. What is
-        differentiated: :mod:`transient_mi.integrators._nlos_ad` (a finite ``max_depth``)."""
+        differentiated: :mod:`transient_mi.integrators._nlos_ad` (a finite ``max_depth``); with
+        ``estimator="quadrature"``, :mod:`transient_mi.integrators._nlos_quadrature_ad` (BSDF values and
+        ``pulse_energy_j``, no geometry)."""
         from transient_mi.integrators._nlos_ad import nlos_backward
 
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
+        if self.nlos_options.get("estimator") == "quadrature":
+            from transient_mi.integrators._nlos_quadrature_ad import quadrature_backward
+
+            quadrature_backward(self, scene, params, grad_in, sensor)
+            return
         nlos_backward(self, scene, params, grad_in, sensor, as_int(seed), as_int(spp))
 
     def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
@@ -354,6 +363,10 @@ class TransientNLOSPath(mi.CppADIntegrator):
 
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
+        if self.nlos_options.get("estimator") == "quadrature":
+            from transient_mi.integrators._nlos_quadrature_ad import quadrature_forward
+
+            return quadrature_forward(self, scene, params, sensor)
         return nlos_forward(self, scene, params, sensor, as_int(seed), as_int(spp))
 
     def render_transient(self, scene, sensor, *, seed: int = 0, spp: int = 0, spot: int | None = None,

@@ -163,11 +163,16 @@ class TransientPath(mi.CppADIntegrator):
         """Reverse-mode derivative (what ``dr.backward`` after ``mi.render(scene, params)`` calls): propagate
         ``grad_in`` (``[height, width, n_bins(, channels)]``) to the scene parameters. Camera sensors;
         see :mod:`transient_mi.integrators._ad` for what is differentiated; NLOS sensors
-        (``spad_array``): :mod:`transient_mi.integrators._nlos_ad`."""
+        (``spad_array``): :mod:`transient_mi.integrators._nlos_ad` (``estimator="quadrature"``:
+        :mod:`transient_mi.integrators._nlos_quadrature_ad`)."""
         from transient_mi.integrators._ad import render_backward
 
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
+        if is_nlos_sensor(sensor) and self.nlos_options.get("estimator") == "quadrature":
+            from transient_mi.integrators._nlos_quadrature_ad import quadrature_backward
+
+            return quadrature_backward(self, scene, params, grad_in, sensor)
         if is_nlos_sensor(sensor):
             from transient_mi.integrators._nlos_ad import nlos_backward
 
@@ -180,6 +185,10 @@ class TransientPath(mi.CppADIntegrator):
 
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
+        if is_nlos_sensor(sensor) and self.nlos_options.get("estimator") == "quadrature":
+            from transient_mi.integrators._nlos_quadrature_ad import quadrature_forward
+
+            return quadrature_forward(self, scene, params, sensor)
         if is_nlos_sensor(sensor):
             from transient_mi.integrators._nlos_ad import nlos_forward
 
