@@ -101,11 +101,11 @@ def test_engine_message_says_what_auto_does_as_the_docs_do():
     assert engine_note("auto", True) == " (exact)"
     note = engine_note("auto", False)
     assert "analytic engine is not exact for this capture" in note and f"{AUTO_EXACT_MAX_EVENTS:.0e}" in note
-    readme = " ".join((ROOT / "README.md").read_text().split())
+    # (the README's detector section moved to docs/detector.md when the README became a front page)
     docs = " ".join((ROOT / "docs" / "detector.md").read_text().split())
     assert AUTO_EXACT_MAX_EVENTS == 2e7
     assert ("runs the analytic engine wherever it is exact, else the exact engine when it would simulate at most "
-            "2e7 events per spot, else the analytic engine") in readme
+            "2e7 events per spot, else the analytic engine") in docs
     assert ("runs the analytic engine when it is exact for the inputs, otherwise the exact engine when it would "
             "simulate at most 2e7 events per spot, otherwise the analytic engine") in docs
 
