@@ -53,3 +53,15 @@ def quadrature_inline(R) -> str:
             f"capture renders in {b['quadrature']['time_s']:.0f} s where Monte Carlo would need about "
             f"{b['monte_carlo']['time_for_0.01_at_10ms_extrapolated_s'] / 3600:.1f} h (extrapolated) "
             f"({provenance(rec, short=True)})")
+
+
+def quadrature_cost_inline(R) -> str:
+    """How the render time grows when one factor is multiplied by 4 (linear would be 4)."""
+    rec = R("quadrature_cost")
+    rows = rec["result"]["rows"]
+    b = rows["base"]
+    parts = [f"{name.split(' ')[0]} {rows[name]['ratio_to_base']:.1f}x" for name in rows if name != "base"]
+    parts[0] += f" (half the element size: {rows['elements x4']['elements'] / b['elements']:.1f}x the elements)"
+    return (f"multiplying one factor by 4 multiplies the render time by: " + ", ".join(parts)
+            + f" (base {rows['base']['time_s']:.2f} s: the letter at 4 x 4 pixels, 2 spots, 512 bins, 2 cm elements; "
+            + f"{provenance(rec, short=True)})")
