@@ -71,8 +71,7 @@ def test_time_spread_is_the_exact_distribution(t, w1, w2):
     hist = np.zeros((1, 24))
     bound = np.zeros((1, 24))
     out = spread_pairs(hist, bound, np.array([0]), np.array([1.0]), np.array([0.0]), np.array([t[0]]),
-                       np.array([t[1] - t[0]]), np.array([t[2] - t[0]]), np.array([w1]), np.array([w2]),
-                       np.array([0.0]), np.array([0.0]), 24)
+                       np.array([t[1] - t[0]]), np.array([t[2] - t[0]]), np.array([w1]), np.array([w2]), 24)
     assert out[0] == pytest.approx(0.0, abs=1e-12)
     assert hist.sum() == pytest.approx(1.0, abs=1e-12)
     np.testing.assert_allclose(hist[0], ref, atol=5e-3)

@@ -92,99 +92,6 @@ def _cdf(x, a, b, w1, w2, mu, var, small1, small2):
 
 
 @numba.njit(cache=True, fastmath=False)
-def spread_pairs(hist, bound, pixel, weight, err_weight, t_lo, knot_a, knot_b, w1, w2, delta, rel_smooth,
-                 n_ext):
-    """Deposit every (element, cell) pair of one laser spot into ``hist`` and its error bound into ``bound``.
-
-    Parameters
-    ----------
-    hist, bound : ndarray, float64, shape (n_pixels, n_ext)
-        Padded histograms (photons per pulse per bin) and their error bound, added to in place. Mass outside
-        ``[0, n_ext)`` is not deposited (returned instead).
-    pixel : ndarray, int64, shape (n,)
-        Flat pixel index of each pair.
-    weight : ndarray, float64, shape (n,)
-        Photons per pulse of the pair (midpoint rule, visibility estimate included).
-    err_weight : ndarray, float64, shape (n,)
-        Photons per pulse the pair's visibility may be wrong by (0 where the visibility samples agree).
-    t_lo, knot_a, knot_b : ndarray, float64, shape (n,)
-        Smallest vertex arrival of the triangle (bins on the padded axis) and the other two sorted vertex
-        values relative to it (``0 <= a <= b``).
-    w1, w2 : ndarray, float64, shape (n,)
-        Widths of the cell's two uniform components (bins, >= 0).
-    delta : ndarray, float64, shape (n,)
-        Bound on the deviation of the true path length from its linearisation over the pair (bins).
-    rel_smooth : ndarray, float64, shape (n,)
-        Bound on the relative error of the midpoint rule for the pair's radiometric weight.
-    n_ext : int
-        Bins of the padded axis.
-
-    Returns
-    -------
-    outside : ndarray, float64, shape (n_pixels,)
-        Light of each pixel arriving outside the padded axis.
-    """
-    n_pix = hist.shape[0]
-    outside = np.zeros(n_pix)
-    for i in range(pixel.shape[0]):
-        f = weight[i]
-        fe = err_weight[i]
-        if f == 0.0 and fe == 0.0:
-            continue
-        k = pixel[i]
-        a = knot_a[i]
-        b = knot_b[i]
-        u1 = w1[i]
-        u2 = w2[i]
-        spread = b + u1 + u2
-        eps = REL_WIDTH_EPS * spread
-        small1 = u1 <= eps
-        small2 = u2 <= eps
-        mu = (a + b) / 3.0
-        var = (a * a + b * b - a * b) / 18.0
-        # density bound (per bin) for the linearisation error: the densest of the three components
-        fmax = 1e300
-        if b > 0.0:
-            fmax = 2.0 / b
-        if not small1:
-            fmax = min(fmax, 1.0 / u1)
-        if not small2:
-            fmax = min(fmax, 1.0 / u2)
-        dl = delta[i]
-        cdf_err = min(1.0, dl * fmax)
-        lo = t_lo[i] - 0.5 * (u1 + u2)  # support, padded-axis bins
-        hi = t_lo[i] + b + 0.5 * (u1 + u2)
-        b0 = int(np.floor(lo - dl))
-        b1 = int(np.floor(hi + dl))
-        prev = 0.0
-        inside = 0.0
-        rs = rel_smooth[i]
-        for bin_ in range(b0, b1 + 1):
-            edge = float(bin_ + 1) - t_lo[i]  # upper edge of the bin, local coordinates
-            if edge + t_lo[i] >= hi:
-                cur = 1.0
-            else:
-                cur = _cdf(edge, a, b, u1, u2, mu, var, small1, small2)
-            m = cur - prev
-            prev = cur
-            if 0 <= bin_ < n_ext:
-                hist[k, bin_] += f * m
-                inside += m
-                # visibility and midpoint-rule error follow the mass; the linearisation error sits at the
-                # edges within reach of the support (each edge moves at most cdf_err of the mass)
-                e = (fe + f * rs) * m
-                lo_edge = float(bin_)
-                hi_edge = float(bin_ + 1)
-                if lo_edge >= lo - dl and lo_edge <= hi + dl:
-                    e += f * cdf_err
-                if hi_edge >= lo - dl and hi_edge <= hi + dl:
-                    e += f * cdf_err
-                bound[k, bin_] += e
-        outside[k] += f * (1.0 - inside)
-    return outside
-
-
-@numba.njit(cache=True, fastmath=False)
 def _masses(buf, tlo, a, b, u1, u2, n_ext):
     """Bin masses of one pair's arrival distribution (knots ``tlo``, ``tlo + a``, ``tlo + b``, widths ``u1``,
     ``u2``, bins of the padded axis) written to ``buf[first:last + 1]`` for the bins inside ``[0, n_ext)``;
@@ -262,6 +169,40 @@ def _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m
     if t0 > t1:
         t0, t1 = t1, t0
     return t0, t1 - t0, t2 - t0
+
+
+@numba.njit(cache=True, fastmath=False)
+def spread_pairs(hist, bound, pixel, weight, err_weight, t_lo, knot_a, knot_b, w1, w2, n_ext):
+    """Deposit a list of pairs (one thread, in order): the test interface of :func:`_spread_one`.
+
+    Parameters
+    ----------
+    hist, bound : ndarray, float64, shape (n_pixels, n_ext)
+        Padded histograms and their error, added to in place.
+    pixel : ndarray, int64, shape (n,)
+        Flat pixel index of each pair.
+    weight, err_weight : ndarray, float64, shape (n,)
+        Light of the pair and the part of it whose visibility is uncertain.
+    t_lo, knot_a, knot_b : ndarray, float64, shape (n,)
+        Smallest vertex arrival (bins on the padded axis) and the other two sorted vertex values relative to
+        it (``0 <= a <= b``).
+    w1, w2 : ndarray, float64, shape (n,)
+        Widths of the cell's two uniform components (bins, >= 0).
+    n_ext : int
+        Bins of the padded axis.
+
+    Returns
+    -------
+    outside : ndarray, float64, shape (n_pixels,)
+        Light of each pixel arriving outside the padded axis.
+    """
+    outside = np.zeros(hist.shape[0])
+    buf = np.zeros(n_ext)
+    for i in range(pixel.shape[0]):
+        k = pixel[i]
+        outside[k] += _spread_one(buf, hist[k], bound[k], weight[i], err_weight[i], t_lo[i], knot_a[i], knot_b[i],
+                                  w1[i], w2[i], n_ext)
+    return outside
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
