@@ -67,14 +67,13 @@ from scipy.ndimage import maximum_filter1d
 
 from transient_core.units import C_M_PER_PS
 from transient_mi.integrators._lanes import to_mono
+from transient_mi.integrators._nlos_elements import mesh_triangles, sample_points, split4, subdivide
 from transient_mi.integrators._nlos_time_spread import pair_geometry, spread_spot, visibility_rays
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
 
 #: Relative tolerance on a hit distance for a point to count as visible (as the Monte Carlo estimator).
 VISIBILITY_REL_TOL = 1e-4
-#: Visibility samples near each corner sit this far from the centroid, as a share of the way to the corner.
-CORNER_SAMPLE = 0.95
 #: The discretisation estimate of a bin is the largest two-level difference within this many bins of it.
 ESTIMATE_REACH_BINS = 2
 #: Pairs (element, cell) evaluated per Dr.Jit launch.
@@ -112,64 +111,6 @@ def check_supported(setup, options: dict, plugin: str) -> None:
     if why is not None:
         raise PluginParameterError(f"{plugin}: estimator=quadrature cannot render this capture: {why}; use "
                                    "estimator=monte_carlo")
-
-
-# ------------------------------------------------------------------ elements
-
-
-def mesh_triangles(shapes) -> tuple[np.ndarray, np.ndarray]:
-    """``(tri[n, 3, 3] float64 world vertices, shape_index[n] int64)`` of the hidden shapes' triangles."""
-    tris, idx = [], []
-    for i, s in enumerate(shapes):
-        v = np.asarray(s.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
-        f = np.asarray(s.faces_buffer(), dtype=np.int64).reshape(-1, 3)
-        tris.append(v[f])
-        idx.append(np.full(len(f), i, dtype=np.int64))
-    if not tris:
-        return np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64)
-    return np.concatenate(tris), np.concatenate(idx)
-
-
-def subdivide(tri: np.ndarray, shape_index: np.ndarray, max_edge_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Split every triangle into ``n^2`` similar ones (``n = ceil(longest edge / max_edge_m)``)."""
-    edges = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
-                      np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
-    n_div = np.maximum(1, np.ceil(edges / max_edge_m - 1e-9)).astype(np.int64)
-    out, out_idx = [], []
-    for n in np.unique(n_div):
-        sel = np.flatnonzero(n_div == n)
-        t = tri[sel]
-        a, b, c = t[:, 0], t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
-        local = []
-        for i in range(n):
-            for j in range(n - i):
-                local.append(((i, j), (i + 1, j), (i, j + 1)))
-                if j < n - i - 1:
-                    local.append(((i + 1, j), (i + 1, j + 1), (i, j + 1)))
-        L = np.asarray(local, dtype=np.float64) / n  # [m, 3 vertices, (i, j)]
-        pts = a[:, None, None, :] + L[None, :, :, 0:1] * b[:, None, None, :] + L[None, :, :, 1:2] * c[:, None, None, :]
-        out.append(pts.reshape(-1, 3, 3))
-        out_idx.append(np.repeat(shape_index[sel], len(local)))
-    order_tri = np.concatenate(out)
-    order_idx = np.concatenate(out_idx)
-    return order_tri, order_idx
-
-
-def split4(tri: np.ndarray) -> np.ndarray:
-    """Midpoint subdivision: each triangle ``[n, 3, 3]`` into four, ``[4 n, 3, 3]`` (children of one parent
-    consecutive)."""
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
-    kids = np.stack([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1), np.stack([ca, bc, c], 1),
-                     np.stack([ab, bc, ca], 1)], axis=1)
-    return kids.reshape(-1, 3, 3)
-
-
-def _sample_points(tri: np.ndarray) -> np.ndarray:
-    """``[n, 4, 3]``: centroid, then three points near the corners (visibility samples)."""
-    g = tri.mean(axis=1)
-    corners = g[:, None, :] + CORNER_SAMPLE * (tri - g[:, None, :])
-    return np.concatenate([g[:, None, :], corners], axis=1)
 
 
 # ------------------------------------------------------------------ Mitsuba queries
@@ -280,7 +221,7 @@ class _SpotSide:
 
     def __init__(self, scene, setup, spots: list[int], tri, shape_index, hidden_ptrs):
         n = len(tri)
-        pts = _sample_points(tri)  # [n, 4, 3]
+        pts = sample_points(tri)  # [n, 4, 3]
         Lo = np.asarray(setup.laser_origin, dtype=np.float64)
         normal = np.asarray(setup.frame.normal, dtype=np.float64)
         self.S = np.asarray(setup.spots, dtype=np.float64)[spots]  # [G, 3]
@@ -306,7 +247,7 @@ def _mixed_elements(scene, g: _Geometry, spot_side: _SpotSide, tri, shape_index,
     """Elements whose visibility samples disagree for some cell or spot (bool ``[n]``)."""
     n = len(tri)
     mixed = (spot_side.vis.any(axis=2) & ~spot_side.vis.all(axis=2)).any(axis=0)
-    pts = _sample_points(tri)
+    pts = sample_points(tri)
     C = len(g.cell_p)
     per = max(1, PAIRS_PER_CHUNK // (4 * C))
     for e0 in range(0, n, per):
@@ -443,7 +384,7 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
 
 def element_terms(tri: np.ndarray):
     """``(pts [n, 4, 3] visibility samples (centroid first), area [n], unit normal [n, 3])`` of elements."""
-    pts = _sample_points(tri)
+    pts = sample_points(tri)
     nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     area = 0.5 * np.linalg.norm(nrm, axis=1)
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
