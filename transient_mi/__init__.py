@@ -52,6 +52,10 @@ def _check_llvm_backend(variant: str) -> None:
     )
 
 
+#: The variant the plug-ins were last registered for.
+_PLUGINS_VARIANT: str | None = None
+
+
 def set_variant(name: str) -> str:
     """Select Mitsuba variant ``name`` and (re-)register the plug-ins for it.
 
@@ -64,11 +68,14 @@ def set_variant(name: str) -> str:
     """
     from .variant import check_variant
 
+    global _PLUGINS_VARIANT
     check_variant(name)
     _check_llvm_backend(name)
     if _mi.variant() != name:
         _mi.set_variant(name)
-    _register_plugins()
+    if _PLUGINS_VARIANT != name:  # the same variant again keeps its plug-in modules (no re-import)
+        _register_plugins()
+        _PLUGINS_VARIANT = name
     return name
 
 

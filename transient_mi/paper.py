@@ -194,6 +194,9 @@ def scene_defaults() -> list[tuple[str, str]]:
         ("distance", repr(c.distance_m)), ("pose", c.pose), ("rotation", repr(c.rotation_deg)),
         ("power_w", repr(c.power_w)), ("spp", str(SCENE_SPP)), ("t0_ps", repr(c.t0_ps)),
         ("n_bins", str(c.n_bins)), ("bin_width_ps", repr(c.bin_width_ps)), ("max_depth", str(c.max_depth)),
+        # the estimator of three-bounce light (docs/quadrature.md): Monte Carlo by default; the quadrature's
+        # element size (m) and cells per patch side as the plug-in's defaults
+        ("estimator", "monte_carlo"), ("element_size_m", "0.01"), ("patch_cells", "4"),
         ("capture", "array"), ("include_wall_return", "true"),
         ("wavelength_nm", repr(PAPER.wavelength_nm)), ("repetition_rate_hz", repr(PAPER.repetition_rate_hz)),
         ("laser_origin", _vec(PAPER.laser_origin_m)), ("detector_origin", _vec(PAPER.detector_origin_m)),

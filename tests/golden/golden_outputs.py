@@ -28,6 +28,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 HASHES = HERE.parent / "data" / "golden_hashes.json"
+sys.path.insert(0, str(HERE.parent))
+from cpu_helpers import cpu_class  # noqa: E402,F401  (tests/cpu_helpers.py; re-exported for the test)
 
 #: (name, scene file, -D defines, spp, seed): small but each path through the renderer.
 CASES = [
@@ -38,20 +40,6 @@ CASES = [
     ("plane_array", "nlos_tilted_plane.xml", {"width": 4, "height": 4, "spots_x": 1, "spots_y": 1, "n_bins": 256}, 8, 9),
     ("mannequin_array", "paper_mannequin.xml", {"array": 4, "spots": 1, "n_bins": 1500, "bin_width_ps": 8}, 16, 11),
 ]
-
-
-def cpu_class() -> str:
-    """``"avx512"``, ``"avx2"`` or ``"other"``: the instruction-set class of this x86-64 CPU (``/proc/cpuinfo``)."""
-    try:
-        flags = next((line.split(":", 1)[1].split() for line in open("/proc/cpuinfo") if line.startswith("flags")),
-                     [])
-    except OSError:
-        flags = []
-    if "avx512f" in flags:
-        return "avx512"
-    if "avx2" in flags:
-        return "avx2"
-    return "other"
 
 
 def _sha(a) -> str:
