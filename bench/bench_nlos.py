@@ -49,7 +49,6 @@ import math
 import os
 import platform
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -60,125 +59,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _record  # noqa: E402
 from _rss import peak_rss_mb, reset_peak_rss  # noqa: E402
+from _nlos_scene import (APERTURE_DIAMETER_M, DETECTOR, EPS, LASER, LETTER_SIZE, LETTER_Z, PULSE_ENERGY_J,  # noqa: E402,F401
+                         RECTANGLES, START_OPL, WALL, WAVELENGTH_NM, configs, ours_scene_dict, ours_scene_xml,
+                         time_axis)
+from _peers import MT_VENV, MT_VERSION, mitransient_python, mt_env as _mt_env, run as _run  # noqa: E402,F401
 
 ROOT = Path(__file__).resolve().parents[1]
 C_M_PER_PS = 299792458.0 * 1e-12
-MT_VERSION = "1.3.1"
-MT_VENV = Path(os.environ.get("TRANSIENT_MI_BENCH_VENV", Path.home() / ".cache/transient-mi-bench/mitransient"))
-
-WALL = {"half_size": 0.5, "albedo": 0.8}
-LASER = [-0.9, 0.05, 0.45]
-DETECTOR = [-0.9, -0.05, 0.45]
-LETTER_Z = 0.5
-LETTER_SIZE = 0.4
-RECTANGLES = [  # the letter F (as scenes/nlos_letter.xml), non-overlapping: centre, half sizes, albedo; facing -z
-    {"center": [-0.22 * LETTER_SIZE, 0.0, LETTER_Z], "half": [0.08 * LETTER_SIZE, 0.5 * LETTER_SIZE], "albedo": 0.8},
-    {"center": [0.08 * LETTER_SIZE, 0.42 * LETTER_SIZE, LETTER_Z], "half": [0.22 * LETTER_SIZE, 0.08 * LETTER_SIZE],
-     "albedo": 0.8},
-    {"center": [0.0, 0.02 * LETTER_SIZE, LETTER_Z], "half": [0.14 * LETTER_SIZE, 0.07 * LETTER_SIZE], "albedo": 0.8},
-]
-PULSE_ENERGY_J = 2e-9
-WAVELENGTH_NM = 1550.0
-APERTURE_DIAMETER_M = 0.0254
-START_OPL = 0.6
-#: Relative RMSE levels at which times to equal error are reported.
-EPS = (0.2, 0.1, 0.05)  # metres of path (first/last segments excluded): three-bounce light spans ~0.9 to ~2.5 m
-
-
-def configs(small: bool) -> list[dict]:
-    if small:
-        return [
-            dict(name="confocal_8x8_64bins", capture="confocal", size=8, n_bins=64, spp=[4, 16], spp_ref=128,
-                 mt_spp=[4, 16], mt_spp_ref=128, repeats=1),
-            dict(name="array_4x4px_4x4spots_64bins", capture="array", size=4, n_bins=64, spp=[4, 16], spp_ref=64,
-                 mt_spp=[4, 16], mt_spp_ref=64, pipeline_spots=[2, 4], repeats=1),
-        ]
-    return [
-        dict(name="confocal_32x32_400bins", capture="confocal", size=32, n_bins=400, spp=[64, 256, 1024, 4096],
-             spp_ref=65536, mt_spp=[64, 256, 1024, 4096, 16384], mt_spp_ref=131072),
-        dict(name="confocal_64x64_2048bins", capture="confocal", size=64, n_bins=2048, spp=[16, 64, 256, 1024],
-             spp_ref=8192, mt_spp=[16, 64, 256], mt_spp_ref=4096),
-        dict(name="array_32x32px_32x32spots_400bins", capture="array", size=32, n_bins=400, spp=[16, 64, 256],
-             spp_ref=2048, mt_spp=[4, 16, 64], mt_spp_ref=512, pipeline_spots=[8, 16, 32]),
-    ]
-
-
-def time_axis(cfg) -> tuple[float, float]:
-    """(bin_width_opl_m, start_opl_m): 400 bins of 5 mm, 2048 bins of 1 mm."""
-    span = 2.0 if cfg["n_bins"] >= 400 else 3.2
-    return span / cfg["n_bins"], START_OPL
-
-
-# ------------------------------------------------------------------ our side
-
-
-def ours_scene_dict(cfg):
-    import mitsuba as mi
-
-    T = mi.ScalarTransform4f
-    W = cfg["size"]
-    bw, start = time_axis(cfg)
-    fp = 2 * WALL["half_size"] / W
-
-    def diffuse(a):
-        return {"type": "diffuse", "reflectance": {"type": "rgb", "value": [a] * 3}}
-
-    d = {
-        "type": "scene",
-        "integrator": {"type": "transient_nlos_path", "max_depth": 4,
-                       "hidden_geometry_prob": cfg.get("hidden_geometry_prob", 0.8)},
-        "laser": {"type": "pulsed_laser", "origin": mi.ScalarPoint3f(*LASER), "target": mi.ScalarPoint3f(0, 0, 0),
-                  "spots_x": W if cfg["capture"] == "array" else 1, "spots_y": W if cfg["capture"] == "array" else 1,
-                  "spot_spacing_m": fp, "pulse_energy_j": PULSE_ENERGY_J, "wavelength_nm": WAVELENGTH_NM},
-        "sensor": {"type": "spad_array", "origin": mi.ScalarPoint3f(*DETECTOR), "target": mi.ScalarPoint3f(0, 0, 0),
-                   "pixel_footprint_m": fp, "aperture_diameter_m": APERTURE_DIAMETER_M, "capture": cfg["capture"],
-                   "include_first_last": False, "include_wall_return": False,
-                   "pixel_sampling": cfg.get("pixel_sampling", "area"),
-                   "film": {"type": "transient_film", "width": W, "height": W, "n_bins": cfg["n_bins"],
-                            "bin_width_ps": bw / C_M_PER_PS, "t0_ps": start / C_M_PER_PS}},
-        "relay_wall": {"type": "rectangle", "to_world": T().scale([WALL["half_size"], WALL["half_size"], 1.0]),
-                       "bsdf": diffuse(WALL["albedo"])},
-    }
-    for i, r in enumerate(RECTANGLES):
-        xf = T().translate(r["center"]) @ T().rotate([1, 0, 0], 180) @ T().scale([r["half"][0], r["half"][1], 1.0])
-        d[f"hidden_{i}"] = {"type": "rectangle", "to_world": xf, "bsdf": diffuse(r["albedo"])}
-    return d
-
-
-def ours_scene_xml(cfg, n_spots_side: int) -> str:
-    """The same scene as XML (for the pipeline run), with an n x n laser scan grid."""
-    W = cfg["size"]
-    bw, start = time_axis(cfg)
-    fp = 2 * WALL["half_size"] / W
-    rects = []
-    for i, r in enumerate(RECTANGLES):
-        rects.append(f"""  <shape type="rectangle" id="hidden_{i}"><transform name="to_world">
-    <scale x="{r['half'][0]}" y="{r['half'][1]}"/><rotate x="1" angle="180"/>
-    <translate x="{r['center'][0]}" y="{r['center'][1]}" z="{r['center'][2]}"/></transform>
-    <bsdf type="diffuse"><rgb name="reflectance" value="{r['albedo']}"/></bsdf></shape>""")
-    return f"""<scene version="3.0.0">
-  <default name="spp" value="4"/>
-  <integrator type="transient_nlos_path"><integer name="max_depth" value="4"/></integrator>
-  <emitter type="pulsed_laser"><point name="origin" value="{', '.join(map(str, LASER))}"/>
-    <point name="target" value="0, 0, 0"/><integer name="spots_x" value="{n_spots_side}"/>
-    <integer name="spots_y" value="{n_spots_side}"/><float name="spot_spacing_m" value="{fp}"/>
-    <float name="pulse_energy_j" value="{PULSE_ENERGY_J}"/><float name="wavelength_nm" value="{WAVELENGTH_NM}"/>
-  </emitter>
-  <sensor type="spad_array"><point name="origin" value="{', '.join(map(str, DETECTOR))}"/>
-    <point name="target" value="0, 0, 0"/><float name="pixel_footprint_m" value="{fp}"/>
-    <float name="aperture_diameter_m" value="{APERTURE_DIAMETER_M}"/><string name="capture" value="array"/>
-    <boolean name="include_first_last" value="false"/><boolean name="include_wall_return" value="false"/>
-    <film type="transient_film"><integer name="width" value="{W}"/><integer name="height" value="{W}"/>
-      <integer name="n_bins" value="{cfg['n_bins']}"/><float name="bin_width_ps" value="{bw / C_M_PER_PS}"/>
-      <float name="t0_ps" value="{start / C_M_PER_PS}"/></film>
-    <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
-  </sensor>
-  <shape type="rectangle" id="relay_wall"><transform name="to_world"><scale x="0.5" y="0.5"/></transform>
-    <bsdf type="diffuse"><rgb name="reflectance" value="{WALL['albedo']}"/></bsdf></shape>
-{chr(10).join(rects)}
-</scene>
-"""
-
 
 def ours_worker(cfg_path: str) -> None:
     """Render the runs of one configuration with transient-mi (this process)."""
@@ -234,52 +121,7 @@ def ours_worker(cfg_path: str) -> None:
 # --------------------------------------------------------------- mitransient
 
 
-def mitransient_python(mode: str) -> Path | None:
-    """Interpreter of mitransient's virtual environment (created when mode == 'install')."""
-    py = MT_VENV / "bin" / "python"
-    if mode == "skip":
-        return None
-    check = "import mitsuba as mi; mi.set_variant('llvm_ad_mono'); import mitransient"
-    ok = py.exists() and subprocess.run([str(py), "-c", check], capture_output=True,
-                                        env=_mt_env()).returncode == 0
-    if ok:
-        return py
-    if mode != "install":
-        return None
-    print(f"[bench] creating {MT_VENV} with mitransient=={MT_VERSION}", file=sys.stderr)
-    MT_VENV.parent.mkdir(parents=True, exist_ok=True)
-    subprocess.run([sys.executable, "-m", "venv", "--clear", str(MT_VENV)], check=True)
-    subprocess.run([str(py), "-m", "pip", "install", "--quiet", f"mitransient=={MT_VERSION}", "numpy"], check=True)
-    return py
-
-
-def _llvm_path() -> str | None:
-    if os.environ.get("DRJIT_LIBLLVM_PATH"):
-        return os.environ["DRJIT_LIBLLVM_PATH"]
-    sys.path.insert(0, str(ROOT))
-    from transient_mi._llvm import resolve_llvm
-
-    return resolve_llvm()
-
-
-def _mt_env() -> dict:
-    env = dict(os.environ)
-    llvm = _llvm_path()
-    if llvm:
-        env["DRJIT_LIBLLVM_PATH"] = llvm
-    env.pop("PYTHONPATH", None)
-    return env
-
-
 # ------------------------------------------------------------------ analysis
-
-
-def _run(cmd, env=None):
-    t0 = time.perf_counter()
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    if r.returncode != 0:
-        raise RuntimeError(f"{' '.join(map(str, cmd))} failed:\n{r.stderr[-4000:]}")
-    return time.perf_counter() - t0
 
 
 def _invoke(side: str, cfg: dict, tmp: Path, py: Path | None, runs: list, tag: str) -> list:

@@ -214,15 +214,15 @@ def main(argv=None) -> dict:
         return {}
     if a.small:
         a.size, a.spp_lo, a.spp_hi, a.replicates, a.repeats, a.rounds = 16, 4, 8, 4, 1, 1
-    import bench_nlos
+    import _peers
 
-    py = bench_nlos.mitransient_python(a.mitransient)
+    py = _peers.mitransient_python(a.mitransient)
     if py is None:
         sys.exit("mitransient is not installed: run with --mitransient install")
     load_start = list(os.getloadavg())
     cfg = {"size": a.size, "n_bins": a.bins, "bin_width_ps": a.bin_width_ps, "t0_ps": 5.0 / C_M_PER_PS,
            "spp_lo": a.spp_lo, "spp_hi": a.spp_hi, "replicates": a.replicates, "repeats": a.repeats}
-    ours_env, mt_env = dict(os.environ, PYTHONPATH=str(ROOT)), bench_nlos._mt_env()
+    ours_env, mt_env = dict(os.environ, PYTHONPATH=str(ROOT)), _peers.mt_env()
     infos = {"ours": [], "mitransient": []}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -255,7 +255,7 @@ def main(argv=None) -> dict:
     }
     print(json.dumps(result, indent=1))
     _record.maybe_save(a, "volpath_mitransient_small" if a.small else "volpath_mitransient", result,
-                       load_start=load_start, peers={"mitransient": bench_nlos.MT_VERSION})
+                       load_start=load_start, peers={"mitransient": _peers.MT_VERSION})
     return result
 
 
