@@ -134,11 +134,8 @@ def _visible(scene, origins: np.ndarray, targets: np.ndarray, target_shape, offs
     o = origins + 1e-6 * offset_normal
     d = targets - o
     dist = np.linalg.norm(d, axis=1)
-    ray = mi.Ray3f(mi.Point3f(_v3(o)), _v3(d / dist[:, None]))
-    si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False)
-    dist_f = _f(dist)
-    ok = si.is_valid() & (si.shape == target_shape) & (dr.abs(si.t - dist_f) <= VISIBILITY_REL_TOL * dist_f)
-    return si, ok
+    return _cast(scene, o.astype(np.float32), (d / dist[:, None]).astype(np.float32), dist.astype(np.float32),
+                 target_shape)
 
 
 def _cast(scene, o: np.ndarray, d: np.ndarray, dist: np.ndarray, target_shape):
