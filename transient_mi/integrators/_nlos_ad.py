@@ -68,13 +68,13 @@ import numpy as np
 
 from transient_mi.integrators._lanes import LaneLayout, seed_rng
 from transient_mi.integrators._nlos_ad_paths import connect, deeper, first_bounce
-from transient_mi.integrators._nlos_ad_terms import (Backward, Forward, TimeKernel, wall_return_backward,
+from transient_mi.integrators._nlos_ad_terms import (Backward, Forward, TimeKernel, check_sensor_and_variant,
+                                                     wall_return_backward,
                                                      wall_return_forward, wall_return_inputs)
 from transient_mi.integrators._nlos_kernel import KernelConstants, KernelScene, _sensor_weight
 from transient_mi.integrators._nlos_samples import PixelQMC, lane_pixels
 from transient_mi.integrators._nlos_render import group_layout
 from transient_mi.integrators._replicates import effective_replicates, replicate_seed
-from transient_mi.integrators._sensor_checks import is_nlos_sensor
 from transient_mi.props import PluginParameterError
 
 #: Longest path (segments) with geometry derivatives and rgb variants: three-bounce light.
@@ -101,12 +101,7 @@ def check(integrator, scene, sensor, params):
     """Refuse what the differentiable NLOS estimator does not support (one line); returns
     ``(setup, geometry)``."""
     name = integrator.NAME
-    if not is_nlos_sensor(sensor):
-        raise PluginParameterError(f"{name}: differentiable rendering needs a spad_array sensor, not "
-                                   f"{type(sensor).__name__}")
-    if mi.is_spectral or mi.is_polarized:
-        raise PluginParameterError(f"{name}: differentiable NLOS captures support *_mono and *_rgb variants, "
-                                   f"not {mi.variant()}")
+    check_sensor_and_variant(name, sensor)
     depth = integrator.max_depth_param
     if depth == -1 or depth > MAX_UNROLLED_DEPTH:
         raise PluginParameterError(

@@ -212,3 +212,17 @@ def wall_return_forward(scene, wall_bsdf, inp, n_att, hist, K: int, weight: floa
             d_ph = dr.detach(dr.forward_to(photons, flags=_FLAGS))
         hist.record(inp["pixel"] * K, inp["opl"], d_ph * weight, mi.Bool(True), sub=inp["sub"])
         i += 1
+
+
+def check_sensor_and_variant(name: str, sensor) -> None:
+    """Refuse, in one line, a differentiable NLOS render of a sensor that is not a ``spad_array`` or in a
+    spectral or polarized variant (shared by both estimators' derivatives)."""
+    from transient_mi.integrators._sensor_checks import is_nlos_sensor
+    from transient_mi.props import PluginParameterError
+
+    if not is_nlos_sensor(sensor):
+        raise PluginParameterError(f"{name}: differentiable rendering needs a spad_array sensor, not "
+                                   f"{type(sensor).__name__}")
+    if mi.is_spectral or mi.is_polarized:
+        raise PluginParameterError(f"{name}: differentiable NLOS captures support *_mono and *_rgb variants, "
+                                   f"not {mi.variant()}")

@@ -42,13 +42,12 @@ import numpy as np
 from scipy.ndimage import correlate1d
 
 from transient_mi.integrators._ad_geometry import geometry_keys
-from transient_mi.integrators._nlos_ad_terms import (Backward, TimeKernel, wall_return_backward,
-                                                     wall_return_inputs, wall_return_photons)
+from transient_mi.integrators._nlos_ad_terms import (Backward, TimeKernel, check_sensor_and_variant,
+                                                     wall_return_backward, wall_return_inputs, wall_return_photons)
 from transient_mi.integrators._nlos_quadrature import (Chunk, _Geometry, _SpotSide, bsdf_value, check_supported,
                                                        chunk_starts, element_terms, level_elements, patch_cells,
                                                        spot_intensity)
 from transient_mi.integrators._nlos_time_spread import adjoint_spot, spread_spot
-from transient_mi.integrators._sensor_checks import is_nlos_sensor
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
 
@@ -62,12 +61,7 @@ _FLAGS_FORWARD = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
 def check(integrator, scene, sensor, params):
     """Refuse what the quadrature's derivatives do not support (one line); returns ``(setup, options)``."""
     name = integrator.NAME
-    if not is_nlos_sensor(sensor):
-        raise PluginParameterError(f"{name}: differentiable rendering needs a spad_array sensor, not "
-                                   f"{type(sensor).__name__}")
-    if mi.is_spectral or mi.is_polarized:
-        raise PluginParameterError(f"{name}: differentiable NLOS captures support *_mono and *_rgb variants, "
-                                   f"not {mi.variant()}")
+    check_sensor_and_variant(name, sensor)
     if sensor.get_medium() is not None:
         raise PluginParameterError(f"{name}: estimator=quadrature cannot render through a medium (fog); use "
                                    "estimator=monte_carlo")
