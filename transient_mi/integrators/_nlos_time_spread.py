@@ -40,87 +40,96 @@ import numpy as np
 REL_WIDTH_EPS = 1e-3
 
 
-@numba.njit(cache=True, fastmath=False)
-def _gk(k, y, a, b, mu, var, mu3):
-    """``G_k(y)`` (``k = 0..3``) of the triangular distribution with knots ``0 <= a <= b`` (bins); ``mu``, ``var``,
-    ``mu3``: its mean, variance and third central moment."""
+_INV6 = 1.0 / 6.0
+_INV24 = 1.0 / 24.0
+_INV120 = 1.0 / 120.0
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _g0(y, a, b, ca, cb):
+    """``G_0(y)``, the CDF of the triangular distribution with knots ``0 <= a <= b`` (bins); ``ca = 2 / (a b)``,
+    ``cb = 2 / (b (b - a))`` (used only where their denominators are positive)."""
     if y <= 0.0:
         return 0.0
-    if b <= 0.0:  # point mass at 0
-        if k == 0:
-            return 1.0
-        if k == 1:
-            return y
-        if k == 2:
-            return 0.5 * y * y
-        return y * y * y / 6.0
+    if b <= 0.0 or y >= b:  # (b <= 0: a point mass at 0)
+        return 1.0
+    if y <= a:
+        return 0.5 * ca * y * y
+    z = b - y
+    return 1.0 - 0.5 * cb * z * z
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _g12(y, a, b, mu, var, ca, cb):
+    """``(G_1(y), G_2(y))`` with ``G_k(y) = E[(y - A)_+^k] / k!`` (arguments as :func:`_g23`)."""
+    if y <= 0.0:
+        return 0.0, 0.0
+    if b <= 0.0:
+        return y, 0.5 * y * y
     if y >= b:
         d = y - mu
-        if k == 0:
-            return 1.0
-        if k == 1:
-            return d
-        if k == 2:
-            return 0.5 * (d * d + var)
-        return (d * d * d + 3.0 * d * var - mu3) / 6.0
-    if y <= a:  # (a > 0 here)
-        c = 2.0 / (b * a)
-        if k == 0:
-            return c * y * y / 2.0
-        if k == 1:
-            return c * y * y * y / 6.0
-        if k == 2:
-            return c * y * y * y * y / 24.0
-        return c * y * y * y * y * y / 120.0
-    z = b - y  # a < y < b, so b > a
-    c = 2.0 / (b * (b - a))
+        return d, 0.5 * (d * d + var)
+    if y <= a:
+        y3 = y * y * y
+        return ca * y3 * _INV6, ca * y3 * y * _INV24
+    z = b - y
+    z3 = z * z * z
     d = y - mu
-    if k == 0:
-        return 1.0 - c * z * z / 2.0
-    if k == 1:
-        return d + c * z * z * z / 6.0
-    if k == 2:
-        return 0.5 * (d * d + var) - c * z * z * z * z / 24.0
-    return (d * d * d + 3.0 * d * var - mu3) / 6.0 + c * z * z * z * z * z / 120.0
+    return d + cb * z3 * _INV6, 0.5 * (d * d + var) - cb * z3 * z * _INV24
 
 
-@numba.njit(cache=True, fastmath=False)
-def _cdf(x, a, b, w1, w2, mu, var, mu3, small1, small2):
-    """``P(A + U_1 + U_2 <= x)``, ``x`` local (``t_0 = 0``), ``U_i`` centred uniforms of widths ``w_i``."""
-    y = x + 0.5 * (w1 + w2)
-    if small1 and small2:
-        return _gk(0, y - 0.5 * (w1 + w2), a, b, mu, var, mu3)
-    if small1:
-        y1 = y - 0.5 * w1
-        return (_gk(1, y1, a, b, mu, var, mu3) - _gk(1, y1 - w2, a, b, mu, var, mu3)) / w2
-    if small2:
-        y2 = y - 0.5 * w2
-        return (_gk(1, y2, a, b, mu, var, mu3) - _gk(1, y2 - w1, a, b, mu, var, mu3)) / w1
-    return (_gk(2, y, a, b, mu, var, mu3) - _gk(2, y - w1, a, b, mu, var, mu3) - _gk(2, y - w2, a, b, mu, var, mu3)
-            + _gk(2, y - w1 - w2, a, b, mu, var, mu3)) / (w1 * w2)
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _g23(y, a, b, mu, var, mu3, ca, cb):
+    """``(G_2(y), G_3(y))`` of the triangular distribution with knots ``0 <= a <= b`` (bins), piecewise in closed
+    form: 0 below 0; ``ca y^(k+2) / (k+2)!`` up to ``a``; from ``b`` on the polynomial of its moments (``mu``,
+    ``var``, ``mu3``: mean, variance, third central moment), and between ``a`` and ``b`` that polynomial minus
+    ``cb (b - y)^(k+2) / (k+2)!`` (with the sign of ``(-1)^k``), so no cancellation grows with the spread."""
+    if y <= 0.0:
+        return 0.0, 0.0
+    if b <= 0.0:
+        y2 = y * y
+        return 0.5 * y2, y2 * y * _INV6
+    if y >= b:
+        d = y - mu
+        d2 = d * d
+        return 0.5 * (d2 + var), (d2 * d + 3.0 * d * var - mu3) * _INV6
+    if y <= a:
+        y4 = y * y * y * y
+        return ca * y4 * _INV24, ca * y4 * y * _INV120
+    z = b - y
+    z4 = z * z * z * z
+    d = y - mu
+    d2 = d * d
+    return (0.5 * (d2 + var) - cb * z4 * _INV24,
+            (d2 * d + 3.0 * d * var - mu3) * _INV6 + cb * z4 * z * _INV120)
 
 
-@numba.njit(cache=True, fastmath=False)
-def _hk(k, y, a, b, mu, var, mu3, w, small):
-    """``E[(y - A - U)_+^k] / k!`` for ``U`` a centred uniform of width ``w`` (``k = 0..2``; ``small``: ``U = 0``)."""
-    if small:
-        return _gk(k, y, a, b, mu, var, mu3)
-    return (_gk(k + 1, y + 0.5 * w, a, b, mu, var, mu3) - _gk(k + 1, y - 0.5 * w, a, b, mu, var, mu3)) / w
-
-
-@numba.njit(cache=True, fastmath=False)
-def _tilt(x, a, b, w, w_other, mu, var, mu3, small_other):
-    """``E[u 1{A + w u + U' <= x}]`` for ``u`` uniform on ``[-1/2, 1/2]`` and ``U'`` a centred uniform of width
-    ``w_other`` (``w > 0``): the first moment that a linear amplitude ``1 + alpha u`` across the cell adds to the
-    CDF. With ``H(s) = P(A + U' <= s)`` and ``K``, ``K_2`` its first and second integrals,
-    ``E = [K_2(x + w/2) - K_2(x - w/2) - (w/2) (K(x - w/2) + K(x + w/2))] / w^2`` (integration by parts)."""
-    lo = x - 0.5 * w
-    hi = x + 0.5 * w
-    k_lo = _hk(1, lo, a, b, mu, var, mu3, w_other, small_other)
-    k_hi = _hk(1, hi, a, b, mu, var, mu3, w_other, small_other)
-    k2_lo = _hk(2, lo, a, b, mu, var, mu3, w_other, small_other)
-    k2_hi = _hk(2, hi, a, b, mu, var, mu3, w_other, small_other)
-    return (k2_hi - k2_lo - 0.5 * w * (k_lo + k_hi)) / (w * w)
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _cdf(x, a, b, h1, h2, mu, var, mu3, ca, cb, mode, c0, c1, c2):
+    """The pair's tilted CDF at ``x`` (local: ``t_0 = 0``): ``P(T <= x) + t_1 E[v_1 1{T <= x}] + t_2 E[v_2
+    1{T <= x}]`` (see :func:`_masses`). ``mode`` 0: both widths finite (``G_2``, ``G_3`` at the four points
+    ``x +- h1 +- h2``); 1: only ``w_2`` (``G_1``, ``G_2`` at ``x +- h2``); 2: only ``w_1``; 3: neither (``G_0``).
+    ``c0, c1, c2``: the prepared factors of :func:`_masses`."""
+    if mode == 0:
+        pp2, pp3 = _g23(x + h1 + h2, a, b, mu, var, mu3, ca, cb)
+        mp2, mp3 = _g23(x - h1 + h2, a, b, mu, var, mu3, ca, cb)
+        pm2, pm3 = _g23(x + h1 - h2, a, b, mu, var, mu3, ca, cb)
+        mm2, mm3 = _g23(x - h1 - h2, a, b, mu, var, mu3, ca, cb)
+        cur = (pp2 - mp2 - pm2 + mm2) * c0
+        if c1 != 0.0 or c2 != 0.0:
+            d3 = pp3 - mp3 - pm3 + mm3
+            cur += c1 * (d3 - h1 * (pp2 + mp2 - pm2 - mm2)) + c2 * (d3 - h2 * (pp2 + pm2 - mp2 - mm2))
+        return cur
+    if mode == 3:
+        return _g0(x, a, b, ca, cb)
+    h = h2 if mode == 1 else h1
+    p1, p2 = _g12(x + h, a, b, mu, var, ca, cb)
+    m1, m2 = _g12(x - h, a, b, mu, var, ca, cb)
+    cur = (p1 - m1) * c0
+    c = c2 if mode == 1 else c1
+    if c != 0.0:
+        cur += c * (p2 - m2 - h * (p1 + m1))
+    return cur
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -131,39 +140,72 @@ def _masses(buf, tlo, a, b, u1, u2, t1, t2, n_ext):
     for the bins inside ``[0, n_ext)``; returns ``(first, last, inside)``, ``inside`` the mass inside (summed in
     bin order). The tilts move light within the pair's spread and leave its total unchanged; a tilt along a width
     below ``REL_WIDTH_EPS`` of the spread is dropped (its effect on any bin is ``|t| u / 12`` of the density there).
-    The one mass computation of the primal (:func:`spread_spot`) and its adjoint (:func:`adjoint_spot`)."""
+    The one mass computation of the primal (:func:`spread_spot`) and its adjoint (:func:`adjoint_spot`).
+
+    At a bin edge ``x`` (``h_i = u_i / 2``, ``G_k`` of the triangular part ``A``):
+
+    * ``P(T <= x) = [G_2(x+h1+h2) - G_2(x-h1+h2) - G_2(x+h1-h2) + G_2(x-h1-h2)] / (u1 u2)``, the second
+      difference of ``G_2`` over both widths;
+    * ``E[v_1 1{T <= x}] = [D_3 - h1 (G_2(x+h1+h2) + G_2(x-h1+h2) - G_2(x+h1-h2) - G_2(x-h1-h2))] / (u2 u1^2)``
+      (integration by parts over ``v_1``; ``D_3`` the same second difference of ``G_3``), and ``v_2`` likewise;
+
+    so one edge costs ``G_2`` and ``G_3`` at four points. A width below ``REL_WIDTH_EPS`` of the spread is taken
+    as zero (its difference becomes the derivative: ``G_1`` at two points, or ``G_0`` at one)."""
     spread = b + u1 + u2
     eps = REL_WIDTH_EPS * spread
     small1 = u1 <= eps
     small2 = u2 <= eps
-    tilt1 = t1 != 0.0 and not small1
-    tilt2 = t2 != 0.0 and not small2
     mu = (a + b) / 3.0
     var = (a * a + b * b - a * b) / 18.0
     mu3 = (b - 2.0 * a) * (a + b) * (2.0 * b - a) / 270.0
+    ca = 2.0 / (b * a) if a > 0.0 else 0.0
+    cb = 2.0 / (b * (b - a)) if b > a else 0.0
+    h1 = 0.5 * u1
+    h2 = 0.5 * u2
+    c1 = 0.0
+    c2 = 0.0
+    if not small1 and not small2:
+        mode = 0
+        c0 = 1.0 / (u1 * u2)
+        if t1 != 0.0:
+            c1 = t1 / (u2 * u1 * u1)
+        if t2 != 0.0:
+            c2 = t2 / (u1 * u2 * u2)
+    elif small1 and small2:
+        mode = 3
+        c0 = 1.0
+    elif small1:
+        mode = 1
+        c0 = 1.0 / u2
+        if t2 != 0.0:
+            c2 = t2 / (u2 * u2)
+    else:
+        mode = 2
+        c0 = 1.0 / u1
+        if t1 != 0.0:
+            c1 = t1 / (u1 * u1)
     lo = tlo - 0.5 * (u1 + u2)
     hi = tlo + b + 0.5 * (u1 + u2)
     b0 = int(np.floor(lo))
     b1 = int(np.floor(hi))
     first = max(b0, 0)
     last = min(b1, n_ext - 1)
-    prev = 0.0
     inside = 0.0
-    for bin_ in range(b0, b1 + 1):
+    if first > last:
+        return first, last, inside
+    prev = 0.0
+    if first > b0:  # the CDF at the first inside bin's lower edge (the bins below the axis are not needed)
+        edge = float(first) - tlo
+        prev = 1.0 if edge + tlo >= hi else _cdf(edge, a, b, h1, h2, mu, var, mu3, ca, cb, mode, c0, c1, c2)
+    for bin_ in range(first, last + 1):
         edge = float(bin_ + 1) - tlo
         if edge + tlo >= hi:
             cur = 1.0
         else:
-            cur = _cdf(edge, a, b, u1, u2, mu, var, mu3, small1, small2)
-            if tilt1:
-                cur += t1 * _tilt(edge, a, b, u1, u2, mu, var, mu3, small2)
-            if tilt2:
-                cur += t2 * _tilt(edge, a, b, u2, u1, mu, var, mu3, small1)
-        m = cur - prev
+            cur = _cdf(edge, a, b, h1, h2, mu, var, mu3, ca, cb, mode, c0, c1, c2)
+        buf[bin_] = cur - prev
+        inside += cur - prev
         prev = cur
-        if 0 <= bin_ < n_ext:
-            buf[bin_] = m
-            inside += m
     return first, last, inside
 
 
