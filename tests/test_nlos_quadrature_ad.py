@@ -108,12 +108,19 @@ def _derivatives(scene, params, key, x0, v0, w, w3):
     return rev, tangent
 
 
-@pytest.mark.parametrize("capture", ["array", "confocal"])
-def test_gradients_equal_central_differences(capture):
+@pytest.mark.parametrize("capture", ["array", "confocal", "array, general BSDF path"])
+def test_gradients_equal_central_differences(capture, monkeypatch):
     """Hidden reflectance, wall reflectance and pulse energy: reverse and forward mode on the loss without
     the wall return's bins and on the full one (which holds the wall return's derivative), against central
     differences of the quadrature's own primal. (Confocal: the two reflectances, whose terms depend on the
-    pixel's own spot; the pulse energy scales every term alike, checked on the array capture.)"""
+    pixel's own spot; the pulse energy scales every term alike, checked on the array capture.) "general BSDF
+    path": the per-pair BSDF evaluations that BSDFs other than Lambertian take, forced on these Lambertian
+    ones (``is_lambertian`` false), primal and derivatives alike."""
+    if capture.endswith("general BSDF path"):
+        import transient_mi.integrators._nlos_surfaces as surfaces
+
+        monkeypatch.setattr(surfaces, "is_lambertian", lambda bsdf: False)
+        capture = "array"
     scene = _scene(capture)
     params = mi.traverse(scene)
     img = _render(scene)

@@ -6,27 +6,41 @@ points where visibility is sampled. Pure numpy.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 #: Visibility samples near each corner sit this far from the centroid, as a share of the way to the corner.
 CORNER_SAMPLE = 0.95
 
 
-def mesh_triangles(shapes) -> tuple[np.ndarray, np.ndarray]:
-    """``(tri[n, 3, 3] float64 world vertices, shape_index[n] int64)`` of the hidden shapes' triangles."""
-    tris, idx = [], []
+class Faces(NamedTuple):
+    """The hidden shapes' triangles: ``tri [F, 3, 3]`` float64 world vertices, ``shape [F]`` (index of the
+    shape) and ``face [F]`` (the triangle's index in its mesh), int64. Elements refer to their source triangle by
+    its row ``src`` in these arrays."""
+
+    tri: np.ndarray
+    shape: np.ndarray
+    face: np.ndarray
+
+
+def mesh_triangles(shapes) -> Faces:
+    """The :class:`Faces` of the hidden shapes (meshes)."""
+    tris, idx, face = [], [], []
     for i, s in enumerate(shapes):
         v = np.asarray(s.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
         f = np.asarray(s.faces_buffer(), dtype=np.int64).reshape(-1, 3)
         tris.append(v[f])
         idx.append(np.full(len(f), i, dtype=np.int64))
+        face.append(np.arange(len(f), dtype=np.int64))
     if not tris:
-        return np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64)
-    return np.concatenate(tris), np.concatenate(idx)
+        return Faces(np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+    return Faces(np.concatenate(tris), np.concatenate(idx), np.concatenate(face))
 
 
 def subdivide(tri: np.ndarray, shape_index: np.ndarray, max_edge_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Split every triangle into ``n^2`` similar ones (``n = ceil(longest edge / max_edge_m)``)."""
+    """Split every triangle into ``n^2`` similar ones (``n = ceil(longest edge / max_edge_m)``); ``shape_index``
+    (any per-triangle label, e.g. the source row) is repeated for the pieces."""
     edges = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
                       np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
     n_div = np.maximum(1, np.ceil(edges / max_edge_m - 1e-9)).astype(np.int64)

@@ -17,12 +17,15 @@ the masses ``m_ib``, which depend on geometry only:
 
 with ``\bar h`` the adjoint of the padded histogram: the adjoint of the capture (spot 0, or the confocal
 capture), correlated with the film's temporal kernel taps (the adjoint of the primal's convolution). ``g_i``
-is computed by :func:`~._nlos_time_spread.adjoint_spot`, which shares the masses, knots and shares with the
-primal's :func:`~._nlos_time_spread.spread_spot`. Then, as in PRB (geometry detached, the BSDF terms evaluated
+is computed by :func:`~._nlos_pair_kernels.adjoint_group`, which shares the masses, knots and shares with the
+primal's :func:`~._nlos_pair_kernels.spread_group`. Then, as in PRB (geometry detached, the BSDF terms evaluated
 again with gradients attached), the product rule: ``dL = sum_i g_i F_i (dN/N) + sum_i A_i df_p,i +
 sum_i B_i df_x,i + sum_{s,e} C_se dI_se`` with the detached coefficients ``A_i = g_i F_i / f_p,i`` (computed
 as the product of the other factors, so a zero ``f_p`` still gets its derivative), ``B_i``, ``C_se``; each
-Dr.Jit term is back-propagated with ``dr.backward_from``. The wall's closed-form first-bounce return is
+Dr.Jit term is back-propagated with ``dr.backward_from``. Lambertian BSDFs are evaluated per cell (the wall) and
+per (element, spot) (the elements; :mod:`~._nlos_surfaces`), so their coefficients are summed over the pairs
+first (``A_c = sum_{i in c} A_i |cos_i|``, ``B_se = sum_{i in e, s} B_i`` over the pairs on the spot's side)
+and each value is back-propagated once. The wall's closed-form first-bounce return is
 differentiated as in the Monte Carlo estimator (:func:`~._nlos_ad_terms.wall_return_backward`). Reverse mode is
 exact: the gradient of the quadrature's own primal (float32 rounding aside). Forward mode is the same linear
 map: the tangent of every pair's weight spread with the primal's masses.
@@ -42,12 +45,12 @@ import numpy as np
 from scipy.ndimage import correlate1d
 
 from transient_mi.integrators._ad_geometry import geometry_keys
-from transient_mi.integrators._nlos_ad_terms import (Backward, TimeKernel, check_sensor_and_variant,
+from transient_mi.integrators._nlos_ad_terms import (Backward, TimeKernel, check_sensor_and_variant, upload,
                                                      wall_return_backward, wall_return_inputs, wall_return_photons)
-from transient_mi.integrators._nlos_quadrature import (Chunk, _Geometry, _SpotSide, bsdf_value, check_supported,
-                                                       chunk_starts, element_terms, level_elements, patch_cells,
-                                                       spot_intensity)
-from transient_mi.integrators._nlos_time_spread import adjoint_spot, spread_spot
+from transient_mi.integrators._nlos_pair_kernels import adjoint_group, spread_group
+from transient_mi.integrators._nlos_pairs import Chunk, SpotSide, chunk_starts
+from transient_mi.integrators._nlos_quadrature import _Geometry, check_supported, level_elements, patch_cells
+from transient_mi.integrators._nlos_surfaces import WallCells
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
 
@@ -89,7 +92,7 @@ def kernel_adjoint(grad: np.ndarray, taps) -> np.ndarray:
 
 class _FineLevel:
     """The primal's fine level for ``mi.render``'s capture (spot 0, or every spot of a confocal capture):
-    the same elements (visibility refinement included), cells, spot side and chunks."""
+    the same elements (visibility refinement included), cells, spot side, wall and chunks."""
 
     def __init__(self, scene, setup, film, options):
         self.confocal = setup.capture == "confocal"
@@ -99,51 +102,49 @@ class _FineLevel:
         self.active = bool(setup.hidden_shapes) and options.get("max_depth", 4) >= 4
         if not self.active:
             return
-        self.hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
-        _, _, self.tri, self.idx, _ = level_elements(scene, setup, self.g, options, self.spot_ids, self.hidden_ptrs)
-        self.side = _SpotSide(scene, setup, self.spot_ids, self.tri, self.idx, self.hidden_ptrs)
-        self.pts, self.area, self.nrm = element_terms(self.tri)
-        self.X0 = self.pts[:, 0]
-        self.spot_weight = self.side.intensity / self.side.r_sx ** 2  # [G, n]
-        self.t_origin = self.g.t0_m / self.g.bin_m - self.g.pad
-
-    def intensity_ad(self, scene, spots) -> "mi.Float":
-        """The intensities of the spots ``spots`` (indices into ``spot_ids``) towards every element's centroid,
-        spot-major ``[len(spots) * n]``, in one launch (attached; call inside ``resume_grad``)."""
-        s = self.side
-        n = len(self.X0)
-        spots = np.asarray(spots, dtype=np.int64)
-        return spot_intensity(scene, s.Lo, np.repeat(s.beam[spots], n, axis=0), np.repeat(s.S[spots], n, axis=0),
-                              np.tile(self.X0, (len(spots), 1)))
+        hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
+        _, self.lv, _ = level_elements(scene, setup, self.g, options, self.spot_ids, hidden_ptrs)
+        self.side = SpotSide(scene, setup, self.g, self.spot_ids, self.lv)
+        self.wall = WallCells(scene, setup, self.g.cell_p, self.g.D)
+        self.lambertian = self.lv.surf.lambertian
+        self.G = len(self.spot_ids)
 
     def chunks(self, scene):
-        """``(chunk, spot_of_pair, f_x, [(spot, pair slice, job pixel_start)])`` per chunk (primal values)."""
-        for e0, e1 in chunk_starts(self.g, len(self.tri)):
-            ch = Chunk(scene, self.g, self.tri, self.idx, self.hidden_ptrs, self.pts, self.area, self.nrm, e0, e1)
-            n = len(ch.ee)
-            spot_of = np.zeros(n, dtype=np.int64)
-            f_x = np.zeros(n)
-            jobs = []
-            for si_idx, _, sl in ch.jobs(self.confocal, len(self.spot_ids)):
-                if sl.stop <= sl.start:
-                    continue
-                spot_of[sl] = si_idx
-                f_x[sl] = np.asarray(bsdf_value(ch.si_x_of(self.confocal, sl),
-                                                ch.to_spot(self.X0, self.side.S[si_idx], sl)), dtype=np.float64)
-                jobs.append((si_idx, sl, ch.job_pixel_start(self.confocal, si_idx, sl)))
-            yield ch, spot_of, f_x, jobs
-            del ch
+        """``(chunk, terms)`` per chunk, ``terms`` = :meth:`terms`."""
+        for e0, e1 in chunk_starts(len(self.g.cell_p), self.lv.n):
+            ch = Chunk(scene, self.g, self.lv, self.wall, e0, e1)
+            yield ch, self.terms(ch)
 
-    def spot_args(self, si_idx: int):
-        """The per-spot arguments of :func:`~._nlos_time_spread.adjoint_spot` after ``w2``."""
-        s, g = self.side, self.g
-        return (np.ascontiguousarray(s.vis[si_idx]), np.ascontiguousarray(s.r_sv[si_idx]), s.r_sx[si_idx],
-                g.fl * float(s.laser_leg[si_idx]), g.bin_m, self.t_origin)
+    def terms(self, ch) -> dict:
+        """Per pair of ``ch`` (each with its spot: spot 0, or its pixel's): element ``e``, spot ``s``, cell ``c``,
+        ``es = e G + s`` (index of the pair's (element, spot)), the primal's ``f_x`` and ``sw`` and, for
+        Lambertian elements, ``match`` (the cell on the spot's side)."""
+        e = ch.e0 + np.arange(ch.n) % ch.ne
+        s = ch.spot_of_pair() if self.confocal else np.zeros(ch.n, dtype=np.int64)
+        t = {"e": e, "s": s, "c": np.arange(ch.n) // ch.ne, "es": e * self.G + s, "sw": self.side.sw[e, s]}
+        if self.lambertian:
+            t["match"] = ch.side_x * self.side.side_s[e, s] > 0
+            t["f_x"] = np.where(t["match"], self.side.fx_e[e, s], 0.0)
+        else:
+            t["f_x"] = ch.fx_pairs(self.g, self.lv, self.side, self.confocal)[0]
+        return t
 
-    def f_x_ad(self, ch, spot_of) -> "mi.Float":
-        """The element BSDF of every pair of ``ch`` towards its spot (attached; inside ``resume_grad``)."""
-        to_s = self.side.S[spot_of] - self.X0[ch.ee]
-        return bsdf_value(ch.si_x, to_s / np.linalg.norm(to_s, axis=1, keepdims=True))
+    def f_x_ad(self, ch) -> "mi.Float":
+        """The element BSDF of every pair of ``ch`` towards its spot, per pair (elements that are not Lambertian;
+        attached inside ``resume_grad``)."""
+        spots = [self.side.S[ch.spot_of_pair()]] if self.confocal else [self.side.S[0]]
+        return self.lv.surf.pair_values(self.g.cell_p, ch.e0, ch.e1, spots)[0]
+
+    def f_p_ad(self, ch) -> "mi.Float":
+        """The wall BSDF of every pair of ``ch`` (walls that are not Lambertian; attached)."""
+        return self.wall.pair_values(self.g.cell_p, self.lv.X0, ch.e0, ch.e1)
+
+    def adjoint(self, ch, grad_ext) -> np.ndarray:
+        """``g`` per pair of ``ch`` (:func:`~._nlos_pair_kernels.adjoint_group`, ``grad_ext`` ``[P, n_ext]``)."""
+        g = np.zeros((1, ch.n))
+        adjoint_group(g, grad_ext[None], ch.per_pixel, ch.e0, ch.ne, ch.vis_p, ch.A, ch.w1, ch.w2, ch.tilt,
+                      self.side.vis, self.side.B, self.confocal)
+        return g[0]
 
 
 def _grad_shape(setup, grad_in, T) -> np.ndarray:
@@ -165,25 +166,30 @@ def quadrature_backward(integrator, scene, params, grad_in, sensor) -> None:
     lv = _FineLevel(scene, setup, film, options)
     if lv.active:
         grad_ext = kernel_adjoint(grad, taps)
-        C = np.zeros_like(lv.spot_weight)  # coefficients of the spots' intensities [G, n]
+        n_es = lv.lv.n * lv.G
+        C = np.zeros(n_es)  # coefficients of the spots' intensities, element-major [n, G]
+        B = np.zeros(n_es)  # of the Lambertian elements' f_x (per element and spot)
+        A = np.zeros(len(lv.g.cell_p))  # of a Lambertian wall's per-cell value
         total = 0.0  # sum_i g_i F_i: the coefficient of dN / N
-        for ch, spot_of, f_x, jobs in lv.chunks(scene):
-            g = np.zeros(len(ch.ee))
-            for si_idx, sl, ps in jobs:
-                adjoint_spot(g, grad_ext, ps, ch.pe, *ch.spread_args(), *lv.spot_args(si_idx))  # (g[sl])
-            sw = lv.spot_weight[spot_of, ch.ee]
-            gg = g * ch.geo
+        for ch, t in lv.chunks(scene):
+            gg = lv.adjoint(ch, grad_ext) * ch.geo
+            f_x, sw = t["f_x"], t["sw"]
             total += float(np.sum(gg * ch.f_p * f_x * sw))
-            np.add.at(C, (spot_of, ch.ee), gg * ch.f_p * f_x / lv.side.r_sx[spot_of, ch.ee] ** 2)
+            C += np.bincount(t["es"], gg * ch.f_p * f_x / lv.side.r_sx[t["e"], t["s"]] ** 2, minlength=n_es)
+            if lv.wall.lambertian:
+                A += np.bincount(t["c"], gg * f_x * sw * ch.cos_p, minlength=len(A))
+            if lv.lambertian:
+                B += np.bincount(t["es"], np.where(t["match"], gg * ch.f_p * sw, 0.0), minlength=n_es)
             with dr.resume_grad():
-                obj = (mi.Float((gg * f_x * sw).astype(np.float32)) * bsdf_value(ch.si_p, ch.d_px)
-                       + mi.Float((gg * ch.f_p * sw).astype(np.float32)) * lv.f_x_ad(ch, spot_of))
-                dr.backward_from(obj, flags=_FLAGS)
+                if not lv.wall.lambertian:
+                    dr.backward_from(upload((gg * f_x * sw).astype(np.float32)) * lv.f_p_ad(ch), flags=_FLAGS)
+                if not lv.lambertian:
+                    dr.backward_from(upload((gg * ch.f_p * sw).astype(np.float32)) * lv.f_x_ad(ch), flags=_FLAGS)
         with dr.resume_grad():
-            lit = np.flatnonzero(np.any(C != 0.0, axis=1))
-            if len(lit):
-                dr.backward_from(mi.Float(C[lit].ravel().astype(np.float32)) * lv.intensity_ad(scene, lit),
-                                 flags=_FLAGS)
+            for coef, value in ((C, lambda: lv.side.intensity_ad(scene, lv.lv.X0)),
+                                (A, lv.wall.value_ad), (B, lambda: lv.lv.surf.toward_ad(lv.side.S))):
+                if np.any(coef != 0.0):
+                    dr.backward_from(upload(coef.astype(np.float32)) * value(), flags=_FLAGS)
             if total != 0.0:
                 dr.backward_from(n_att() * (total / lv.g.N), flags=_FLAGS)
     inp = wall_return_inputs(setup, [0])
@@ -197,9 +203,10 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
     """Forward mode: the derivative of ``mi.render``'s capture along the parameters' tangents (the tangent of
     every pair's weight spread with the primal's masses, plus the wall return's).
 
-    Every attached value (the pairs' BSDF values, the spots' intensities, the wall return, ``N``) is pushed
-    forward by one ``dr.forward_to`` (a second call would not see the parameters' tangents again): forward mode
-    holds every chunk's pair data at once (memory grows with the pairs; reverse mode does not)."""
+    Every attached value (the spots' intensities, the Lambertian BSDFs' per-cell and per-(element, spot) values or,
+    for other BSDFs, the pairs' values, the wall return, ``N``) is pushed forward by one ``dr.forward_to`` (a
+    second call would not see the parameters' tangents again). With BSDFs that are not Lambertian forward mode
+    holds every chunk's pair data at once (memory grows with the pairs; reverse mode's does not)."""
     setup, options = check(integrator, scene, sensor, params)
     film = sensor.film()
     taps, axis = film.kernel_taps(), film.time_axis()
@@ -207,19 +214,22 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
     lv = _FineLevel(scene, setup, film, options)
     g = lv.g
     P = g.W * g.H
-    hist = np.zeros((P, g.n_ext))
+    hist = np.zeros((1, P, g.n_ext))
     inp = wall_return_inputs(setup, [0])
-    chunks, values = [], []
+    held, values = [], []
+    per_pair = lv.active and not (lv.lambertian and lv.wall.lambertian)
     with dr.resume_grad():
         values.append(n_att())
         if inp is not None:
             values.append(wall_return_photons(scene, setup.relay_wall.bsdf(), inp, n_att))
         if lv.active:
-            values.append(lv.intensity_ad(scene, np.arange(len(lv.spot_ids))))
-            for ch, spot_of, f_x, jobs in lv.chunks(scene):
-                values += [bsdf_value(ch.si_p, ch.d_px), lv.f_x_ad(ch, spot_of)]
-                del ch.si_p, ch.si_x  # (the surface interactions are no longer needed)
-                chunks.append((ch, spot_of, f_x, jobs))
+            values += [lv.side.intensity_ad(scene, lv.lv.X0),
+                       lv.wall.value_ad() if lv.wall.lambertian else mi.Float(0.0),
+                       lv.lv.surf.toward_ad(lv.side.S) if lv.lambertian else mi.Float(0.0)]
+            for ch, t in (lv.chunks(scene) if per_pair else ()):
+                values += [lv.f_p_ad(ch) if not lv.wall.lambertian else mi.Float(0.0),
+                           lv.f_x_ad(ch) if not lv.lambertian else mi.Float(0.0)]
+                held.append((ch, t))
         tangents = [np.asarray(t, dtype=np.float64) for t in dr.forward_to(*values, flags=_FLAGS_FORWARD)]
     d_log_n = float(tangents[0][0]) / g.N
     i = 1
@@ -231,22 +241,25 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
         for k, o, d in zip(pix, opl, d_ph):  # (binned as the primal's wall return)
             b = int(np.floor((o - g.t0_m) / g.bin_m)) + g.pad
             if 0 <= b < g.n_ext:
-                hist[k, b] += d
+                hist[0, k, b] += d
     if lv.active:
-        d_int = tangents[i].reshape(len(lv.spot_ids), len(lv.tri))
-        i += 1
-        scratch = np.zeros((P, g.n_ext))
-        z = np.zeros(P)
-        ones_e = np.ones(len(lv.tri))
-        for ch, spot_of, f_x, jobs in chunks:
-            d_fp, d_fx = tangents[i], tangents[i + 1]
-            i += 2
-            sw = lv.spot_weight[spot_of, ch.ee]
-            d_sw = d_int[spot_of, ch.ee] / lv.side.r_sx[spot_of, ch.ee] ** 2
-            t = ch.geo * (d_fp * f_x * sw + ch.f_p * d_fx * sw + ch.f_p * f_x * d_sw + ch.f_p * f_x * sw * d_log_n)
-            ones = np.ones(len(ch.ee))
-            for si_idx, sl, ps in jobs:
-                spread_spot(hist, scratch, z.copy(), z.copy(), z.copy(), ps, ch.pe, t, *ch.spread_args(), ones,
-                            np.ascontiguousarray(lv.side.vis[si_idx]), ones_e, *lv.spot_args(si_idx)[1:])
-    out = apply_kernel(hist, taps) if g.pad else hist
+        d_int, d_wall, d_elem = tangents[i], tangents[i + 1], tangents[i + 2]
+        i += 3
+        scratch = np.zeros((1, P, g.n_ext))
+        z = np.zeros((1, P))
+        ones_es = np.ones((lv.lv.n, lv.G))
+        for ch, t in (held if per_pair else lv.chunks(scene)):
+            if per_pair:
+                d_fp_pair, d_fx_pair = tangents[i], tangents[i + 1]
+                i += 2
+            e, s = t["e"], t["s"]
+            d_fp = d_wall[t["c"]] * ch.cos_p if lv.wall.lambertian else d_fp_pair
+            d_fx = np.where(t["match"], d_elem[t["es"]], 0.0) if lv.lambertian else d_fx_pair
+            d_sw = d_int[t["es"]] / lv.side.r_sx[e, s] ** 2
+            f_x, sw = t["f_x"], t["sw"]
+            tan = ch.geo * (d_fp * f_x * sw + ch.f_p * d_fx * sw + ch.f_p * f_x * d_sw + ch.f_p * f_x * sw * d_log_n)
+            spread_group(hist, scratch, z.copy(), z.copy(), z.copy(), ch.per_pixel, ch.e0, ch.ne, tan,
+                         np.ones(ch.n), ch.vis_p, ch.A, ch.w1, ch.w2, ch.tilt, ch.side_x, np.ones((1, ch.n)),
+                         lv.side.vis, lv.side.B, ones_es, ones_es, lv.side.side_s, False, lv.confocal)
+    out = apply_kernel(hist[0], taps) if g.pad else hist[0]
     return mi.TensorXf(out.astype(np.float32).reshape(setup.height, setup.width, axis.n_bins))

@@ -40,91 +40,94 @@ import numpy as np
 REL_WIDTH_EPS = 1e-3
 
 
+_INV3 = 1.0 / 3.0
 _INV6 = 1.0 / 6.0
+_INV18 = 1.0 / 18.0
 _INV24 = 1.0 / 24.0
 _INV120 = 1.0 / 120.0
+_INV270 = 1.0 / 270.0
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
-def _g0(y, a, b, ca, cb):
-    """``G_0(y)``, the CDF of the triangular distribution with knots ``0 <= a <= b`` (bins); ``ca = 2 / (a b)``,
-    ``cb = 2 / (b (b - a))`` (used only where their denominators are positive)."""
+def _shape(a, b):
+    """The constants of the triangular distribution with knots ``0 <= a <= b`` (bins) that :func:`_g0`,
+    :func:`_g12` and :func:`_g23` read: ``(a, b, mu, var / 2, mu_3 / 6, c_a / 2, c_a / 6, c_a / 24, c_a / 120,
+    c_b / 2, c_b / 6, c_b / 24, c_b / 120)`` with its mean ``mu``, variance ``var`` and third central moment
+    ``mu_3``, ``c_a = 2 / (a b)`` and ``c_b = 2 / (b (b - a))`` (0 where their denominators vanish: those pieces
+    are then empty)."""
+    ca = 2.0 / (b * a) if a > 0.0 else 0.0
+    cb = 2.0 / (b * (b - a)) if b > a else 0.0
+    var = (a * a + b * b - a * b) * _INV18
+    mu3 = (b - 2.0 * a) * (a + b) * (2.0 * b - a) * _INV270
+    return (a, b, (a + b) * _INV3, 0.5 * var, mu3 * _INV6, 0.5 * ca, ca * _INV6, ca * _INV24, ca * _INV120,
+            0.5 * cb, cb * _INV6, cb * _INV24, cb * _INV120)
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _g0(y, k):
+    """``G_0(y)``, the CDF of the triangular distribution of :func:`_shape` ``k``."""
     if y <= 0.0:
         return 0.0
-    if b <= 0.0 or y >= b:  # (b <= 0: a point mass at 0)
-        return 1.0
-    if y <= a:
-        return 0.5 * ca * y * y
-    z = b - y
-    return 1.0 - 0.5 * cb * z * z
+    if y <= k[0]:
+        return k[5] * y * y
+    z = max(k[1] - y, 0.0)
+    return 1.0 - k[9] * z * z
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
-def _g12(y, a, b, mu, var, ca, cb):
-    """``(G_1(y), G_2(y))`` with ``G_k(y) = E[(y - A)_+^k] / k!`` (arguments as :func:`_g23`)."""
-    if y <= 0.0:
-        return 0.0, 0.0
-    if b <= 0.0:
-        return y, 0.5 * y * y
-    if y >= b:
-        d = y - mu
-        return d, 0.5 * (d * d + var)
-    if y <= a:
-        y3 = y * y * y
-        return ca * y3 * _INV6, ca * y3 * y * _INV24
-    z = b - y
+def _g12(y, k):
+    """``(G_1(y), G_2(y))`` with ``G_k(y) = E[(y - A)_+^k] / k!`` (as :func:`_g23`)."""
+    yp = max(y, 0.0)
+    y3 = yp * yp * yp
+    z = max(k[1] - y, 0.0)
     z3 = z * z * z
-    d = y - mu
-    return d + cb * z3 * _INV6, 0.5 * (d * d + var) - cb * z3 * z * _INV24
+    d = y - k[2]
+    if y <= k[0]:
+        return k[6] * y3, k[7] * y3 * yp
+    return d + k[10] * z3, 0.5 * d * d + k[3] - k[11] * z3 * z
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
-def _g23(y, a, b, mu, var, mu3, ca, cb):
-    """``(G_2(y), G_3(y))`` of the triangular distribution with knots ``0 <= a <= b`` (bins), piecewise in closed
-    form: 0 below 0; ``ca y^(k+2) / (k+2)!`` up to ``a``; from ``b`` on the polynomial of its moments (``mu``,
-    ``var``, ``mu3``: mean, variance, third central moment), and between ``a`` and ``b`` that polynomial minus
-    ``cb (b - y)^(k+2) / (k+2)!`` (with the sign of ``(-1)^k``), so no cancellation grows with the spread."""
-    if y <= 0.0:
-        return 0.0, 0.0
-    if b <= 0.0:
-        y2 = y * y
-        return 0.5 * y2, y2 * y * _INV6
-    if y >= b:
-        d = y - mu
-        d2 = d * d
-        return 0.5 * (d2 + var), (d2 * d + 3.0 * d * var - mu3) * _INV6
-    if y <= a:
-        y4 = y * y * y * y
-        return ca * y4 * _INV24, ca * y4 * y * _INV120
-    z = b - y
-    z4 = z * z * z * z
-    d = y - mu
+def _g23(y, k):
+    """``(G_2(y), G_3(y))`` of the triangular distribution of :func:`_shape` ``k`` (knots ``0 <= a <= b``, bins),
+    piecewise in closed form: 0 below 0; ``c_a y^(j+2) / (j+2)!`` up to ``a``; from ``b`` on the polynomial of
+    its moments, and between ``a`` and ``b`` that polynomial minus ``c_b (b - y)^(j+2) / (j+2)!`` (with the sign
+    of ``(-1)^j``), so no cancellation grows with the spread. ``(b - y)_+`` vanishes from ``b`` on and ``y_+``
+    below 0, so two forms cover the four pieces."""
+    yp = max(y, 0.0)
+    y2 = yp * yp
+    y4 = y2 * y2
+    z = max(k[1] - y, 0.0)
+    z2 = z * z
+    z4 = z2 * z2
+    d = y - k[2]
     d2 = d * d
-    return (0.5 * (d2 + var) - cb * z4 * _INV24,
-            (d2 * d + 3.0 * d * var - mu3) * _INV6 + cb * z4 * z * _INV120)
+    if y <= k[0]:
+        return k[7] * y4, k[8] * y4 * yp
+    return 0.5 * d2 + k[3] - k[11] * z4, d * (d2 * _INV6 + k[3]) - k[4] + k[12] * z4 * z
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
-def _cdf(x, a, b, h1, h2, mu, var, mu3, ca, cb, mode, c0, c1, c2):
+def _cdf(x, k, h1, h2, mode, c0, c1, c2):
     """The pair's tilted CDF at ``x`` (local: ``t_0 = 0``): ``P(T <= x) + t_1 E[v_1 1{T <= x}] + t_2 E[v_2
-    1{T <= x}]`` (see :func:`_masses`). ``mode`` 0: both widths finite (``G_2``, ``G_3`` at the four points
-    ``x +- h1 +- h2``); 1: only ``w_2`` (``G_1``, ``G_2`` at ``x +- h2``); 2: only ``w_1``; 3: neither (``G_0``).
-    ``c0, c1, c2``: the prepared factors of :func:`_masses`."""
+    1{T <= x}]`` (see :func:`masses`), ``k`` the triangular part's :func:`_shape`. ``mode`` 0: both widths finite
+    (``G_2``, ``G_3`` at the four points ``x +- h1 +- h2``); 1: only ``w_2`` (``G_1``, ``G_2`` at ``x +- h2``);
+    2: only ``w_1``; 3: neither (``G_0``). ``c0, c1, c2``: the prepared factors of :func:`masses`."""
     if mode == 0:
-        pp2, pp3 = _g23(x + h1 + h2, a, b, mu, var, mu3, ca, cb)
-        mp2, mp3 = _g23(x - h1 + h2, a, b, mu, var, mu3, ca, cb)
-        pm2, pm3 = _g23(x + h1 - h2, a, b, mu, var, mu3, ca, cb)
-        mm2, mm3 = _g23(x - h1 - h2, a, b, mu, var, mu3, ca, cb)
+        pp2, pp3 = _g23(x + h1 + h2, k)
+        mp2, mp3 = _g23(x - h1 + h2, k)
+        pm2, pm3 = _g23(x + h1 - h2, k)
+        mm2, mm3 = _g23(x - h1 - h2, k)
         cur = (pp2 - mp2 - pm2 + mm2) * c0
         if c1 != 0.0 or c2 != 0.0:
             d3 = pp3 - mp3 - pm3 + mm3
             cur += c1 * (d3 - h1 * (pp2 + mp2 - pm2 - mm2)) + c2 * (d3 - h2 * (pp2 + pm2 - mp2 - mm2))
         return cur
     if mode == 3:
-        return _g0(x, a, b, ca, cb)
+        return _g0(x, k)
     h = h2 if mode == 1 else h1
-    p1, p2 = _g12(x + h, a, b, mu, var, ca, cb)
-    m1, m2 = _g12(x - h, a, b, mu, var, ca, cb)
+    p1, p2 = _g12(x + h, k)
+    m1, m2 = _g12(x - h, k)
     cur = (p1 - m1) * c0
     c = c2 if mode == 1 else c1
     if c != 0.0:
@@ -132,15 +135,24 @@ def _cdf(x, a, b, h1, h2, mu, var, mu3, ca, cb, mode, c0, c1, c2):
     return cur
 
 
+@numba.njit(cache=True, fastmath=False, inline="always")
+def cell_widths(u1, u2, t1, t2):
+    """The cell's part of :func:`masses`, computed once per pair for all its spots: ``(u1, u2, u1 / 2, u2 / 2,
+    1 / u1, 1 / u2, t1, t2)`` (a reciprocal of a zero width is never read)."""
+    return u1, u2, 0.5 * u1, 0.5 * u2, 1.0 / u1 if u1 > 0.0 else 0.0, 1.0 / u2 if u2 > 0.0 else 0.0, t1, t2
+
+
 @numba.njit(cache=True, fastmath=False)
-def _masses(buf, tlo, a, b, u1, u2, t1, t2, n_ext):
-    """Bin masses of one pair's arrival distribution (knots ``tlo``, ``tlo + a``, ``tlo + b``, widths ``u1``,
-    ``u2``, bins of the padded axis; the cell's amplitude ``1 + t1 v1 + t2 v2`` linear in the cell coordinates
+def masses(buf, tlo, a, b, cell, n_ext):
+    """Bin masses of one pair's arrival distribution (knots ``tlo``, ``tlo + a``, ``tlo + b``, the cell's widths
+    ``u1``, ``u2`` and tilts ``t1``, ``t2`` in ``cell`` = :func:`cell_widths`; bins of the padded axis; the cell's
+    amplitude ``1 + t1 v1 + t2 v2`` linear in the cell coordinates
     ``v_i`` in ``[-1/2, 1/2]`` along which the arrival time grows by ``u_i``) written to ``buf[first:last + 1]``
     for the bins inside ``[0, n_ext)``; returns ``(first, last, inside)``, ``inside`` the mass inside (summed in
     bin order). The tilts move light within the pair's spread and leave its total unchanged; a tilt along a width
     below ``REL_WIDTH_EPS`` of the spread is dropped (its effect on any bin is ``|t| u / 12`` of the density there).
-    The one mass computation of the primal (:func:`spread_spot`) and its adjoint (:func:`adjoint_spot`).
+    The one mass computation of the primal (:func:`~._nlos_pair_kernels.spread_group`) and its adjoint
+    (:func:`~._nlos_pair_kernels.adjoint_group`).
 
     At a bin edge ``x`` (``h_i = u_i / 2``, ``G_k`` of the triangular part ``A``):
 
@@ -151,39 +163,30 @@ def _masses(buf, tlo, a, b, u1, u2, t1, t2, n_ext):
 
     so one edge costs ``G_2`` and ``G_3`` at four points. A width below ``REL_WIDTH_EPS`` of the spread is taken
     as zero (its difference becomes the derivative: ``G_1`` at two points, or ``G_0`` at one)."""
+    u1, u2, h1, h2, i1, i2, t1, t2 = cell
     spread = b + u1 + u2
     eps = REL_WIDTH_EPS * spread
     small1 = u1 <= eps
     small2 = u2 <= eps
-    mu = (a + b) / 3.0
-    var = (a * a + b * b - a * b) / 18.0
-    mu3 = (b - 2.0 * a) * (a + b) * (2.0 * b - a) / 270.0
-    ca = 2.0 / (b * a) if a > 0.0 else 0.0
-    cb = 2.0 / (b * (b - a)) if b > a else 0.0
-    h1 = 0.5 * u1
-    h2 = 0.5 * u2
+    k = _shape(a, b)
     c1 = 0.0
     c2 = 0.0
     if not small1 and not small2:
         mode = 0
-        c0 = 1.0 / (u1 * u2)
-        if t1 != 0.0:
-            c1 = t1 / (u2 * u1 * u1)
-        if t2 != 0.0:
-            c2 = t2 / (u1 * u2 * u2)
+        c0 = i1 * i2
+        c1 = t1 * c0 * i1
+        c2 = t2 * c0 * i2
     elif small1 and small2:
         mode = 3
         c0 = 1.0
     elif small1:
         mode = 1
-        c0 = 1.0 / u2
-        if t2 != 0.0:
-            c2 = t2 / (u2 * u2)
+        c0 = i2
+        c2 = t2 * c0 * c0
     else:
         mode = 2
-        c0 = 1.0 / u1
-        if t1 != 0.0:
-            c1 = t1 / (u1 * u1)
+        c0 = i1
+        c1 = t1 * c0 * c0
     lo = tlo - 0.5 * (u1 + u2)
     hi = tlo + b + 0.5 * (u1 + u2)
     b0 = int(np.floor(lo))
@@ -196,13 +199,13 @@ def _masses(buf, tlo, a, b, u1, u2, t1, t2, n_ext):
     prev = 0.0
     if first > b0:  # the CDF at the first inside bin's lower edge (the bins below the axis are not needed)
         edge = float(first) - tlo
-        prev = 1.0 if edge + tlo >= hi else _cdf(edge, a, b, h1, h2, mu, var, mu3, ca, cb, mode, c0, c1, c2)
+        prev = 1.0 if edge + tlo >= hi else _cdf(edge, k, h1, h2, mode, c0, c1, c2)
     for bin_ in range(first, last + 1):
         edge = float(bin_ + 1) - tlo
         if edge + tlo >= hi:
             cur = 1.0
         else:
-            cur = _cdf(edge, a, b, h1, h2, mu, var, mu3, ca, cb, mode, c0, c1, c2)
+            cur = _cdf(edge, k, h1, h2, mode, c0, c1, c2)
         buf[bin_] = cur - prev
         inside += cur - prev
         prev = cur
@@ -212,47 +215,13 @@ def _masses(buf, tlo, a, b, u1, u2, t1, t2, n_ext):
 @numba.njit(cache=True, fastmath=False)
 def _spread_one(buf, hist_k, bound_k, f, fe, tlo, a, b, u1, u2, t1, t2, n_ext):
     """Deposit one pair's light ``f`` (and its visibility error ``fe``) into one pixel's rows; returns the light
-    arriving outside the padded axis (``buf``: scratch of ``n_ext`` bins for :func:`_masses`)."""
-    first, last, inside = _masses(buf, tlo, a, b, u1, u2, t1, t2, n_ext)
+    arriving outside the padded axis (``buf``: scratch of ``n_ext`` bins for :func:`masses`)."""
+    first, last, inside = masses(buf, tlo, a, b, cell_widths(u1, u2, t1, t2), n_ext)
     for bin_ in range(first, last + 1):
         m = buf[bin_]
         hist_k[bin_] += f * m
         bound_k[bin_] += fe * m
     return f * (1.0 - inside)
-
-
-@numba.njit(cache=True, fastmath=False)
-def _visible_share(vis_p, vis_s, i, e):
-    """``(nvis, share)``: how many of pair ``i``'s four visibility samples see both the cell and the spot, and
-    their share of the pair (centroid 1/2, corners 1/6 each)."""
-    nvis = 0
-    frac = 0.0
-    for s in range(4):
-        if vis_p[i, s] and vis_s[e, s]:
-            nvis += 1
-            frac += 0.5 if s == 0 else 1.0 / 6.0
-    return nvis, frac
-
-
-@numba.njit(cache=True, fastmath=False)
-def _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins):
-    """Pair ``i`` (element ``e``): its smallest knot (bins on the padded axis) and the other two relative to
-    it, ``(t_lo, a, b)``, ``0 <= a <= b`` (see :func:`spread_spot`)."""
-    l0 = opl_d[i] + r_pv[i, 0] + r_sv[e, 0] + spot_opl
-    l1 = opl_d[i] + r_pv[i, 1] + r_sv[e, 1] + spot_opl
-    l2 = opl_d[i] + r_pv[i, 2] + r_sv[e, 2] + spot_opl
-    lc = opl_d[i] + r_px[i] + r_sx[e] + spot_opl
-    shift = 0.75 * (lc - (l0 + l1 + l2) / 3.0) + cell_shift[i]
-    t0 = (l0 + shift) / bin_m - t_origin_bins
-    t1 = (l1 + shift) / bin_m - t_origin_bins
-    t2 = (l2 + shift) / bin_m - t_origin_bins
-    if t0 > t1:
-        t0, t1 = t1, t0
-    if t1 > t2:
-        t1, t2 = t2, t1
-    if t0 > t1:
-        t0, t1 = t1, t0
-    return t0, t1 - t0, t2 - t0
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -273,7 +242,7 @@ def spread_pairs(hist, bound, pixel, weight, err_weight, t_lo, knot_a, knot_b, w
     w1, w2 : ndarray, float64, shape (n,)
         Widths of the cell's two uniform components (bins, >= 0).
     tilt : ndarray, float64, shape (n, 2)
-        The cell's relative amplitude slopes along the two components (see :func:`_masses`; zeros: flat).
+        The cell's relative amplitude slopes along the two components (see :func:`masses`; zeros: flat).
     n_ext : int
         Bins of the padded axis.
 
@@ -289,206 +258,3 @@ def spread_pairs(hist, bound, pixel, weight, err_weight, t_lo, knot_a, knot_b, w
         outside[k] += _spread_one(buf, hist[k], bound[k], weight[i], err_weight[i], t_lo[i], knot_a[i], knot_b[i],
                                   w1[i], w2[i], tilt[i, 0], tilt[i, 1], n_ext)
     return outside
-
-
-@numba.njit(cache=True, parallel=True, fastmath=False)
-def spread_spot(hist, bound, steady, vis_err, outside, pixel_start, pair_elem, base, vis_p, r_pv, r_px, opl_d,
-                cell_shift, w1, w2, tilt, f_x, vis_s, spot_weight, r_sv, r_sx, spot_opl, bin_m, t_origin_bins):
-    """All pairs of one laser spot: weights, visibility, arrival knots, deposits.
-
-    Pairs are sorted by pixel (``pixel_start[k]:pixel_start[k + 1]``); one thread per pixel, its pairs in
-    order (same inputs, same bytes).
-
-    Per pair: ``pair_elem`` (element), ``base`` (photons per pulse before the spot leg), ``vis_p[4]``
-    (detector-side visibility of the element's samples), ``r_pv[3]`` and ``r_px`` (cell centre to the
-    element's vertices and centroid, m), ``opl_d`` (the detector leg to the cell centre, m),
-    ``cell_shift`` (mean deviation of the detector-side path length from its tangent plane over the cell, m),
-    ``w1, w2`` (the cell's uniform widths, bins), ``tilt[2]`` (the cell's relative amplitude slopes along them,
-    :func:`_masses`), ``f_x`` (BSDF at the element towards the spot). Per element
-    (this spot): ``vis_s[4]``, ``spot_weight`` (``f_S cos / r^2``), ``r_sv[3]``, ``r_sx`` (m).
-    ``spot_opl``: the laser leg (m). ``t_origin_bins``: time zero of the padded axis in path-length bins.
-
-    The triangle's knots are the path lengths at its vertices, shifted by ``3/4`` of the centroid's deviation
-    from their mean: for a quadratic path length the linear interpolant's mean error over a triangle is
-    exactly ``3/4`` of its error at the centroid (``E[l_i l_j] = 1/12`` against ``1/9`` for barycentric
-    coordinates), so the shift removes the leading (convexity) bias of the arrival times; ``cell_shift`` does
-    the same for the cell. ``vis_err``: per pixel, the light whose visibility is uncertain (mixed samples).
-    """
-    n_pix = hist.shape[0]
-    n_ext = hist.shape[1]
-    for k in numba.prange(n_pix):
-        buf = np.empty(n_ext)
-        for i in range(pixel_start[k], pixel_start[k + 1]):
-            e = pair_elem[i]
-            full = base[i] * f_x[i] * spot_weight[e]
-            if full == 0.0:
-                continue
-            nvis, frac = _visible_share(vis_p, vis_s, i, e)
-            if nvis == 0:
-                continue
-            f = full * frac
-            fe = 0.0
-            if nvis < 4:
-                fe = full * max(frac, 1.0 - frac)
-            tlo, a, b = _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins)
-            outside[k] += _spread_one(buf, hist[k], bound[k], f, fe, tlo, a, b, w1[i], w2[i], tilt[i, 0], tilt[i, 1],
-                                      n_ext)
-            steady[k] += f
-            vis_err[k] += fe
-
-
-@numba.njit(cache=True, parallel=True, fastmath=False)
-def adjoint_spot(g, grad_ext, pixel_start, pair_elem, vis_p, r_pv, r_px, opl_d, cell_shift, w1, w2, tilt, vis_s, r_sv,
-                 r_sx, spot_opl, bin_m, t_origin_bins):
-    """The adjoint of :func:`spread_spot` with respect to the pairs' weights ``full = base f_x spot_weight``:
-    per pair ``g = share * sum_b grad_ext[k, b] m_b`` (``k`` its pixel, ``m_b`` the masses of :func:`_masses`,
-    ``share`` its visible share), so that ``sum(grad_ext * hist) = sum(g * full)``. ``grad_ext``
-    ``[n_pixels, n_ext]``: the adjoint of the padded histograms. ``g`` (float64, one per pair): written for
-    the pairs of ``pixel_start`` that see the spot and the cell, left as it is for the others. The other
-    arguments as :func:`spread_spot`. Pairs of zero weight get their ``g`` too (a weight's derivative need not
-    vanish with it)."""
-    n_pix = grad_ext.shape[0]
-    n_ext = grad_ext.shape[1]
-    for k in numba.prange(n_pix):
-        buf = np.empty(n_ext)
-        for i in range(pixel_start[k], pixel_start[k + 1]):
-            e = pair_elem[i]
-            nvis, frac = _visible_share(vis_p, vis_s, i, e)
-            if nvis == 0:
-                continue
-            tlo, a, b = _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins)
-            first, last, _ = _masses(buf, tlo, a, b, w1[i], w2[i], tilt[i, 0], tilt[i, 1], n_ext)
-            acc = 0.0
-            for bin_ in range(first, last + 1):
-                acc += grad_ext[k, bin_] * buf[bin_]
-            g[i] = frac * acc
-
-
-@numba.njit(cache=True, fastmath=False)
-def _cell_amplitude(qx, qy, qz, X, ne, D, ap_n, wall_n):
-    """The part of a pair's weight that varies with the wall point ``q`` across a cell (element at ``X``, normal
-    ``ne``): the sensor weight's ``cos(aperture) cos(wall, detector) / |q - D|^2``, the wall's cosine towards
-    ``X`` (of its Lambertian ``f_p``) and ``cos(theta_X) / |X - q|^2``."""
-    vx, vy, vz = qx - D[0], qy - D[1], qz - D[2]
-    rd = np.sqrt(vx * vx + vy * vy + vz * vz)
-    vx /= rd
-    vy /= rd
-    vz /= rd
-    w0 = max(vx * ap_n[0] + vy * ap_n[1] + vz * ap_n[2], 0.0) * abs(vx * wall_n[0] + vy * wall_n[1] + vz * wall_n[2])
-    w0 /= rd * rd
-    ux, uy, uz = X[0] - qx, X[1] - qy, X[2] - qz
-    r = np.sqrt(ux * ux + uy * uy + uz * uz)
-    ux /= r
-    uy /= r
-    uz /= r
-    cos_p = abs(ux * wall_n[0] + uy * wall_n[1] + uz * wall_n[2])
-    cos_x = abs(ux * ne[0] + uy * ne[1] + uz * ne[2])
-    return w0 * cos_p * cos_x / (r * r)
-
-
-@numba.njit(cache=True, parallel=True, fastmath=False)
-def pair_geometry(ce, ee, cell_p, cell_w0, X0, tri, nrm, area, D, ax, ay, fl, bin_m, photons, has_cells, ap_n,
-                  wall_n):
-    """Detector-side geometry of every (cell, element) pair, float64 (one pair per iteration, in parallel).
-
-    Returns ``d_px[n, 3]`` (unit, cell centre to centroid), ``r_px``, ``geo`` (photons per pulse before the
-    two BSDFs at the wall and the element and the spot leg: ``N W0_cell A_e cos(theta_X) / r_px^2``),
-    ``r_pv[n, 3]``, ``opl_d`` (the detector leg, m), ``w1``, ``w2`` (the cell's uniform widths, bins),
-    ``cell_shift`` (mean deviation of the detector-side path length from its tangent plane over the cell:
-    for a quadratic, 1/3 of the corner mean minus the centre, m) and ``tilt[n, 2]``: the weight's relative
-    slope across the cell along each of the two components, signed so that it grows with arrival time
-    (:func:`_masses`), from the central difference of :func:`_cell_amplitude` over the cell's edge midpoints
-    (exact for a quadratic; the wall's BSDF is taken Lambertian there: its cosine varies, its albedo not).
-    ``ap_n``, ``wall_n``: the aperture's and the wall's unit normals.
-    """
-    n = ce.shape[0]
-    d_px = np.empty((n, 3))
-    r_px = np.empty(n)
-    geo = np.empty(n)
-    r_pv = np.empty((n, 3))
-    opl_d = np.empty(n)
-    w1 = np.empty(n)
-    w2 = np.empty(n)
-    cell_shift = np.zeros(n)
-    tilt = np.zeros((n, 2))
-    for i in numba.prange(n):
-        c = ce[i]
-        e = ee[i]
-        px, py, pz = cell_p[c, 0], cell_p[c, 1], cell_p[c, 2]
-        dx, dy, dz = X0[e, 0] - px, X0[e, 1] - py, X0[e, 2] - pz
-        r = np.sqrt(dx * dx + dy * dy + dz * dz)
-        dx /= r
-        dy /= r
-        dz /= r
-        d_px[i, 0] = dx
-        d_px[i, 1] = dy
-        d_px[i, 2] = dz
-        r_px[i] = r
-        cos_x = abs(nrm[e, 0] * dx + nrm[e, 1] * dy + nrm[e, 2] * dz)
-        geo[i] = photons * cell_w0[c] * area[e] * cos_x / (r * r)
-        for v in range(3):
-            ux, uy, uz = tri[e, v, 0] - px, tri[e, v, 1] - py, tri[e, v, 2] - pz
-            r_pv[i, v] = np.sqrt(ux * ux + uy * uy + uz * uz)
-        qx, qy, qz = px - D[0], py - D[1], pz - D[2]
-        rd = np.sqrt(qx * qx + qy * qy + qz * qz)
-        opl_d[i] = fl * rd
-        gx = fl * qx / rd - dx
-        gy = fl * qy / rd - dy
-        gz = fl * qz / rd - dz
-        s1 = (gx * ax[0] + gy * ax[1] + gz * ax[2]) / bin_m
-        s2 = (gx * ay[0] + gy * ay[1] + gz * ay[2]) / bin_m
-        w1[i] = abs(s1)
-        w2[i] = abs(s2)
-        if has_cells:
-            a0 = _cell_amplitude(px, py, pz, X0[e], nrm[e], D, ap_n, wall_n)
-            if a0 > 0.0:
-                for j in range(2):
-                    hx = 0.5 * (ax[0] if j == 0 else ay[0])
-                    hy = 0.5 * (ax[1] if j == 0 else ay[1])
-                    hz = 0.5 * (ax[2] if j == 0 else ay[2])
-                    d = (_cell_amplitude(px + hx, py + hy, pz + hz, X0[e], nrm[e], D, ap_n, wall_n)
-                         - _cell_amplitude(px - hx, py - hy, pz - hz, X0[e], nrm[e], D, ap_n, wall_n)) / a0
-                    sj = s1 if j == 0 else s2
-                    tilt[i, j] = d if sj >= 0.0 else -d
-            acc = 0.0
-            for cu in (-0.5, 0.5):
-                for cv in (-0.5, 0.5):
-                    sx = px + cu * ax[0] + cv * ay[0]
-                    sy = py + cu * ax[1] + cv * ay[1]
-                    sz = pz + cu * ax[2] + cv * ay[2]
-                    a1 = np.sqrt((sx - D[0]) ** 2 + (sy - D[1]) ** 2 + (sz - D[2]) ** 2)
-                    a2 = np.sqrt((X0[e, 0] - sx) ** 2 + (X0[e, 1] - sy) ** 2 + (X0[e, 2] - sz) ** 2)
-                    acc += fl * a1 + a2
-            cell_shift[i] = (acc / 4.0 - (fl * rd + r)) / 3.0
-    return d_px, r_px, geo, r_pv, opl_d, w1, w2, cell_shift, tilt
-
-
-@numba.njit(cache=True, parallel=True, fastmath=False)
-def visibility_rays(ce, ee, cell_p, pts, normal, first, count):
-    """Rays from every pair's cell centre (offset 1e-6 m along the wall normal) to the element's visibility
-    samples ``first .. first + count - 1`` (0 the centroid, 1-3 the corners): float32 origins, unit
-    directions ``[n * count, 3]`` and distances ``[n * count]``, sample-minor order."""
-    n = ce.shape[0]
-    o = np.empty((n * count, 3), dtype=np.float32)
-    d = np.empty((n * count, 3), dtype=np.float32)
-    dist = np.empty(n * count, dtype=np.float32)
-    for i in numba.prange(n):
-        c = ce[i]
-        e = ee[i]
-        ox = cell_p[c, 0] + 1e-6 * normal[0]
-        oy = cell_p[c, 1] + 1e-6 * normal[1]
-        oz = cell_p[c, 2] + 1e-6 * normal[2]
-        for s in range(count):
-            j = i * count + s
-            vx = pts[e, first + s, 0] - ox
-            vy = pts[e, first + s, 1] - oy
-            vz = pts[e, first + s, 2] - oz
-            r = np.sqrt(vx * vx + vy * vy + vz * vz)
-            o[j, 0] = ox
-            o[j, 1] = oy
-            o[j, 2] = oz
-            d[j, 0] = vx / r
-            d[j, 1] = vy / r
-            d[j, 2] = vz / r
-            dist[j] = r
-    return o, d, dist

@@ -1,0 +1,141 @@
+"""The pairs (element, cell) of one level of the deterministic NLOS estimator
+(:mod:`transient_mi.integrators._nlos_quadrature`), shared by the primal and its derivatives
+(:mod:`transient_mi.integrators._nlos_quadrature_ad`).
+
+* :class:`LevelElements`: a level's elements (hidden side) and their surfaces;
+* :class:`SpotSide`: per element and laser spot, everything of the laser side (visibility, intensity, BSDF
+  towards the spot, laser parts of the arrival knots);
+* :class:`Chunk`: the detector side of the pairs of every cell with a range of elements
+  (:func:`~._nlos_pair_kernels.pair_geometry`, visibility from the cells, the wall's BSDF), and their
+  deposit for every spot of a group in one call (:func:`~._nlos_pair_kernels.spread_group`).
+
+World frame, metres, float64 unless stated; the kernels' layout is in :mod:`~._nlos_pair_kernels`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from transient_mi.integrators._nlos_elements import sample_points
+from transient_mi.integrators._nlos_pair_kernels import pair_geometry, spot_knots, spread_group, visibility_mask
+from transient_mi.integrators._nlos_surfaces import (ElementSurfaces, WallCells, sample_visibility,
+                                                     spot_intensity)
+
+if TYPE_CHECKING:
+    import mitsuba as mi
+
+#: Pairs (element, cell) per chunk (what one chunk's per-pair arrays hold).
+PAIRS_PER_CHUNK = 1 << 20
+
+
+def element_terms(tri: np.ndarray):
+    """``(pts [n, 4, 3] visibility samples (centroid first), area [n], unit normal [n, 3])`` of elements."""
+    pts = sample_points(tri)
+    nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = 0.5 * np.linalg.norm(nrm, axis=1)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return pts, area, nrm
+
+
+def chunk_starts(n_cells: int, n: int):
+    """``(e0, e1)`` element ranges of the chunks (``PAIRS_PER_CHUNK`` pairs each at most)."""
+    per = max(1, PAIRS_PER_CHUNK // max(n_cells, 1))
+    return [(e0, min(n, e0 + per)) for e0 in range(0, n, per)]
+
+
+def spot_visibility(scene, setup, spots, pts: np.ndarray) -> np.ndarray:
+    """Visibility of every element's four samples from the laser spots ``spots``: ``bool [n, G, 4]``."""
+    S = np.asarray(setup.spots, dtype=np.float64)[list(spots)]
+    v = sample_visibility(scene, S, setup.frame.normal, pts, 0, len(pts))
+    return np.ascontiguousarray(v.reshape(len(S), len(pts), 4).transpose(1, 0, 2))
+
+
+class LevelElements:
+    """A level's elements: vertices ``tri [n, 3, 3]``, source triangles ``src`` (rows of the
+    :class:`~._nlos_elements.Faces`), visibility samples, areas, normals and the surfaces at the centroids
+    (:class:`~._nlos_surfaces.ElementSurfaces`)."""
+
+    def __init__(self, setup, faces, hidden_ptrs, tri: np.ndarray, src: np.ndarray):
+        self.n = len(tri)
+        self.tri, self.src = tri, src
+        self.pts, self.area, self.nrm = element_terms(tri)
+        self.X0 = self.pts[:, 0]
+        self.surf = ElementSurfaces(setup.hidden_shapes, hidden_ptrs, faces, tri, src)
+
+
+class SpotSide:
+    """Per element and spot of the group ``spots`` (element-major ``[n, G]``): visibility ``vis [n, G]`` (uint8
+    masks of the samples seen from the spot, :func:`~._nlos_pair_kernels.visibility_mask`),
+    the spot's intensity ``intensity`` (``f_S cos`` towards the centroid) and ``r_sx`` (m), ``sw`` =
+    intensity / r_sx^2, the knots' laser parts ``B [n, G, 3]`` (bins); for Lambertian elements ``fx_e`` and
+    ``side_s`` (:meth:`~._nlos_surfaces.ElementSurfaces.toward`), zeros otherwise."""
+
+    def __init__(self, scene, setup, g, spots, lv: LevelElements):
+        self.spots = list(spots)
+        self.S = np.asarray(setup.spots, dtype=np.float64)[self.spots]  # [G, 3]
+        G, n = len(self.S), lv.n
+        self.Lo = np.asarray(setup.laser_origin, dtype=np.float64)
+        beam = np.asarray(setup.spot_targets, dtype=np.float64)[self.spots] - self.Lo
+        self.beam = beam / np.linalg.norm(beam, axis=1, keepdims=True)
+        self.laser_leg = np.linalg.norm(self.S - self.Lo, axis=1)  # [G]
+        self.vis = visibility_mask(spot_visibility(scene, setup, self.spots, lv.pts))
+        self.intensity = np.asarray(self.intensity_ad(scene, lv.X0), dtype=np.float64).reshape(n, G)
+        self.B, self.r_sx = spot_knots(lv.tri, lv.X0, self.S, g.fl * self.laser_leg, g.bin_m,
+                                       g.t0_m / g.bin_m - g.pad)
+        self.sw = np.ascontiguousarray(self.intensity / self.r_sx ** 2)
+        if lv.surf.lambertian:
+            self.fx_e, self.side_s = lv.surf.toward(self.S)
+        else:
+            self.fx_e, self.side_s = np.zeros((n, G)), np.zeros((n, G), dtype=np.int8)
+
+    def intensity_ad(self, scene, X0: np.ndarray) -> "mi.Float":
+        """The spots' intensities towards every centroid ``X0``, element-major ``[n * G]`` (the laser ray to each
+        spot, ``wi`` towards the laser; attached inside ``dr.resume_grad``)."""
+        G, n = len(self.S), len(X0)
+        s = np.tile(np.arange(G), n)
+        return spot_intensity(scene, self.Lo, self.beam[s], self.S[s], np.repeat(X0, G, axis=0))
+
+
+class Chunk:
+    """The detector side of the pairs of every cell with the elements ``e0:e1`` (cell-major: pair ``i`` is cell
+    ``i // ne``, element ``e0 + i % ne``): visibility of the element's samples from the cell ``vis_p [n]`` (masks),
+    :func:`~._nlos_pair_kernels.pair_geometry`'s arrays and the wall's BSDF ``f_p`` (per cell times ``cos_p``
+    for a Lambertian wall, per pair otherwise)."""
+
+    def __init__(self, scene, g, lv: LevelElements, wall: WallCells, e0: int, e1: int):
+        C = len(g.cell_p)
+        self.e0, self.e1, self.ne = e0, e1, e1 - e0
+        self.n = C * self.ne
+        self.per_pixel = g.m * g.m * self.ne
+        self.vis_p = visibility_mask(sample_visibility(scene, g.cell_p, g.normal, lv.pts, e0, e1))
+        (self.geo, self.cos_p, self.A, self.w1, self.w2, self.tilt,
+         self.side_x) = pair_geometry(g.cell_p, g.cell_w0, *g.cell_terms, lv.X0, lv.tri, lv.nrm, lv.area, lv.surf.n_sh,
+                                      wall.n_sh, wall.side, e0, e1, g.cell_ax, g.cell_ay, g.fl, g.bin_m, g.N,
+                                      g.cell_half_diag > 0, g.normal)
+        if wall.lambertian:
+            self.f_p = (wall.value[:, None] * self.cos_p.reshape(C, self.ne)).reshape(-1)
+        else:
+            self.f_p = np.asarray(wall.pair_values(g.cell_p, lv.X0, e0, e1), dtype=np.float64)
+
+    def spot_of_pair(self) -> np.ndarray:
+        """Confocal captures: each pair's spot (its pixel's: spot ``k`` lies on pixel ``k``'s patch)."""
+        return np.arange(self.n) // self.per_pixel
+
+    def fx_pairs(self, g, lv: LevelElements, side: SpotSide, confocal: bool) -> np.ndarray:
+        """``f_x`` per pair for elements that are not Lambertian, ``[R, n]`` (a row per spot, one row with each
+        pair's own spot for confocal captures); a placeholder for Lambertian ones (the kernel uses ``fx_e``)."""
+        if lv.surf.lambertian:
+            return np.zeros((1, 1))
+        spots = [side.S[self.spot_of_pair()]] if confocal else list(side.S)
+        return np.stack([np.asarray(v, dtype=np.float64) for v in lv.surf.pair_values(g.cell_p, self.e0, self.e1,
+                                                                                       spots)])
+
+    def spread(self, out: dict, lv: LevelElements, side: SpotSide, confocal: bool, fx_pair: np.ndarray) -> None:
+        """Deposit the chunk's pairs for every spot of the group into ``out`` (``hist``, ``bound``, ``steady``,
+        ``vis_err``, ``outside``: :func:`~._nlos_pair_kernels.spread_group`)."""
+        spread_group(out["hist"], out["bound"], out["steady"], out["vis_err"], out["outside"], self.per_pixel,
+                     self.e0, self.ne, self.geo, self.f_p, self.vis_p, self.A, self.w1, self.w2, self.tilt,
+                     self.side_x, fx_pair, side.vis, side.B, side.sw, side.fx_e, side.side_s, lv.surf.lambertian,
+                     confocal)
