@@ -51,6 +51,7 @@ def item_row(item_dir: Path, root: Path) -> dict:
         "detector_seed": res.get("detector_seed", det["seed"] if det else None),
         "spp": res.get("spp_used", rec["spp"]),
         "render_noise_ratio": res.get("render_noise_ratio"),
+        "estimator": res.get("estimator", "monte_carlo"),  # which estimator made the capture
         "kind": kind,
         "capture": capture,
         "ideal": ideal,
