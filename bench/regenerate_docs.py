@@ -51,6 +51,7 @@ from docgen.recon import (  # noqa: E402
 from docgen.quadrature import quadrature_cost_inline, quadrature_inline, quadrature_table  # noqa: E402
 from docgen.studies import (  # noqa: E402
     studies_para, _study_inline, dataset_para, dataset_docs_table, view_para, view_docs_table, fit_para,
+    dataset_noise_standard_table, DATASET_NT,
 )
 
 
@@ -88,6 +89,7 @@ GENERATORS = {
     "noise_cost": (noise_cost_inline, ["render_variance_cost", "render_variance_cost_16k"], True),
     "noise_vs_spp": (noise_vs_spp_inline, ["render_noise_vs_spp"], True),
     "dataset_docs_table": (dataset_docs_table, ["dataset_dataset_example"], False),
+    "dataset_noise_standard": (dataset_noise_standard_table, list(DATASET_NT), False),
     "gradient": (gradient_para, ["gradient"], False),
     "fit": (fit_para, ["fit"], False),
     "front_limit": (front_limit_inline, ["front_surface_limit"], True),

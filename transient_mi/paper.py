@@ -104,6 +104,9 @@ class PaperConfig:
         Time axis (t = 0: the pulse leaves the laser); the paper's 1 ps TCSPC bins.
     max_depth : int
         4 = three-bounce light (the paper's model), -1 = every bounce.
+    estimator : str
+        ``quadrature`` (deterministic three-bounce light with a stored error estimate; ``spp`` unused unless
+        ``max_depth`` > 4) or ``monte_carlo`` (``spp`` samples; docs/quadrature.md).
     """
 
     array: int = 16
@@ -119,6 +122,7 @@ class PaperConfig:
     n_bins: int = 11500
     bin_width_ps: float = PAPER.tcspc_bin_width_ps
     max_depth: int = 4
+    estimator: str = "quadrature"
 
     def defines(self) -> dict[str, str]:
         """The ``-D`` values for ``scenes/paper_mannequin.xml``."""
@@ -127,7 +131,8 @@ class PaperConfig:
             "distance": repr(float(self.distance_m)), "pose": self.pose, "rotation": repr(float(self.rotation_deg)),
             "power_w": repr(float(self.power_w)), "spp": str(self.spp), "t0_ps": repr(float(self.t0_ps)),
             "n_bins": str(self.n_bins), "bin_width_ps": repr(float(self.bin_width_ps)),
-            "max_depth": str(self.max_depth), **({"joints": self.joints} if self.joints else {}),
+            "max_depth": str(self.max_depth), "estimator": self.estimator,
+            **({"joints": self.joints} if self.joints else {}),
         }
 
     def replace(self, **changes) -> "PaperConfig":
@@ -153,13 +158,17 @@ class DemoSettings:
     voxels: tuple[int, int, int] = (64, 64, 32)
     threshold: str = "rel:0.3"
     seed: int = 0
-    #: Largest ratio of rendering to photon variance (None: render ``spp`` and report the ratio); with a target,
-    #: ``spp`` is the pilot (transient_mi.noise_target).
+    #: Largest ratio of rendering to photon variance (None: render as set and report the ratio); with a target,
+    #: ``spp`` is the Monte Carlo pilot, or the quadrature's elements and cells are refined
+    #: (transient_mi.noise_target).
     noise_target: float | None = 0.1
+    #: ``quadrature`` (deterministic three-bounce light; the mannequin is a mesh) or ``monte_carlo``.
+    estimator: str = "quadrature"
 
     def config(self, array: int) -> PaperConfig:
         return PaperConfig(array=array, spots=self.spots, power_w=self.power_w, spp=self.spp,
-                           t0_ps=self.t0_ps, n_bins=self.n_bins, bin_width_ps=self.bin_width_ps)
+                           t0_ps=self.t0_ps, n_bins=self.n_bins, bin_width_ps=self.bin_width_ps,
+                           estimator=self.estimator)
 
 
 #: ``--quick``: coarser time bins and fewer samples (same physics), no noise target (the ratio is reported).
@@ -194,9 +203,9 @@ def scene_defaults() -> list[tuple[str, str]]:
         ("distance", repr(c.distance_m)), ("pose", c.pose), ("rotation", repr(c.rotation_deg)),
         ("power_w", repr(c.power_w)), ("spp", str(SCENE_SPP)), ("t0_ps", repr(c.t0_ps)),
         ("n_bins", str(c.n_bins)), ("bin_width_ps", repr(c.bin_width_ps)), ("max_depth", str(c.max_depth)),
-        # the estimator of three-bounce light (docs/quadrature.md): Monte Carlo by default; the quadrature's
-        # element size (m) and cells per patch side as the plug-in's defaults
-        ("estimator", "monte_carlo"), ("element_size_m", "0.01"), ("patch_cells", "4"),
+        # the estimator of three-bounce light (docs/quadrature.md): the deterministic quadrature by default (the
+        # mannequin is a mesh); its element size (m) and cells per patch side as the plug-in's defaults
+        ("estimator", c.estimator), ("element_size_m", "0.01"), ("patch_cells", "4"),
         ("capture", "array"), ("include_wall_return", "true"),
         ("wavelength_nm", repr(PAPER.wavelength_nm)), ("repetition_rate_hz", repr(PAPER.repetition_rate_hz)),
         ("laser_origin", _vec(PAPER.laser_origin_m)), ("detector_origin", _vec(PAPER.detector_origin_m)),

@@ -29,7 +29,7 @@ from .worker import CAPTURE_NAME, PARAMS_NAME, RESULT_NAME
 INDEX_CSV = "index.csv"
 INDEX_JSONL = "index.jsonl"
 FIXED_COLUMNS = ("item", "index", "repeat", "grid_index", "params_sha256", "render_seed", "detector_seed", "spp",
-                 "render_noise_ratio", "kind", "capture", "ideal", "mesh")
+                 "render_noise_ratio", "estimator", "kind", "capture", "ideal", "mesh")
 
 
 def item_row(item_dir: Path, root: Path) -> dict:
