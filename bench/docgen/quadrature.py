@@ -65,3 +65,34 @@ def quadrature_cost_inline(R) -> str:
     return (f"multiplying one factor by 4 multiplies the render time by: " + ", ".join(parts)
             + f" (base {rows['base']['time_s']:.2f} s: the letter at 4 x 4 pixels, 2 spots, 512 bins, 2 cm elements; "
             + f"{provenance(rec, short=True)})")
+
+
+#: bench/bench_paper_estimators.py's record quoted in quadrature.md ("When Monte Carlo is still used").
+PAPER_ESTIMATORS = "paper_estimators_a4_e10ms"
+
+
+def paper_estimators_table(R) -> str:
+    """The paper scene at the noise standard by both estimators, side by side (one run, the same load)."""
+    rec = R(PAPER_ESTIMATORS)
+    r = rec["result"]
+    lines = ["  | estimator | render (s) | ended with | ratio stated by detect (bins; pixel totals) | target met |",
+             "  |---|---:|---|---:|---|"]
+    for x in r["runs"]:
+        sp = x["spots"]
+        if x["estimator"] == "quadrature":
+            h = max(s["element_size_m"] for s in sp)
+            how = (f"{1000 * h:.3g} mm elements, {min(s['patch_cells'] for s in sp)} cells, "
+                   f"{max(s['rounds'] for s in sp)} round(s)")
+        else:
+            how = f"{min(s['spp'] for s in sp)}-{max(s['spp'] for s in sp)} spp"
+        tot = x.get("render_noise_ratio_pixel_totals")
+        lines.append(f"  | {x['estimator']} | {x['render_wall_s']:.0f} | {how} | "
+                     f"{x['render_noise_ratio_detect']:.3g}; {'n/a' if tot is None else format(tot, '.3g')} | "
+                     f"{'yes' if x['met'] else 'no'} |")
+    q = r["quadrature_start"]
+    lines += ["", f"  ({r['array']} x {r['array']} pixels, {r['spots']} spots, {r['bin_width_ps']:g} ps bins, "
+              f"{r['exposure_ms']:g} ms per spot, target {r['target']:g}, the paper's detector; Monte Carlo from the "
+              f"demo's 1024-spp pilot, the quadrature from {1000 * q['element_size_m']:g} mm elements and "
+              f"{q['patch_cells']} cells; render times include the first render's JIT compilation.) "
+              + provenance(rec)]
+    return "\n" + "\n".join(lines) + "\n"
