@@ -103,7 +103,7 @@ GENERATORS = {
     "quadrature_table": (quadrature_table, ["quadrature"], False),
     "quadrature_inline": (quadrature_inline, ["quadrature"], True),
     "quadrature_cost": (quadrature_cost_inline, ["quadrature_cost"], True),
-    "paper_estimators": (paper_estimators_table, [PAPER_ESTIMATORS], False),
+    "paper_estimators": (paper_estimators_table, list(PAPER_ESTIMATORS), False),
     "recon_targets": (recon_targets_table, ["study_methods_paper_mannequin", "study_methods_nlos_letter",
                                             "mannequin_features", "recon_methods", "completion_seeds"], False),
 }
