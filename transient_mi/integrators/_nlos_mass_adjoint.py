@@ -102,22 +102,22 @@ def cdf_derivatives(x, a, b, w1, w2, mu, var, small1, small2):
         if small1:
             return c, cx, ca, cb, 0.0, cw
         return c, cx, ca, cb, cw, 0.0
-    g = np.empty(4)
-    g1 = np.empty(4)
-    ga = np.empty(4)
-    gb = np.empty(4)
-    ys = (y, y - w1, y - w2, y - w1 - w2)
-    for j in range(4):
-        g[j] = _gk(2, ys[j], a, b, mu, var)
-        g1[j] = _gk(1, ys[j], a, b, mu, var)
-        ga[j], gb[j] = _gk_knots(2, ys[j], a, b, mu)
+    y1, y2, y3 = y - w1, y - w2, y - w1 - w2
+    g0, g1_, g2_, g3 = (_gk(2, y, a, b, mu, var), _gk(2, y1, a, b, mu, var), _gk(2, y2, a, b, mu, var),
+                        _gk(2, y3, a, b, mu, var))
+    h0, h1, h2, h3 = (_gk(1, y, a, b, mu, var), _gk(1, y1, a, b, mu, var), _gk(1, y2, a, b, mu, var),
+                      _gk(1, y3, a, b, mu, var))
+    a0, b0 = _gk_knots(2, y, a, b, mu)
+    a1, b1 = _gk_knots(2, y1, a, b, mu)
+    a2, b2 = _gk_knots(2, y2, a, b, mu)
+    a3, b3 = _gk_knots(2, y3, a, b, mu)
     ww = w1 * w2
-    c = (g[0] - g[1] - g[2] + g[3]) / ww
-    cx = (g1[0] - g1[1] - g1[2] + g1[3]) / ww
-    ca = (ga[0] - ga[1] - ga[2] + ga[3]) / ww
-    cb = (gb[0] - gb[1] - gb[2] + gb[3]) / ww
-    cw1 = 0.5 * (g1[0] + g1[1] - g1[2] - g1[3]) / ww - c / w1
-    cw2 = 0.5 * (g1[0] - g1[1] + g1[2] - g1[3]) / ww - c / w2
+    c = (g0 - g1_ - g2_ + g3) / ww
+    cx = (h0 - h1 - h2 + h3) / ww
+    ca = (a0 - a1 - a2 + a3) / ww
+    cb = (b0 - b1 - b2 + b3) / ww
+    cw1 = 0.5 * (h0 + h1 - h2 - h3) / ww - c / w1
+    cw2 = 0.5 * (h0 - h1 + h2 - h3) / ww - c / w2
     return c, cx, ca, cb, cw1, cw2
 
 
@@ -136,28 +136,23 @@ def mass_adjoint(row, tlo, a, b, u1, u2, n_ext):
     hi = tlo + b + 0.5 * (u1 + u2)
     b0 = int(np.floor(lo))
     b1 = int(np.floor(hi))
-    acc = 0.0
-    s = np.zeros(5)  # d/d(tlo, a, b, u1, u2)
-    prev = np.zeros(6)
-    cur = np.zeros(6)
+    acc = st = sa = sb = s1 = s2 = 0.0  # the sum and its derivatives along tlo, a, b, u1, u2
+    p0 = p1 = p2 = p3 = p4 = p5 = 0.0  # C and its derivatives at the bin's lower edge
     for bin_ in range(b0, b1 + 1):
         edge = float(bin_ + 1) - tlo
         if edge + tlo >= hi:
-            cur[:] = 0.0
-            cur[0] = 1.0
+            c0, c1, c2, c3, c4, c5 = 1.0, 0.0, 0.0, 0.0, 0.0, 0.0
         else:
-            c, cx, ca, cb, cw1, cw2 = cdf_derivatives(edge, a, b, u1, u2, mu, var, small1, small2)
-            cur[0] = c
-            cur[1] = -cx  # d/dtlo of C(edge - tlo)
-            cur[2] = ca
-            cur[3] = cb
-            cur[4] = cw1
-            cur[5] = cw2
+            c0, cx, c2, c3, c4, c5 = cdf_derivatives(edge, a, b, u1, u2, mu, var, small1, small2)
+            c1 = -cx  # d/dtlo of C(edge - tlo)
         if 0 <= bin_ < n_ext:
             r = row[bin_]
             if r != 0.0:
-                acc += r * (cur[0] - prev[0])
-                for q in range(5):
-                    s[q] += r * (cur[q + 1] - prev[q + 1])
-        prev[:] = cur[:]
-    return acc, s[0], s[1], s[2], s[3], s[4]
+                acc += r * (c0 - p0)
+                st += r * (c1 - p1)
+                sa += r * (c2 - p2)
+                sb += r * (c3 - p3)
+                s1 += r * (c4 - p4)
+                s2 += r * (c5 - p5)
+        p0, p1, p2, p3, p4, p5 = c0, c1, c2, c3, c4, c5
+    return acc, st, sa, sb, s1, s2

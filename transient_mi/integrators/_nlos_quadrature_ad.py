@@ -47,6 +47,8 @@ from transient_mi.integrators._nlos_ad_terms import (Backward, TimeKernel, check
 from transient_mi.integrators._nlos_quadrature import (Chunk, _Geometry, _SpotSide, bsdf_value, check_supported,
                                                        chunk_starts, element_terms, level_elements, patch_cells,
                                                        spot_intensity)
+from transient_mi.integrators._nlos_quadrature_geom import (check_geometry, geometry_adjoint,
+                                                            mesh_vertex_gradients, vertex_backward)
 from transient_mi.integrators._nlos_time_spread import adjoint_spot, spread_spot
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
@@ -58,8 +60,9 @@ _FLAGS = dr.ADFlag.ClearInterior | dr.ADFlag.AllowNoGrad
 _FLAGS_FORWARD = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
 
 
-def check(integrator, scene, sensor, params):
-    """Refuse what the quadrature's derivatives do not support (one line); returns ``(setup, options)``."""
+def check(integrator, scene, sensor, params, allow_geometry=False):
+    """Refuse what the quadrature's derivatives do not support (one line); returns ``(setup, options,
+    geometry)``, ``geometry`` whether hidden meshes' vertices are being differentiated (reverse mode only)."""
     name = integrator.NAME
     check_sensor_and_variant(name, sensor)
     if sensor.get_medium() is not None:
@@ -70,11 +73,13 @@ def check(integrator, scene, sensor, params):
     options.setdefault("max_depth", integrator.max_depth_param)
     check_supported(setup, options, name)
     keys = geometry_keys(params)
-    if keys:
+    if keys and not allow_geometry:
         raise PluginParameterError(
-            f"{name}: {keys[0]} is being differentiated; estimator=quadrature differentiates BSDF values and the "
-            "laser's pulse_energy_j, not geometry (use estimator=monte_carlo for geometric derivatives)")
-    return setup, options
+            f"{name}: {keys[0]} is being differentiated; estimator=quadrature's forward mode differentiates BSDF "
+            "values and the laser's pulse_energy_j, not geometry (use reverse mode, or estimator=monte_carlo)")
+    if keys:
+        check_geometry(name, setup, params, keys)
+    return setup, options, bool(keys)
 
 
 def kernel_adjoint(grad: np.ndarray, taps) -> np.ndarray:
@@ -100,7 +105,8 @@ class _FineLevel:
         if not self.active:
             return
         self.hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
-        _, _, self.tri, self.idx, _ = level_elements(scene, setup, self.g, options, self.spot_ids, self.hidden_ptrs)
+        _, _, self.tri, self.idx, _, self.prov = level_elements(scene, setup, self.g, options, self.spot_ids,
+                                                                self.hidden_ptrs, with_provenance=True)
         self.side = _SpotSide(scene, setup, self.spot_ids, self.tri, self.idx, self.hidden_ptrs)
         self.pts, self.area, self.nrm = element_terms(self.tri)
         self.X0 = self.pts[:, 0]
@@ -140,6 +146,24 @@ class _FineLevel:
         return (np.ascontiguousarray(s.vis[si_idx]), np.ascontiguousarray(s.r_sv[si_idx]), s.r_sx[si_idx],
                 g.fl * float(s.laser_leg[si_idx]), g.bin_m, self.t_origin)
 
+    def geometry_job(self, g_elem, grad_ext, ch, f_x, si_idx: int, sl: slice) -> None:
+        """Add one job's derivative with respect to the element vertices to ``g_elem`` (``geometry_adjoint``)."""
+        g, s = self.g, self.side
+        ne = (ch.ee[-1] - ch.ee[0] + 1) if len(ch.ee) else 0
+        e0 = int(ch.ee[0])
+        c_lo, c_hi = sl.start // ne, sl.stop // ne
+        geometry_adjoint(g_elem, grad_ext, e0, ne, c_lo, c_hi, g.cell_pixel.astype(np.int64), g.cell_p,
+                         np.asarray(g.cell_ax, dtype=np.float64), np.asarray(g.cell_ay, dtype=np.float64), g.D, g.fl,
+                         g.cell_half_diag > 0, g.normal, self.tri, self.X0, self.nrm, self.area, ch.geo * ch.f_p, f_x,
+                         *ch.spread_args(), *self.spot_weight_args(si_idx))
+
+    def spot_weight_args(self, si_idx: int):
+        """The per-spot arguments of ``geometry_adjoint`` after ``w2``."""
+        s, g = self.side, self.g
+        return (np.ascontiguousarray(s.vis[si_idx]), np.ascontiguousarray(self.spot_weight[si_idx]), s.S[si_idx],
+                np.ascontiguousarray(s.r_sv[si_idx]), s.r_sx[si_idx], g.fl * float(s.laser_leg[si_idx]), g.bin_m,
+                self.t_origin)
+
     def f_x_ad(self, ch, spot_of) -> "mi.Float":
         """The element BSDF of every pair of ``ch`` towards its spot (attached; inside ``resume_grad``)."""
         to_s = self.side.S[spot_of] - self.X0[ch.ee]
@@ -157,7 +181,12 @@ def _grad_shape(setup, grad_in, T) -> np.ndarray:
 def quadrature_backward(integrator, scene, params, grad_in, sensor) -> None:
     """Reverse mode: propagate ``grad_in`` (``[height, width, n_bins]``, the adjoint of ``mi.render``'s capture)
     to the BSDF parameters and the laser's pulse energy (see the module docstring)."""
-    setup, options = check(integrator, scene, sensor, params)
+    setup, options, geometry = check(integrator, scene, sensor, params, allow_geometry=True)
+    with dr.suspend_grad():  # (the pairs' geometry detached: its derivative is geometry_adjoint's)
+        _backward(scene, setup, options, sensor, grad_in, geometry)
+
+
+def _backward(scene, setup, options, sensor, grad_in, geometry: bool) -> None:
     film = sensor.film()
     taps, axis = film.kernel_taps(), film.time_axis()
     grad = _grad_shape(setup, grad_in, axis.n_bins)
@@ -167,10 +196,13 @@ def quadrature_backward(integrator, scene, params, grad_in, sensor) -> None:
         grad_ext = kernel_adjoint(grad, taps)
         C = np.zeros_like(lv.spot_weight)  # coefficients of the spots' intensities [G, n]
         total = 0.0  # sum_i g_i F_i: the coefficient of dN / N
+        g_elem = np.zeros(lv.tri.shape) if geometry else None  # d/d(element vertices) [n, 3, 3]
         for ch, spot_of, f_x, jobs in lv.chunks(scene):
             g = np.zeros(len(ch.ee))
             for si_idx, sl, ps in jobs:
                 adjoint_spot(g, grad_ext, ps, ch.pe, *ch.spread_args(), *lv.spot_args(si_idx))  # (g[sl])
+                if geometry:
+                    lv.geometry_job(g_elem, grad_ext, ch, f_x, si_idx, sl)
             sw = lv.spot_weight[spot_of, ch.ee]
             gg = g * ch.geo
             total += float(np.sum(gg * ch.f_p * f_x * sw))
@@ -186,6 +218,9 @@ def quadrature_backward(integrator, scene, params, grad_in, sensor) -> None:
                                  flags=_FLAGS)
             if total != 0.0:
                 dr.backward_from(n_att() * (total / lv.g.N), flags=_FLAGS)
+            if geometry:
+                vertex_backward(setup.hidden_shapes, mesh_vertex_gradients(setup.hidden_shapes, lv.prov, g_elem),
+                                _FLAGS)
     inp = wall_return_inputs(setup, [0])
     if inp is not None:  # (last: it clears the edges it traverses)
         P = setup.width * setup.height
@@ -200,7 +235,7 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
     Every attached value (the pairs' BSDF values, the spots' intensities, the wall return, ``N``) is pushed
     forward by one ``dr.forward_to`` (a second call would not see the parameters' tangents again): forward mode
     holds every chunk's pair data at once (memory grows with the pairs; reverse mode does not)."""
-    setup, options = check(integrator, scene, sensor, params)
+    setup, options, _ = check(integrator, scene, sensor, params)
     film = sensor.film()
     taps, axis = film.kernel_taps(), film.time_axis()
     n_att = setup.laser.photons_per_pulse_ad
