@@ -35,8 +35,9 @@ def fit_command(
     patches: int = typer.Option(3, "--patches", parser=whole_number("--patches"), metavar="<int>",
                                 help="--model patches: how many."),
     patch_side_m: float = typer.Option(0.2, "--patch-side-m", help="--model patches: side of each patch, metres."),
-    estimator: str = typer.Option("auto", "--estimator", help="Forward model: quadrature (deterministic, "
-                                  "the default where the scene allows it), monte_carlo, or auto."),
+    estimator: str = typer.Option("monte_carlo", "--estimator", help="Forward model: monte_carlo, quadrature "
+                                  "(deterministic; slower per iteration, see docs/fit.md), or auto (the quadrature "
+                                  "where the scene allows it)."),
     element_size_m: float = typer.Option(0.03, "--element-size-m", help="--estimator quadrature: element size "
                                          "at the end (twice as large for the first half of the iterations), m."),
     seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed."),

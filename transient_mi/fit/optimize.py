@@ -49,7 +49,7 @@ class FitSettings:
     tail_fraction: float = 0.25  # the fit is the mean of the last quarter's iterates (Polyak averaging)
     beta1: float = 0.9
     beta2: float = 0.99
-    estimator: str = "auto"  # quadrature where the capture's scene allows it, else monte_carlo
+    estimator: str = "monte_carlo"  # or quadrature, or auto (the quadrature where the scene allows it)
     element_size_m: float = 0.03  # the quadrature's elements at the end (twice as large for the first half)
 
 
