@@ -1,0 +1,79 @@
+"""The deterministic three-bounce estimator against mitransient at equal error (docs/benchmarks.md,
+docs/quadrature.md), from ``bench/results/nlos_quadrature.json`` (``bench/bench_nlos_quadrature.py``)."""
+
+from __future__ import annotations
+
+from .common import provenance
+
+
+def _mm(h: float) -> str:
+    return f"{h * 1000:.0f} mm"
+
+
+def _t(x: float) -> str:
+    return f"{x:.3g} s"
+
+
+def _sweep(q: dict) -> str:
+    return "; ".join(f"{_mm(s['element_size_m'])}: {s['rel_rmse']:.3f}" for s in q["sweep"])
+
+
+def _row(c: dict) -> str:
+    q, m = c.get("quadrature"), c.get("mitransient")
+    sel = q.get("selected") if q else None
+    target = c["target_rel_rmse"]
+    if sel:
+        spots = f", all {sel['timed_spots']} spots" if sel["timed_spots"] > 1 else ""
+        qs = (f"{_mm(sel['element_size_m'])} ({sel['elements']} elements): {sel['rel_rmse']:.3f}, "
+              f"{_t(sel['time_s'])}{spots}")
+    else:
+        qs = f"no setting of the sweep reached {target:g}"
+    d = [s for s in q["sweep"] if abs(s["element_size_m"] - q["defaults"]["element_size_m"]) < 1e-12]
+    if d:
+        part = "" if c["capture"] == "confocal" else f" ({len(c['error_spots'])} spots, first call)"
+        ds = f"{d[0]['rel_rmse']:.4f}, {_t(d[0]['first_call_s'])}{part}"
+    else:
+        ds = "not in the sweep"
+    if m:
+        ms = f"{m['spp']} spp: {m['rel_rmse']:.3f}, {_t(m['time_s'])}"
+        rss_m = f"{m['render_rss_mb']:.0f} MB"
+    else:
+        ms, rss_m = "not run", "-"
+    sp = c.get("speedup_at_target")
+    sps = "-" if sp is None else (f"{sp:.2g}x" if sp < 10 else f"{sp:.0f}x")
+    rss_q = f"{sel['timed_peak_rss_mb']:.0f} MB" if sel else "-"
+    return f"| {c['name']} | {qs} | {ds} | {ms} | {sps} | {rss_q} / {rss_m} |"
+
+
+def nlos_quadrature_table(R) -> str:
+    """Per configuration: the coarsest quadrature at the target, the defaults, mitransient at the target."""
+    rec = R("nlos_quadrature")
+    res = rec["result"]
+    cs = res["configs"]
+    target = cs[0]["target_rel_rmse"] if cs else 0.05
+    rows = [f"| configuration | quadrature, coarsest element size at rel. RMSE <= {target:g}: RMSE, time | "
+            "quadrature at its defaults (10 mm): RMSE, time | mitransient at the target: RMSE (measured), time | "
+            f"speed-up at RMSE {target:g} | peak RSS: quadrature / mitransient |",
+            "|---|---|---|---|---|---|"]
+    rows += [_row(c) for c in cs]
+    notes = []
+    for c in cs:
+        q, x = c.get("quadrature"), c.get("reference_check_monte_carlo")
+        if not q:
+            continue
+        r = q["reference"]
+        sc = r.get("self_convergence_rel_rmse")
+        scs = f", self-convergence estimate {sc:.1e}" if sc is not None else ""
+        ag = c.get("mean_agreement")
+        ags = (f"; mean agreement with mitransient: ratio {ag['scale_ours_over_mitransient']:.5f} against the "
+               f"expected {ag['expected_scale']:.5f}") if ag else ""
+        notes.append(f"{c['name']}: reference {_mm(r['element_size_m'])} elements{scs}; against transient-mi's "
+                     f"Monte Carlo at {x['spp']} spp its relative RMSE is below {x['reference_rel_rmse_bound_3sd']:.1e} "
+                     f"(3 sd){ags}; RMSE by element size: {_sweep(q)}")
+    return ("\n".join(rows) + "\n\n"
+            "Relative RMSE over all (spot, pixel, bin) values (array: over 8 spots spread over the scan, the same "
+            "for both), `pixel_sampling=center` (mitransient's estimand). The quadrature's error is measured "
+            "against a much finer quadrature level; mitransient's from two independent renders at its spp "
+            "(MSE = mean((a - b)^2) / 2, no reference needed). Times: the second call in the process (the "
+            "first compiles); the quadrature's is the whole capture. " + ". ".join(notes) + ".\n\n"
+            + provenance(rec))
