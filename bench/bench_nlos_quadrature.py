@@ -56,13 +56,14 @@ ERROR_SPOTS = [4 * 32 + 8, 4 * 32 + 24, 12 * 32 + 8, 12 * 32 + 24, 20 * 32 + 8, 
 #: Replicates of the Monte Carlo cross-check (its stated variance per bin).
 MC_REPLICATES = 16
 #: Per configuration: the element sizes of the sweep (m), the reference's, Monte Carlo's spp for the
-#: cross-check, mitransient's spp for the target (from bench_nlos's fit, with a margin).
+#: cross-check, mitransient's spp for the target (from bench_nlos's fit, with a margin; the array's 1024 spp
+#: is what the shared 2-core machine allowed: its time to the target is then extrapolated, and labelled so).
 SETTINGS = {
-    "confocal_32x32_400bins": dict(sweep=[0.16, 0.113, 0.08, 0.057, 0.04, 0.02, 0.01], ref_m=0.005,
+    "confocal_32x32_400bins": dict(sweep=[0.16, 0.113, 0.08, 0.057, 0.04, 0.02], ref_m=0.01,
                                    mc_spp=262144, mt_spp=16384),
     "confocal_64x64_2048bins": dict(sweep=[0.16, 0.113, 0.08, 0.057], ref_m=0.01, mc_spp=65536, mt_spp=65536),
-    "array_32x32px_32x32spots_400bins": dict(sweep=[0.16, 0.113, 0.08, 0.057, 0.04, 0.02, 0.01], ref_m=0.005,
-                                             mc_spp=65536, mt_spp=10240, error_spots=ERROR_SPOTS),
+    "array_32x32px_32x32spots_400bins": dict(sweep=[0.16, 0.113, 0.08, 0.057, 0.04, 0.02], ref_m=0.01,
+                                             mc_spp=65536, mt_spp=1024, error_spots=ERROR_SPOTS),
     # --small (CI): seconds
     "confocal_8x8_64bins": dict(sweep=[0.16, 0.08], ref_m=0.04, mc_spp=4096, mt_spp=1024),
     "array_4x4px_4x4spots_64bins": dict(sweep=[0.16, 0.08], ref_m=0.04, mc_spp=4096, mt_spp=256,
@@ -136,13 +137,14 @@ def quadrature_worker(job: dict) -> None:
         integ, sensor = scene.integrator(), scene.sensors()[0]
         groups = [None] if spots is None else sensor.spot_groups(scene, 1)
         reset_peak_rss()
+        load0 = os.getloadavg()[0]
         t0 = time.perf_counter()
         for g in groups:  # the whole capture; each group's results dropped, as a streamed render
             rs = _render(scene, g)
             del rs
         out["selected"] = dict(sel, time_s=time.perf_counter() - t0, timed_peak_rss_mb=peak_rss_mb(),
                                timed_spots=sensor.nlos_setup(scene).n_spots if spots is not None else 1,
-                               groups=len(groups))
+                               groups=len(groups), load_average_1min=[round(load0, 2), round(os.getloadavg()[0], 2)])
     json.dump(out, open(job["result"], "w"))
 
 
@@ -169,7 +171,7 @@ def _worker_call(kind: str, job: dict, tmp: Path) -> dict:
     return json.loads(Path(job["result"]).read_text())
 
 
-def _mitransient(cfg, st, tmp: Path, py: Path, cache: Path | None) -> dict:
+def _mitransient(cfg, st, tmp: Path, py: Path, cache: Path | None, target: float) -> dict:
     """Two renders at ``mt_spp`` (seeds 21, 22; the second call timed); error from their difference.
 
     ``cache``: a folder that keeps the renders and their timings per configuration; a later run with the same
@@ -201,13 +203,18 @@ def _mitransient(cfg, st, tmp: Path, py: Path, cache: Path | None) -> dict:
     mean = (a + b) / 2.0
     norm2 = float((mean ** 2).mean()) - mse / 2.0  # E[mean^2] = truth^2 + MSE / 2
     np.save(tmp / "mt_mean.npy", mean.astype(np.float32))  # in the cache folder when there is one
-    return {"spp": int(st["mt_spp"]), "rel_rmse": math.sqrt(mse / norm2),
+    rel = math.sqrt(mse / norm2)
+    return {"spp": int(st["mt_spp"]), "rel_rmse": rel,
             "error_method": "two independent renders at this spp: MSE = mean((a - b)^2) / 2",
             "time_s": info[1]["time_s"], "first_call_s": info[0]["time_s"],
             "render_rss_mb": info[1]["render_rss_mb"], "max_rss_mb": info[1]["max_rss_mb"],
             "projector_intensity": info[1]["projector_intensity"], "measured_utc": when["date_utc"],
             "load_average_1min": [round(when["load_average_1min_start"], 2), round(when["load_average_1min_end"], 2)],
-            "reused_from_cache": reused}
+            "reused_from_cache": reused,
+            # MSE ~ 1/spp (mitransient's fitted beta is 1.00 in bench_nlos), time ~ spp: the measured run scaled to
+            # exactly the target; a reduction when the run reached it, an extrapolation when it did not
+            "time_to_target_s": info[1]["time_s"] * (rel / target) ** 2,
+            "time_to_target_basis": "measured" if rel <= target else "extrapolated"}
 
 
 def _cross_check(q_ref: np.ndarray, mc: np.ndarray, var: np.ndarray, replicates: int) -> dict:
@@ -245,7 +252,7 @@ def _config(cfg, args, tmp: Path, py) -> dict:
             spp=mc["spp"], replicates=mc["replicates"], time_s=mc["time_s"])
     entry["mitransient"] = None
     if py is not None and "mitransient" in args.sides:
-        m = _mitransient(cfg, st, tmp, py, args.mt_cache)
+        m = _mitransient(cfg, st, tmp, py, args.mt_cache, args.target)
         entry["mitransient"] = m
     if q is not None and entry["mitransient"] is not None:
         mt_dir = tmp if args.mt_cache is None else args.mt_cache / cfg["name"]
@@ -254,13 +261,10 @@ def _config(cfg, args, tmp: Path, py) -> dict:
         ag["note"] += "; ours: the quadrature's reference, mitransient: the mean of its two renders"
         entry["mean_agreement"] = ag
         sel = q.get("selected")
-        if sel and m["rel_rmse"] <= args.target:
-            entry["speedup_at_target"] = m["time_s"] / sel["time_s"]
-            entry["speedup_basis"] = "measured: both timed renders reach the target"
-        else:
-            entry["speedup_at_target"] = None
-            entry["speedup_basis"] = ("no quadrature setting of the sweep reached the target" if not sel else
-                                      f"mitransient's {m['spp']} spp did not reach the target (rerun with more)")
+        entry["speedup_at_target"] = m["time_to_target_s"] / sel["time_s"] if sel else None
+        entry["speedup_measured_runs"] = m["time_s"] / sel["time_s"] if sel else None
+        entry["speedup_basis"] = ("no quadrature setting of the sweep reached the target" if not sel else
+                                  m["time_to_target_basis"])
     return entry
 
 
