@@ -238,7 +238,10 @@ def _config(cfg, args, tmp: Path, py) -> dict:
              "spots": cfg["size"] ** 2, "n_bins": cfg["n_bins"],
              "pixel_sampling": cfg["pixel_sampling"], "error_spots": spots, "target_rel_rmse": args.target}
     q = None
-    if "quadrature" in args.sides:
+    if any(x in cfg["name"] for x in args.mitransient_only):
+        entry["quadrature"] = None
+        entry["quadrature_not_run"] = "not run in this record (--mitransient-only)"
+    elif "quadrature" in args.sides:
         q = _worker_call("quadrature", {"cfg": cfg, "sweep": st["sweep"], "ref_m": st["ref_m"], "error_spots": spots,
                                         "patch_cells": args.patch_cells, "target": args.target,
                                         "ref_out": str(tmp / "q_ref.npy")}, tmp)
@@ -281,6 +284,8 @@ def main(argv=None) -> dict:
                     help="quadrature cells per patch side with --pixel-sampling area (default: the plug-in's)")
     ap.add_argument("--sides", default="quadrature,mitransient",
                     help="which renderers to run (with --mt-cache, 'mitransient' alone fills the cache first)")
+    ap.add_argument("--mitransient-only", action="append", default=[], metavar="NAME",
+                    help="configurations whose name contains NAME get mitransient's side only (repeatable)")
     ap.add_argument("--mt-cache", type=Path, default=None, metavar="DIR",
                     help="keep mitransient's renders here and reuse them when the job is the same")
     ap.add_argument("--out", default=None, help="also write the JSON here")

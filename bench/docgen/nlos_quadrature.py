@@ -20,6 +20,9 @@ def _sweep(q: dict) -> str:
 
 def _row(c: dict) -> str:
     q, m = c.get("quadrature"), c.get("mitransient")
+    if q is None:
+        ms = f"{m['spp']} spp: {m['rel_rmse']:.3f}, {_t(m['time_s'])}" if m else "not run"
+        return f"| {c['name']} | not measured ({c.get('quadrature_not_run', '')}) | - | {ms} | - | - |"
     sel = q.get("selected") if q else None
     target = c["target_rel_rmse"]
     if sel:
