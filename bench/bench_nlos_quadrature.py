@@ -288,6 +288,9 @@ def main(argv=None) -> dict:
                     help="configurations whose name contains NAME get mitransient's side only (repeatable)")
     ap.add_argument("--mt-cache", type=Path, default=None, metavar="DIR",
                     help="keep mitransient's renders here and reuse them when the job is the same")
+    ap.add_argument("--record-suffix", default=None, metavar="NAME",
+                    help="save as bench/results/nlos_quadrature_NAME.json (configurations measured in a later run, "
+                         "e.g. with --only; the docs table takes their rows from it)")
     ap.add_argument("--out", default=None, help="also write the JSON here")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     _record.add_arguments(ap)
@@ -326,7 +329,9 @@ def main(argv=None) -> dict:
     if set(args.sides.split(",")) != {"quadrature", "mitransient"} and (args.save or args.save_as):
         print("[bench] not saved: a record holds both renderers (this run filled --mt-cache)", file=sys.stderr)
         return report
-    _record.maybe_save(args, "nlos_quadrature_small" if args.small else "nlos_quadrature", report,
+    name = "nlos_quadrature_small" if args.small else "nlos_quadrature" + (f"_{args.record_suffix}" if
+                                                                          args.record_suffix else "")
+    _record.maybe_save(args, name, report,
                        load_start=load_start, peers={"mitransient": MT_VERSION if py is not None else None})
     return report
 

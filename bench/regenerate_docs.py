@@ -100,7 +100,7 @@ GENERATORS = {
     "quadrature_table": (quadrature_table, ["quadrature"], False),
     "quadrature_inline": (quadrature_inline, ["quadrature"], True),
     "quadrature_cost": (quadrature_cost_inline, ["quadrature_cost"], True),
-    "nlos_quadrature_table": (nlos_quadrature_table, ["nlos_quadrature"], False),
+    "nlos_quadrature_table": (nlos_quadrature_table, ["nlos_quadrature", "nlos_quadrature_64x64"], False),
     "recon_targets": (recon_targets_table, ["study_methods_paper_mannequin", "study_methods_nlos_letter",
                                             "mannequin_features", "recon_methods", "completion_seeds"], False),
 }
