@@ -32,8 +32,8 @@ def _row(c: dict) -> str:
     target = c["target_rel_rmse"]
     if sel:
         spots = f", all {sel['timed_spots']} spots" if sel["timed_spots"] > 1 else ""
-        qs = (f"{_mm(sel['element_size_m'])} ({sel['elements']} elements): {sel['rel_rmse']:.3f}, "
-              f"{_t(sel['time_s'])}{spots}")
+        qs = (f"{_mm(sel['element_size_m'])} ({sel['elements']} elements): {sel['rel_rmse']:.3f} (its stated "
+              f"estimate: {sel['stated_rel_rmse']:.3f}), {_t(sel['time_s'])}{spots}")
     else:
         qs = f"no setting of the sweep reached {target:g}"
     d = [s for s in q["sweep"] if abs(s["element_size_m"] - q["defaults"]["element_size_m"]) < 1e-12]
