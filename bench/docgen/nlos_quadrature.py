@@ -27,7 +27,7 @@ def _row(c: dict) -> str:
     q, m = c.get("quadrature"), c.get("mitransient")
     if q is None:
         ms = _mt(m, c["target_rel_rmse"]) if m else "not run"
-        return f"| {c['name']} | not measured ({c.get('quadrature_not_run', '')}) | - | {ms} | - | - |"
+        return f"| {c['name']} | not measured: {c.get('quadrature_not_run', '')} | - | {ms} | - | - |"
     sel = q.get("selected") if q else None
     target = c["target_rel_rmse"]
     if sel:
