@@ -51,6 +51,7 @@ from docgen.recon import (  # noqa: E402
 from docgen.quadrature import (  # noqa: E402
     PAPER_ESTIMATORS, paper_estimators_table, quadrature_cost_inline, quadrature_inline, quadrature_table,
 )
+from docgen.nlos_quadrature import nlos_quadrature_table  # noqa: E402
 from docgen.studies import (  # noqa: E402
     studies_para, _study_inline, dataset_para, dataset_docs_table, view_para, view_docs_table, fit_para,
     dataset_noise_standard_table, DATASET_NT,
@@ -104,6 +105,7 @@ GENERATORS = {
     "quadrature_inline": (quadrature_inline, ["quadrature"], True),
     "quadrature_cost": (quadrature_cost_inline, ["quadrature_cost"], True),
     "paper_estimators": (paper_estimators_table, list(PAPER_ESTIMATORS), False),
+    "nlos_quadrature_table": (nlos_quadrature_table, ["nlos_quadrature", "nlos_quadrature_64x64"], False),
     "recon_targets": (recon_targets_table, ["study_methods_paper_mannequin", "study_methods_nlos_letter",
                                             "mannequin_features", "recon_methods", "completion_seeds"], False),
 }

@@ -47,6 +47,8 @@ from transient_mi.integrators._nlos_ad_terms import (Backward, TimeKernel, check
 from transient_mi.integrators._nlos_quadrature import (Chunk, _Geometry, _SpotSide, bsdf_value, check_supported,
                                                        chunk_starts, element_terms, level_elements, patch_cells,
                                                        spot_intensity)
+from transient_mi.integrators._nlos_quadrature_geom import (check_geometry, geometry_adjoint,
+                                                            mesh_vertex_gradients, vertex_backward)
 from transient_mi.integrators._nlos_time_spread import adjoint_spot, spread_spot
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
@@ -58,8 +60,9 @@ _FLAGS = dr.ADFlag.ClearInterior | dr.ADFlag.AllowNoGrad
 _FLAGS_FORWARD = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
 
 
-def check(integrator, scene, sensor, params):
-    """Refuse what the quadrature's derivatives do not support (one line); returns ``(setup, options)``."""
+def check(integrator, scene, sensor, params, allow_geometry=False):
+    """Refuse what the quadrature's derivatives do not support (one line); returns ``(setup, options,
+    geometry)``, ``geometry`` whether hidden meshes' vertices are being differentiated (reverse mode only)."""
     name = integrator.NAME
     check_sensor_and_variant(name, sensor)
     if sensor.get_medium() is not None:
@@ -70,11 +73,13 @@ def check(integrator, scene, sensor, params):
     options.setdefault("max_depth", integrator.max_depth_param)
     check_supported(setup, options, name)
     keys = geometry_keys(params)
-    if keys:
+    if keys and not allow_geometry:
         raise PluginParameterError(
-            f"{name}: {keys[0]} is being differentiated; estimator=quadrature differentiates BSDF values and the "
-            "laser's pulse_energy_j, not geometry (use estimator=monte_carlo for geometric derivatives)")
-    return setup, options
+            f"{name}: {keys[0]} is being differentiated; estimator=quadrature's forward mode differentiates BSDF "
+            "values and the laser's pulse_energy_j, not geometry (use reverse mode, or estimator=monte_carlo)")
+    if keys:
+        check_geometry(name, setup, params, keys)
+    return setup, options, bool(keys)
 
 
 def kernel_adjoint(grad: np.ndarray, taps) -> np.ndarray:
@@ -91,16 +96,17 @@ class _FineLevel:
     """The primal's fine level for ``mi.render``'s capture (spot 0, or every spot of a confocal capture):
     the same elements (visibility refinement included), cells, spot side and chunks."""
 
-    def __init__(self, scene, setup, film, options):
+    def __init__(self, scene, setup, film, options, spots=(0,)):
         self.confocal = setup.capture == "confocal"
-        self.spot_ids = list(range(setup.n_spots)) if self.confocal else [0]
+        self.spot_ids = list(range(setup.n_spots)) if self.confocal else list(spots)
         self.g = _Geometry(setup, film, patch_cells(setup, options))
         self.P = self.g.W * self.g.H
         self.active = bool(setup.hidden_shapes) and options.get("max_depth", 4) >= 4
         if not self.active:
             return
         self.hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
-        _, _, self.tri, self.idx, _ = level_elements(scene, setup, self.g, options, self.spot_ids, self.hidden_ptrs)
+        _, _, self.tri, self.idx, _, self.prov = level_elements(scene, setup, self.g, options, self.spot_ids,
+                                                                self.hidden_ptrs, with_provenance=True)
         self.side = _SpotSide(scene, setup, self.spot_ids, self.tri, self.idx, self.hidden_ptrs)
         self.pts, self.area, self.nrm = element_terms(self.tri)
         self.X0 = self.pts[:, 0]
@@ -117,7 +123,8 @@ class _FineLevel:
                               np.tile(self.X0, (len(spots), 1)))
 
     def chunks(self, scene):
-        """``(chunk, spot_of_pair, f_x, [(spot, pair slice, job pixel_start)])`` per chunk (primal values)."""
+        """``(chunk, spot_of_pair, f_x, [(spot, pair slice, job pixel_start, f_x of the job)])`` per chunk (primal
+        values; ``f_x`` the last job's, which is every job's in a confocal or one-spot capture)."""
         for e0, e1 in chunk_starts(self.g, len(self.tri)):
             ch = Chunk(scene, self.g, self.tri, self.idx, self.hidden_ptrs, self.pts, self.area, self.nrm, e0, e1)
             n = len(ch.ee)
@@ -128,9 +135,11 @@ class _FineLevel:
                 if sl.stop <= sl.start:
                     continue
                 spot_of[sl] = si_idx
+                if not self.confocal and jobs:  # (another spot of an array capture: its own BSDF values)
+                    f_x = np.zeros(n)
                 f_x[sl] = np.asarray(bsdf_value(ch.si_x_of(self.confocal, sl),
                                                 ch.to_spot(self.X0, self.side.S[si_idx], sl)), dtype=np.float64)
-                jobs.append((si_idx, sl, ch.job_pixel_start(self.confocal, si_idx, sl)))
+                jobs.append((si_idx, sl, ch.job_pixel_start(self.confocal, si_idx, sl), f_x))
             yield ch, spot_of, f_x, jobs
             del ch
 
@@ -140,37 +149,74 @@ class _FineLevel:
         return (np.ascontiguousarray(s.vis[si_idx]), np.ascontiguousarray(s.r_sv[si_idx]), s.r_sx[si_idx],
                 g.fl * float(s.laser_leg[si_idx]), g.bin_m, self.t_origin)
 
+    def geometry_job(self, g_elem, grad_ext, ch, f_x, si_idx: int, sl: slice) -> None:
+        """Add one job's derivative with respect to the element vertices to ``g_elem`` (``geometry_adjoint``)."""
+        g, s = self.g, self.side
+        ne = (ch.ee[-1] - ch.ee[0] + 1) if len(ch.ee) else 0
+        e0 = int(ch.ee[0])
+        c_lo, c_hi = sl.start // ne, sl.stop // ne
+        geometry_adjoint(g_elem, grad_ext, e0, ne, c_lo, c_hi, g.cell_pixel.astype(np.int64), g.cell_p,
+                         np.asarray(g.cell_ax, dtype=np.float64), np.asarray(g.cell_ay, dtype=np.float64), g.D, g.fl,
+                         g.cell_half_diag > 0, g.normal, self.tri, self.X0, self.nrm, self.area, ch.geo * ch.f_p, f_x,
+                         *ch.spread_args(), *self.spot_weight_args(si_idx))
+
+    def spot_weight_args(self, si_idx: int):
+        """The per-spot arguments of ``geometry_adjoint`` after ``w2``."""
+        s, g = self.side, self.g
+        return (np.ascontiguousarray(s.vis[si_idx]), np.ascontiguousarray(self.spot_weight[si_idx]), s.S[si_idx],
+                np.ascontiguousarray(s.r_sv[si_idx]), s.r_sx[si_idx], g.fl * float(s.laser_leg[si_idx]), g.bin_m,
+                self.t_origin)
+
     def f_x_ad(self, ch, spot_of) -> "mi.Float":
         """The element BSDF of every pair of ``ch`` towards its spot (attached; inside ``resume_grad``)."""
         to_s = self.side.S[spot_of] - self.X0[ch.ee]
         return bsdf_value(ch.si_x, to_s / np.linalg.norm(to_s, axis=1, keepdims=True))
 
 
-def _grad_shape(setup, grad_in, T) -> np.ndarray:
+def _grad_shape(setup, grad_in, T, G: int = 1) -> np.ndarray:
     g = np.asarray(grad_in, dtype=np.float64)
-    want = (setup.height, setup.width, T)
+    want = (G, setup.height, setup.width, T) if G > 1 else (setup.height, setup.width, T)
     if g.size != int(np.prod(want)):
         raise PluginParameterError(f"render_backward: grad_in has shape {g.shape}; expected {want}")
-    return g.reshape(setup.height * setup.width, T)
+    return g.reshape(G, setup.height * setup.width, T)
 
 
-def quadrature_backward(integrator, scene, params, grad_in, sensor) -> None:
-    """Reverse mode: propagate ``grad_in`` (``[height, width, n_bins]``, the adjoint of ``mi.render``'s capture)
-    to the BSDF parameters and the laser's pulse energy (see the module docstring)."""
-    setup, options = check(integrator, scene, sensor, params)
+def quadrature_backward(integrator, scene, params, grad_in, sensor, spots=None) -> None:
+    """Reverse mode: propagate ``grad_in`` (``[height, width, n_bins]``, the adjoint of ``mi.render``'s capture;
+    with ``spots`` of an array capture ``[len(spots), height, width, n_bins]``, the adjoint of those spots'
+    captures) to the BSDF parameters, the laser's pulse energy and the hidden meshes' vertices (see the module
+    docstring and :mod:`~._nlos_quadrature_geom`)."""
+    setup, options, geometry = check(integrator, scene, sensor, params, allow_geometry=True)
+    spots = [0] if spots is None or setup.capture == "confocal" else [int(j) for j in spots]
+    with dr.suspend_grad():  # (the pairs' geometry detached: its derivative is geometry_adjoint's)
+        _backward(scene, setup, options, sensor, grad_in, geometry, spots)
+
+
+def _backward(scene, setup, options, sensor, grad_in, geometry: bool, spots) -> None:
     film = sensor.film()
     taps, axis = film.kernel_taps(), film.time_axis()
-    grad = _grad_shape(setup, grad_in, axis.n_bins)
+    G = len(spots)
+    grad = _grad_shape(setup, grad_in, axis.n_bins, G)
     n_att = setup.laser.photons_per_pulse_ad
-    lv = _FineLevel(scene, setup, film, options)
+    lv = _FineLevel(scene, setup, film, options, spots)
     if lv.active:
         grad_ext = kernel_adjoint(grad, taps)
         C = np.zeros_like(lv.spot_weight)  # coefficients of the spots' intensities [G, n]
         total = 0.0  # sum_i g_i F_i: the coefficient of dN / N
+        g_elem = np.zeros(lv.tri.shape) if geometry else None  # d/d(element vertices) [n, 3, 3]
         for ch, spot_of, f_x, jobs in lv.chunks(scene):
             g = np.zeros(len(ch.ee))
-            for si_idx, sl, ps in jobs:
-                adjoint_spot(g, grad_ext, ps, ch.pe, *ch.spread_args(), *lv.spot_args(si_idx))  # (g[sl])
+            for si_idx, sl, ps, f_x in jobs:
+                ge = grad_ext[0 if lv.confocal else si_idx]
+                g_job = np.zeros(len(ch.ee)) if G > 1 else g
+                adjoint_spot(g_job, ge, ps, ch.pe, *ch.spread_args(), *lv.spot_args(si_idx))  # (g[sl])
+                if G > 1:  # (every spot's pairs are all of the chunk's: one g per spot)
+                    _spot_terms(lv, ch, f_x, g_job, si_idx, C)
+                    total += float(np.sum(g_job * ch.geo * ch.f_p * f_x * lv.spot_weight[si_idx, ch.ee]))
+                if geometry:
+                    lv.geometry_job(g_elem, ge, ch, f_x, si_idx, sl)
+            if G > 1:
+                continue
             sw = lv.spot_weight[spot_of, ch.ee]
             gg = g * ch.geo
             total += float(np.sum(gg * ch.f_p * f_x * sw))
@@ -186,11 +232,27 @@ def quadrature_backward(integrator, scene, params, grad_in, sensor) -> None:
                                  flags=_FLAGS)
             if total != 0.0:
                 dr.backward_from(n_att() * (total / lv.g.N), flags=_FLAGS)
-    inp = wall_return_inputs(setup, [0])
+            if geometry:
+                vertex_backward(setup.hidden_shapes, mesh_vertex_gradients(setup.hidden_shapes, lv.prov, g_elem),
+                                _FLAGS)
+    inp = wall_return_inputs(setup, spots)
     if inp is not None:  # (last: it clears the edges it traverses)
         P = setup.width * setup.height
-        rec = Backward(grad.reshape(1, P, axis.n_bins), taps, axis, 1, P, 1, TimeKernel(axis, 0.0, taps), 1.0)
+        rec = Backward(grad.reshape(G, P, axis.n_bins), taps, axis, 1, P, G, TimeKernel(axis, 0.0, taps), 1.0)
         wall_return_backward(scene, setup.relay_wall.bsdf(), inp, n_att, rec, P)
+
+
+def _spot_terms(lv, ch, f_x, g, si_idx: int, C) -> None:
+    """One spot's BSDF terms of a chunk (array captures of several spots: ``g`` that spot's pair adjoints),
+    back-propagated as in the one-spot pass, and its spot-intensity coefficients added to ``C``."""
+    sw = lv.spot_weight[si_idx, ch.ee]
+    gg = g * ch.geo
+    C[si_idx, :] += np.bincount(ch.ee, weights=gg * ch.f_p * f_x / lv.side.r_sx[si_idx, ch.ee] ** 2,
+                                minlength=C.shape[1])
+    spot_of = np.full(len(ch.ee), si_idx, dtype=np.int64)
+    with dr.resume_grad():
+        dr.backward_from(mi.Float((gg * f_x * sw).astype(np.float32)) * bsdf_value(ch.si_p, ch.d_px)
+                         + mi.Float((gg * ch.f_p * sw).astype(np.float32)) * lv.f_x_ad(ch, spot_of), flags=_FLAGS)
 
 
 def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
@@ -200,7 +262,7 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
     Every attached value (the pairs' BSDF values, the spots' intensities, the wall return, ``N``) is pushed
     forward by one ``dr.forward_to`` (a second call would not see the parameters' tangents again): forward mode
     holds every chunk's pair data at once (memory grows with the pairs; reverse mode does not)."""
-    setup, options = check(integrator, scene, sensor, params)
+    setup, options, _ = check(integrator, scene, sensor, params)
     film = sensor.film()
     taps, axis = film.kernel_taps(), film.time_axis()
     n_att = setup.laser.photons_per_pulse_ad
@@ -245,7 +307,7 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
             d_sw = d_int[spot_of, ch.ee] / lv.side.r_sx[spot_of, ch.ee] ** 2
             t = ch.geo * (d_fp * f_x * sw + ch.f_p * d_fx * sw + ch.f_p * f_x * d_sw + ch.f_p * f_x * sw * d_log_n)
             ones = np.ones(len(ch.ee))
-            for si_idx, sl, ps in jobs:
+            for si_idx, sl, ps, _ in jobs:
                 spread_spot(hist, scratch, z.copy(), z.copy(), z.copy(), ps, ch.pe, t, *ch.spread_args(), ones,
                             np.ascontiguousarray(lv.side.vis[si_idx]), ones_e, *lv.spot_args(si_idx)[1:])
     out = apply_kernel(hist, taps) if g.pad else hist
