@@ -75,9 +75,9 @@ PAPER = PaperSetup()
 #: The paper scene's estimator of three-bounce light, for the scene file's default, :class:`PaperConfig`,
 #: :class:`DemoSettings` and so the demo, the studies on this scene and the NLOS dataset example. The mannequin is a
 #: mesh, so ``quadrature`` applies, but it is not the default yet: at the paper's budgets Monte Carlo reaches the
-#: noise standard with ~25,000 spp, and on the 2-core machine the quadrature of an 8x8 array (4 cm elements, 2 cells,
-#: its error estimate 0.076 x the photon noise at 10 ms) took about 4x the Monte Carlo render's time under the same
-#: load (docs/quadrature.md, "When Monte Carlo is still used"). One line to change when it is faster.
+#: noise standard with comparatively few samples, and the quadrature was slower to the same target at the demo's
+#: 10 ms (bench/bench_paper_estimators.py; docs/quadrature.md, "When Monte Carlo is still used"). One line to change
+#: when it is faster.
 PAPER_ESTIMATOR = "monte_carlo"
 #: Array sizes compared in the paper (Fig. 4 and Fig. 5).
 PAPER_ARRAY_SIZES = (4, 8, 16, 32)
