@@ -165,10 +165,13 @@ def test_small_patch_matches_the_closed_form_to_1e4():
 # ---------------------------------------------------------------- against Monte Carlo
 
 
-def _mc_vs_quadrature(scene_q, scene_mc, spp, spots, settings, n_windows=8):
-    """Compare pixel x time-window sums: |quadrature - MC| <= t * se_MC + bound (t from the 8 replicates)."""
+def _mc_vs_quadrature(scene_q, scene_mc, spp, spots, settings, n_windows=8, full=False):
+    """Compare pixel x time-window sums: |quadrature - MC| <= t * se_MC + bound (t from the 8 replicates).
+    Returns the totals ``(quadrature, MC)``, with ``full`` also MC's standard error of the total and the stated
+    total error."""
     q = _render(scene_q, spots=spots, **settings)
     integ = scene_mc.integrator()
+    integ.nlos_options["estimator"] = "monte_carlo"  # (the letter's default is the quadrature)
     integ.variance_replicates = 8
     mc = integ.render_transient(scene_mc, scene_mc.sensors()[0], seed=3, spp=spp, spots=spots)
     checks = []
@@ -190,7 +193,12 @@ def _mc_vs_quadrature(scene_q, scene_mc, spp, spots, settings, n_windows=8):
         assert not bad.any(), (wq[bad][:5], wm[bad][:5], se[bad][:5], wb[bad][:5])
     tot_q = sum(float(r.steady.sum()) for r in q)
     tot_m = sum(float(r.steady.sum()) for r in mc)
-    return tot_q, tot_m
+    if not full:
+        return tot_q, tot_m
+    # the totals' interval: Monte Carlo's standard error of the total (its replicates) and the stated total error
+    se_tot = math.sqrt(sum(float(np.sum(r.total_variance, dtype=np.float64)) for r in mc))
+    bound_tot = sum(float(np.sum(r.total_error_bound, dtype=np.float64)) for r in q)
+    return tot_q, tot_m, se_tot, bound_tot
 
 
 LETTER = dict(include_wall_return="false", width="4", height="4", spots_x="2", spots_y="1", n_bins="512",

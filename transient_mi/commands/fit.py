@@ -35,6 +35,11 @@ def fit_command(
     patches: int = typer.Option(3, "--patches", parser=whole_number("--patches"), metavar="<int>",
                                 help="--model patches: how many."),
     patch_side_m: float = typer.Option(0.2, "--patch-side-m", help="--model patches: side of each patch, metres."),
+    estimator: str = typer.Option("monte_carlo", "--estimator", help="Forward model: monte_carlo, quadrature "
+                                  "(deterministic; slower per iteration, see docs/fit.md), or auto (the quadrature "
+                                  "where the scene allows it)."),
+    element_size_m: float = typer.Option(0.03, "--element-size-m", help="--estimator quadrature: element size "
+                                         "at the end (twice as large for the first half of the iterations), m."),
     seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed."),
     resume: bool = typer.Option(False, "--resume", help="Continue the fit in OUT from its checkpoint."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier fit in OUT."),
@@ -45,7 +50,7 @@ def fit_command(
     from transient_mi.fit import FitSettings, fit_capture
 
     settings = FitSettings(iterations=iterations, spp=spp, spp_residual=spp_residual, sigma_start_ps=sigma_start_ps,
-                           sigma_end_ps=sigma_end_ps, seed=seed)
+                           sigma_end_ps=sigma_end_ps, seed=seed, estimator=estimator, element_size_m=element_size_m)
     result = fit_capture(capture, out, model=model, settings=settings, bin_width_ps=bin_width_ps, n_patches=patches,
                          patch_side_m=patch_side_m, resume=resume, overwrite=overwrite, progress=progress,
                          log=typer.echo)

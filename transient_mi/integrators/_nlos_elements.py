@@ -38,40 +38,71 @@ def mesh_triangles(shapes) -> Faces:
     return Faces(np.concatenate(tris), np.concatenate(idx), np.concatenate(face))
 
 
-def subdivide(tri: np.ndarray, shape_index: np.ndarray, max_edge_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Split every triangle into ``n^2`` similar ones (``n = ceil(longest edge / max_edge_m)``); ``shape_index``
-    (any per-triangle label, e.g. the source row) is repeated for the pieces."""
+def _subdivision(tri: np.ndarray, max_edge_m: float):
+    """Per division count ``n`` (ascending): ``(sel, L)``, the triangles split into ``n^2`` and their children's
+    local coordinates ``L [m, 3 vertices, (i, j)]`` (vertex ``a + L_i (b - a) + L_j (c - a)``)."""
     edges = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
                       np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
     n_div = np.maximum(1, np.ceil(edges / max_edge_m - 1e-9)).astype(np.int64)
-    out, out_idx = [], []
     for n in np.unique(n_div):
-        sel = np.flatnonzero(n_div == n)
-        t = tri[sel]
-        a, b, c = t[:, 0], t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
         local = []
         for i in range(n):
             for j in range(n - i):
                 local.append(((i, j), (i + 1, j), (i, j + 1)))
                 if j < n - i - 1:
                     local.append(((i + 1, j), (i + 1, j + 1), (i, j + 1)))
-        L = np.asarray(local, dtype=np.float64) / n  # [m, 3 vertices, (i, j)]
+        yield np.flatnonzero(n_div == n), np.asarray(local, dtype=np.float64) / n
+
+
+def subdivide(tri: np.ndarray, shape_index: np.ndarray, max_edge_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Split every triangle into ``n^2`` similar ones (``n = ceil(longest edge / max_edge_m)``); ``shape_index``
+    (any per-triangle label, e.g. the source row) is repeated for the pieces."""
+    out, out_idx = [], []
+    for sel, L in _subdivision(tri, max_edge_m):
+        t = tri[sel]
+        a, b, c = t[:, 0], t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
         pts = a[:, None, None, :] + L[None, :, :, 0:1] * b[:, None, None, :] + L[None, :, :, 1:2] * c[:, None, None, :]
         out.append(pts.reshape(-1, 3, 3))
-        out_idx.append(np.repeat(shape_index[sel], len(local)))
+        out_idx.append(np.repeat(shape_index[sel], len(L)))
     order_tri = np.concatenate(out)
     order_idx = np.concatenate(out_idx)
     return order_tri, order_idx
 
 
+def provenance(n: int) -> np.ndarray:
+    """``[n, 3, 4]`` provenance of ``n`` source triangles themselves: row ``v`` of element ``e`` holds the
+    barycentric weights of its vertex ``v`` on its source triangle's vertices, then the source's index (a float,
+    exact). Linear in the vertices, so :func:`split4` carries it as it splits the triangles."""
+    p = np.zeros((n, 3, 4))
+    p[:, :, :3] = np.eye(3)
+    p[:, :, 3] = np.arange(n, dtype=np.float64)[:, None]
+    return p
+
+
+def subdivide_provenance(tri: np.ndarray, prov: np.ndarray, max_edge_m: float) -> np.ndarray:
+    """The provenance ``[n_out, 3, 4]`` of :func:`subdivide`'s output (same order), from the input's ``prov``."""
+    out = []
+    for sel, L in _subdivision(tri, max_edge_m):
+        w = np.stack([1.0 - L[..., 0] - L[..., 1], L[..., 0], L[..., 1]], axis=-1)  # [m, 3 child v, 3 parent v]
+        kid = np.einsum("mvu,suk->smvk", w, prov[sel][:, :, :3])
+        src = np.broadcast_to(prov[sel][:, None, :1, 3:], kid.shape[:3] + (1,))
+        out.append(np.concatenate([kid, src], axis=-1).reshape(-1, 3, 4))
+    return np.concatenate(out)
+
+
+def fine_provenance(tri0: np.ndarray, max_edge_m: float) -> np.ndarray:
+    """The provenance of the quadrature's fine elements before refinement: ``split4(subdivide(tri0, max_edge_m))``."""
+    return split4(subdivide_provenance(tri0, provenance(len(tri0)), max_edge_m))
+
+
 def split4(tri: np.ndarray) -> np.ndarray:
-    """Midpoint subdivision: each triangle ``[n, 3, 3]`` into four, ``[4 n, 3, 3]`` (children of one parent
-    consecutive)."""
+    """Midpoint subdivision: each triangle ``[n, 3, k]`` into four, ``[4 n, 3, k]`` (children of one parent
+    consecutive; any ``k``: vertices, or their :func:`provenance`)."""
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     ab, bc, ca = (a + b) / 2, (b + c) / 2, (c + a) / 2
     kids = np.stack([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1), np.stack([ca, bc, c], 1),
                      np.stack([ab, bc, ca], 1)], axis=1)
-    return kids.reshape(-1, 3, 3)
+    return kids.reshape(-1, 3, tri.shape[-1])
 
 
 def sample_points(tri: np.ndarray) -> np.ndarray:

@@ -285,12 +285,12 @@ def pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, are
 
 
 def spot_knots(tri: np.ndarray, X0: np.ndarray, S: np.ndarray, spot_opl: np.ndarray, bin_m: float,
-               t_origin_bins: float) -> tuple[np.ndarray, np.ndarray]:
+               t_origin_bins: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The laser parts of the knots ``B [n, G, 3]`` (bins, with the padded axis's origin ``t_origin_bins``
-    subtracted: module docstring) and ``r_SX [n, G]`` (m) of every element (vertices ``tri [n, 3, 3]``,
-    centroids ``X0``) for the spots ``S [G, 3]`` with laser legs ``spot_opl [G]`` (m, 0 without
+    subtracted: module docstring), ``r_SV [n, G, 3]`` and ``r_SX [n, G]`` (m) of every element (vertices
+    ``tri [n, 3, 3]``, centroids ``X0``) for the spots ``S [G, 3]`` with laser legs ``spot_opl [G]`` (m, 0 without
     ``include_first_last``)."""
     r_sv = np.linalg.norm(tri[:, None, :, :] - S[None, :, None, :], axis=3)  # [n, G, 3]
     r_sx = np.linalg.norm(X0[:, None, :] - S[None, :, :], axis=2)  # [n, G]
     base = spot_opl[None, :] + 0.75 * (r_sx - (r_sv[:, :, 0] + r_sv[:, :, 1] + r_sv[:, :, 2]) / 3.0)
-    return np.ascontiguousarray((base[:, :, None] + r_sv) / bin_m - t_origin_bins), r_sx
+    return np.ascontiguousarray((base[:, :, None] + r_sv) / bin_m - t_origin_bins), r_sv, r_sx

@@ -67,8 +67,8 @@ class LevelElements:
 
 class SpotSide:
     """Per element and spot of the group ``spots`` (element-major ``[n, G]``): visibility ``vis [n, G]`` (uint8
-    masks of the samples seen from the spot, :func:`~._nlos_pair_kernels.visibility_mask`),
-    the spot's intensity ``intensity`` (``f_S cos`` towards the centroid) and ``r_sx`` (m), ``sw`` =
+    masks of the samples seen from the spot, :func:`~._nlos_pair_kernels.visibility_mask`), the spot's intensity
+    ``intensity`` (``f_S cos`` towards the centroid), ``r_sv [n, G, 3]`` and ``r_sx`` (m), ``sw`` =
     intensity / r_sx^2, the knots' laser parts ``B [n, G, 3]`` (bins); for Lambertian elements ``fx_e`` and
     ``side_s`` (:meth:`~._nlos_surfaces.ElementSurfaces.toward`), zeros otherwise."""
 
@@ -82,7 +82,7 @@ class SpotSide:
         self.laser_leg = np.linalg.norm(self.S - self.Lo, axis=1)  # [G]
         self.vis = visibility_mask(spot_visibility(scene, setup, self.spots, lv.pts))
         self.intensity = np.asarray(self.intensity_ad(scene, lv.X0), dtype=np.float64).reshape(n, G)
-        self.B, self.r_sx = spot_knots(lv.tri, lv.X0, self.S, g.fl * self.laser_leg, g.bin_m,
+        self.B, self.r_sv, self.r_sx = spot_knots(lv.tri, lv.X0, self.S, g.fl * self.laser_leg, g.bin_m,
                                        g.t0_m / g.bin_m - g.pad)
         self.sw = np.ascontiguousarray(self.intensity / self.r_sx ** 2)
         if lv.surf.lambertian:

@@ -55,8 +55,7 @@ legs or in hidden space, a divergent laser beam, a non-planar relay wall, shapes
 With ``max_depth`` above 4 (or -1) the light beyond three bounces is added by the Monte Carlo estimator
 restricted to the remaining paths (``KernelConstants.skip_three_bounce``: without the three-bounce connection
 and the wall return); its variance, from the replicates, is stored beside the quadrature's error
-(:mod:`transient_mi.capture_error`). Differentiable with respect to BSDF values and the pulse energy, not
-geometry (:mod:`transient_mi.integrators._nlos_quadrature_ad`).
+(:mod:`transient_mi.capture_error`). Differentiable (:mod:`~._nlos_quadrature_ad`, :mod:`~._nlos_quadrature_geom`).
 """
 
 from __future__ import annotations
@@ -68,7 +67,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter1d
 
 from transient_core.units import C_M_PER_PS
-from transient_mi.integrators._nlos_elements import mesh_triangles, sample_points, split4, subdivide
+from transient_mi.integrators._nlos_elements import fine_provenance, mesh_triangles, sample_points, split4, subdivide
 from transient_mi.integrators._nlos_pair_kernels import cell_terms
 from transient_mi.integrators._nlos_pairs import Chunk, LevelElements, SpotSide, chunk_starts, spot_visibility
 from transient_mi.integrators._nlos_surfaces import WallCells, sample_visibility
@@ -178,9 +177,9 @@ def _mixed_elements(scene, setup, g: _Geometry, spots, tri) -> np.ndarray:
     return mixed
 
 
-def refine_visibility(scene, setup, g: _Geometry, spots, tri, src, refine_levels: int):
-    """Split elements of mixed visibility in four, up to ``refine_levels`` times: ``(tri, src, levels)`` (``src``:
-    each element's source triangle, a row of the :class:`~._nlos_elements.Faces`)."""
+def refine_visibility(scene, setup, g: _Geometry, spots, tri, src, refine_levels: int, prov=None):
+    """Split mixed-visibility elements (and ``prov``) in four, ``refine_levels`` times at most: ``(tri, src, levels,
+    prov)`` (``src``: each element's source triangle, a row of the :class:`~._nlos_elements.Faces`)."""
     levels = 0
     for _ in range(refine_levels):
         mixed = _mixed_elements(scene, setup, g, spots, tri)
@@ -189,8 +188,9 @@ def refine_visibility(scene, setup, g: _Geometry, spots, tri, src, refine_levels
         keep = ~mixed
         tri = np.concatenate([tri[keep], split4(tri[mixed])])
         src = np.concatenate([src[keep], np.repeat(src[mixed], 4)])
+        prov = None if prov is None else np.concatenate([prov[keep], split4(prov[mixed])])
         levels += 1
-    return tri, src, levels
+    return tri, src, levels, prov
 
 
 # ------------------------------------------------------------------ the render
@@ -201,20 +201,22 @@ def patch_cells(setup, options: dict) -> int:
     return 1 if setup.pixel_sampling == "center" else int(options.get("patch_cells", DEFAULT_PATCH_CELLS))
 
 
-def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_ptrs):
-    """The elements of both levels: ``(coarse, fine, refine_levels_used)``, :class:`~._nlos_pairs.LevelElements`
-    (coarse: edges of at most twice ``element_size_m``; fine: each coarse one split in four, then refined where
-    visibility is mixed)."""
+def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_ptrs, with_provenance=False):
+    """The elements of both levels: ``(coarse, fine, refine_levels_used[, fine provenance])``,
+    :class:`~._nlos_pairs.LevelElements` (coarse: edges of at most twice ``element_size_m``; fine: each coarse
+    one split in four, then refined where visibility is mixed; the provenance: :func:`~._nlos_elements.provenance`)."""
     h = float(options.get("element_size_m", DEFAULT_ELEMENT_SIZE_M))
     faces = mesh_triangles(setup.hidden_shapes)
     tri_c, src_c = subdivide(faces.tri, np.arange(len(faces.tri)), 2.0 * h)
     tri_f, src_f = split4(tri_c), np.repeat(src_c, 4)
-    # which elements to split is decided from the coarse level's cells (a quarter of the rays); pairs that are
-    # still mixed at the fine level's cells are bounded there
-    tri_f, src_f, levels = refine_visibility(scene, setup, g.with_cells(max(1, g.m // 2)), spot_ids, tri_f, src_f,
-                                             int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)))
-    return (LevelElements(setup, faces, hidden_ptrs, tri_c, src_c), LevelElements(setup, faces, hidden_ptrs, tri_f,
-                                                                                   src_f), levels)
+    prov = fine_provenance(faces.tri, 2.0 * h) if with_provenance else None
+    # split as the coarse level's cells see it (a quarter of the rays); still-mixed fine pairs are bounded
+    tri_f, src_f, levels, prov = refine_visibility(scene, setup, g.with_cells(max(1, g.m // 2)), spot_ids, tri_f,
+                                                   src_f, int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)),
+                                                   prov)
+    out = (LevelElements(setup, faces, hidden_ptrs, tri_c, src_c), LevelElements(setup, faces, hidden_ptrs, tri_f,
+                                                                                  src_f), levels)
+    return out + ((prov,) if with_provenance else ())
 
 
 def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int]):

@@ -31,10 +31,9 @@ exact: the gradient of the quadrature's own primal (float32 rounding aside). For
 map: the tangent of every pair's weight spread with the primal's masses.
 
 What is differentiated: every parameter a Mitsuba ``bsdf.eval`` of the hidden shapes or of the relay wall
-reads (reflectances, textures) and the laser's ``pulse_energy_j``. Geometry is not: a grad-enabled shape
-geometry parameter (``vertex_positions``, ``to_world``, ...: hidden shapes, mannequin joints, the relay wall)
-is refused in one line (use ``estimator=monte_carlo``). Any other parameter (the sensor's, the film's) gets
-no gradient (zero). The error estimate (coarse level, bounds) is not differentiated.
+reads (reflectances, textures), the laser's ``pulse_energy_j`` and, in reverse mode, the hidden meshes' vertex
+positions (:mod:`~._nlos_quadrature_geom`; forward mode refuses geometry in one line). Any other parameter (the
+sensor's, the film's) gets no gradient (zero). The error estimate (coarse level, bounds) is not differentiated.
 """
 
 from __future__ import annotations
@@ -50,6 +49,8 @@ from transient_mi.integrators._nlos_ad_terms import (Backward, TimeKernel, check
 from transient_mi.integrators._nlos_pair_kernels import adjoint_group, spread_group
 from transient_mi.integrators._nlos_pairs import Chunk, SpotSide, chunk_starts
 from transient_mi.integrators._nlos_quadrature import _Geometry, check_supported, level_elements, patch_cells
+from transient_mi.integrators._nlos_quadrature_geom import (check_geometry, geometry_adjoint, mesh_vertex_gradients,
+                                                            pair_lengths, vertex_backward)
 from transient_mi.integrators._nlos_surfaces import WallCells
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
@@ -61,8 +62,9 @@ _FLAGS = dr.ADFlag.ClearInterior | dr.ADFlag.AllowNoGrad
 _FLAGS_FORWARD = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
 
 
-def check(integrator, scene, sensor, params):
-    """Refuse what the quadrature's derivatives do not support (one line); returns ``(setup, options)``."""
+def check(integrator, scene, sensor, params, allow_geometry=False):
+    """Refuse what the quadrature's derivatives do not support (one line); returns ``(setup, options,
+    geometry)``, ``geometry`` whether hidden meshes' vertices are being differentiated (reverse mode only)."""
     name = integrator.NAME
     check_sensor_and_variant(name, sensor)
     if sensor.get_medium() is not None:
@@ -73,11 +75,13 @@ def check(integrator, scene, sensor, params):
     options.setdefault("max_depth", integrator.max_depth_param)
     check_supported(setup, options, name)
     keys = geometry_keys(params)
-    if keys:
+    if keys and not allow_geometry:
         raise PluginParameterError(
-            f"{name}: {keys[0]} is being differentiated; estimator=quadrature differentiates BSDF values and the "
-            "laser's pulse_energy_j, not geometry (use estimator=monte_carlo for geometric derivatives)")
-    return setup, options
+            f"{name}: {keys[0]} is being differentiated; estimator=quadrature's forward mode differentiates BSDF "
+            "values and the laser's pulse_energy_j, not geometry (use reverse mode, or estimator=monte_carlo)")
+    if keys:
+        check_geometry(name, setup, params, keys)
+    return setup, options, bool(keys)
 
 
 def kernel_adjoint(grad: np.ndarray, taps) -> np.ndarray:
@@ -91,48 +95,56 @@ def kernel_adjoint(grad: np.ndarray, taps) -> np.ndarray:
 
 
 class _FineLevel:
-    """The primal's fine level for ``mi.render``'s capture (spot 0, or every spot of a confocal capture):
-    the same elements (visibility refinement included), cells, spot side, wall and chunks."""
+    """The primal's fine level for ``mi.render``'s capture (``spots`` of an array capture, spot 0 by default, or
+    every spot of a confocal capture): the same elements (visibility refinement included), cells, spot side, wall
+    and chunks."""
 
-    def __init__(self, scene, setup, film, options):
+    def __init__(self, scene, setup, film, options, spots=(0,)):
         self.confocal = setup.capture == "confocal"
-        self.spot_ids = list(range(setup.n_spots)) if self.confocal else [0]
+        self.spot_ids = list(range(setup.n_spots)) if self.confocal else list(spots)
         self.g = _Geometry(setup, film, patch_cells(setup, options))
         self.P = self.g.W * self.g.H
         self.active = bool(setup.hidden_shapes) and options.get("max_depth", 4) >= 4
         if not self.active:
             return
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
-        _, self.lv, _ = level_elements(scene, setup, self.g, options, self.spot_ids, hidden_ptrs)
+        _, self.lv, _, self.prov = level_elements(scene, setup, self.g, options, self.spot_ids, hidden_ptrs,
+                                                  with_provenance=True)
         self.side = SpotSide(scene, setup, self.g, self.spot_ids, self.lv)
         self.wall = WallCells(scene, setup, self.g.cell_p, self.g.D)
         self.lambertian = self.lv.surf.lambertian
         self.G = len(self.spot_ids)
+        self.t_origin = self.g.t0_m / self.g.bin_m - self.g.pad
 
     def chunks(self, scene):
-        """``(chunk, terms)`` per chunk, ``terms`` = :meth:`terms`."""
+        """``(chunk, fx_pair)`` per chunk (:meth:`~._nlos_pairs.Chunk.fx_pairs`: the primal's per-pair ``f_x`` of
+        BSDFs that are not Lambertian)."""
         for e0, e1 in chunk_starts(len(self.g.cell_p), self.lv.n):
             ch = Chunk(scene, self.g, self.lv, self.wall, e0, e1)
-            yield ch, self.terms(ch)
+            yield ch, ch.fx_pairs(self.g, self.lv, self.side, self.confocal)
 
-    def terms(self, ch) -> dict:
-        """Per pair of ``ch`` (each with its spot: spot 0, or its pixel's): element ``e``, spot ``s``, cell ``c``,
-        ``es = e G + s`` (index of the pair's (element, spot)), the primal's ``f_x`` and ``sw`` and, for
-        Lambertian elements, ``match`` (the cell on the spot's side)."""
+    def rows(self):
+        """The rows of :func:`~._nlos_pair_kernels.adjoint_group`'s output: one per spot, one for confocal."""
+        return range(1 if self.confocal else self.G)
+
+    def terms(self, ch, fx_pair, row: int) -> dict:
+        """Per pair of ``ch`` with the spot of ``row`` (an array capture's spot ``row``, or each pair's pixel's):
+        element ``e``, spot ``s``, cell ``c``, ``es = e G + s`` (index of the pair's (element, spot)), the primal's
+        ``f_x`` and ``sw`` and, for Lambertian elements, ``match`` (the cell on the spot's side)."""
         e = ch.e0 + np.arange(ch.n) % ch.ne
-        s = ch.spot_of_pair() if self.confocal else np.zeros(ch.n, dtype=np.int64)
+        s = ch.spot_of_pair() if self.confocal else np.full(ch.n, row, dtype=np.int64)
         t = {"e": e, "s": s, "c": np.arange(ch.n) // ch.ne, "es": e * self.G + s, "sw": self.side.sw[e, s]}
         if self.lambertian:
             t["match"] = ch.side_x * self.side.side_s[e, s] > 0
             t["f_x"] = np.where(t["match"], self.side.fx_e[e, s], 0.0)
         else:
-            t["f_x"] = ch.fx_pairs(self.g, self.lv, self.side, self.confocal)[0]
+            t["f_x"] = fx_pair[row]
         return t
 
-    def f_x_ad(self, ch) -> "mi.Float":
-        """The element BSDF of every pair of ``ch`` towards its spot, per pair (elements that are not Lambertian;
-        attached inside ``resume_grad``)."""
-        spots = [self.side.S[ch.spot_of_pair()]] if self.confocal else [self.side.S[0]]
+    def f_x_ad(self, ch, row: int) -> "mi.Float":
+        """The element BSDF of every pair of ``ch`` towards the spot of ``row``, per pair (elements that are not
+        Lambertian; attached inside ``resume_grad``)."""
+        spots = [self.side.S[ch.spot_of_pair()]] if self.confocal else [self.side.S[row]]
         return self.lv.surf.pair_values(self.g.cell_p, ch.e0, ch.e1, spots)[0]
 
     def f_p_ad(self, ch) -> "mi.Float":
@@ -140,51 +152,88 @@ class _FineLevel:
         return self.wall.pair_values(self.g.cell_p, self.lv.X0, ch.e0, ch.e1)
 
     def adjoint(self, ch, grad_ext) -> np.ndarray:
-        """``g`` per pair of ``ch`` (:func:`~._nlos_pair_kernels.adjoint_group`, ``grad_ext`` ``[P, n_ext]``)."""
-        g = np.zeros((1, ch.n))
-        adjoint_group(g, grad_ext[None], ch.per_pixel, ch.e0, ch.ne, ch.vis_p, ch.A, ch.w1, ch.w2, ch.tilt,
-                      self.side.vis, self.side.B, self.confocal)
-        return g[0]
+        """``g [R, n]`` per row and pair of ``ch`` (:func:`~._nlos_pair_kernels.adjoint_group`; ``grad_ext``
+        ``[R, P, n_ext]``)."""
+        g = np.zeros((len(self.rows()), ch.n))
+        adjoint_group(g, grad_ext, ch.per_pixel, ch.e0, ch.ne, ch.vis_p, ch.A, ch.w1, ch.w2, ch.tilt, self.side.vis,
+                      self.side.B, self.confocal)
+        return g
+
+    def geometry(self, g_elem, grad_ext, ch, t: dict, row: int) -> None:
+        """Add the derivative with respect to the element vertices of the chunk's pairs with the spot of ``row`` to
+        ``g_elem`` (:func:`~._nlos_quadrature_geom.geometry_adjoint`, once per spot: all the chunk's cells for an
+        array capture, each pixel's cells with its own spot for a confocal one)."""
+        g, side = self.g, self.side
+        r_pv, r_px, opl_d, cell_shift = pair_lengths(g.cell_p, self.lv.X0, self.lv.tri, ch.e0, ch.e1, g.D,
+                                                     g.cell_ax, g.cell_ay, g.fl, g.cell_half_diag > 0)
+        vis_p = ((ch.vis_p[:, None] >> np.arange(4)) & 1).astype(np.bool_)
+        m2 = g.m * g.m
+        jobs = [(k, k * m2, (k + 1) * m2) for k in range(self.P)] if self.confocal else [(row, 0, len(g.cell_p))]
+        for s, c_lo, c_hi in jobs:
+            vis_s = np.ascontiguousarray(((side.vis[:, s, None] >> np.arange(4)) & 1).astype(np.bool_))
+            geometry_adjoint(g_elem, grad_ext[row], ch.e0, ch.ne, c_lo, c_hi, g.cell_pixel.astype(np.int64), g.cell_p,
+                             np.asarray(g.cell_ax, dtype=np.float64), np.asarray(g.cell_ay, dtype=np.float64), g.D,
+                             g.fl, g.cell_half_diag > 0, g.normal, self.lv.tri, self.lv.X0, self.lv.nrm, self.lv.area,
+                             ch.geo * ch.f_p, t["f_x"], vis_p, r_pv, r_px, opl_d, cell_shift, ch.w1, ch.w2, ch.tilt,
+                             vis_s, np.ascontiguousarray(side.sw[:, s]), side.S[s],
+                             np.ascontiguousarray(side.r_sv[:, s]), np.ascontiguousarray(side.r_sx[:, s]),
+                             g.fl * float(side.laser_leg[s]), g.bin_m, self.t_origin)
 
 
-def _grad_shape(setup, grad_in, T) -> np.ndarray:
+def _grad_shape(setup, grad_in, T, G: int = 1) -> np.ndarray:
     g = np.asarray(grad_in, dtype=np.float64)
-    want = (setup.height, setup.width, T)
+    want = (G, setup.height, setup.width, T) if G > 1 else (setup.height, setup.width, T)
     if g.size != int(np.prod(want)):
         raise PluginParameterError(f"render_backward: grad_in has shape {g.shape}; expected {want}")
-    return g.reshape(setup.height * setup.width, T)
+    return g.reshape(G, setup.height * setup.width, T)
 
 
-def quadrature_backward(integrator, scene, params, grad_in, sensor) -> None:
-    """Reverse mode: propagate ``grad_in`` (``[height, width, n_bins]``, the adjoint of ``mi.render``'s capture)
-    to the BSDF parameters and the laser's pulse energy (see the module docstring)."""
-    setup, options = check(integrator, scene, sensor, params)
+def quadrature_backward(integrator, scene, params, grad_in, sensor, spots=None) -> None:
+    """Reverse mode: propagate ``grad_in`` (``[height, width, n_bins]``, the adjoint of ``mi.render``'s capture;
+    with ``spots`` of an array capture ``[len(spots), height, width, n_bins]``, the adjoint of those spots'
+    captures) to the BSDF parameters, the laser's pulse energy and the hidden meshes' vertices (see the module
+    docstring and :mod:`~._nlos_quadrature_geom`)."""
+    setup, options, geometry = check(integrator, scene, sensor, params, allow_geometry=True)
+    spots = [0] if spots is None or setup.capture == "confocal" else [int(j) for j in spots]
+    with dr.suspend_grad():  # (the pairs' geometry detached: its derivative is geometry_adjoint's)
+        _backward(scene, setup, options, sensor, grad_in, geometry, spots)
+
+
+def _backward(scene, setup, options, sensor, grad_in, geometry: bool, spots) -> None:
     film = sensor.film()
     taps, axis = film.kernel_taps(), film.time_axis()
-    grad = _grad_shape(setup, grad_in, axis.n_bins)
+    G = len(spots)
+    grad = _grad_shape(setup, grad_in, axis.n_bins, G)
     n_att = setup.laser.photons_per_pulse_ad
-    lv = _FineLevel(scene, setup, film, options)
+    lv = _FineLevel(scene, setup, film, options, spots)
     if lv.active:
-        grad_ext = kernel_adjoint(grad, taps)
+        grad_ext = kernel_adjoint(grad, taps)  # [G, P, n_ext] (one row for a confocal capture)
         n_es = lv.lv.n * lv.G
         C = np.zeros(n_es)  # coefficients of the spots' intensities, element-major [n, G]
         B = np.zeros(n_es)  # of the Lambertian elements' f_x (per element and spot)
         A = np.zeros(len(lv.g.cell_p))  # of a Lambertian wall's per-cell value
         total = 0.0  # sum_i g_i F_i: the coefficient of dN / N
-        for ch, t in lv.chunks(scene):
-            gg = lv.adjoint(ch, grad_ext) * ch.geo
-            f_x, sw = t["f_x"], t["sw"]
-            total += float(np.sum(gg * ch.f_p * f_x * sw))
-            C += np.bincount(t["es"], gg * ch.f_p * f_x / lv.side.r_sx[t["e"], t["s"]] ** 2, minlength=n_es)
-            if lv.wall.lambertian:
-                A += np.bincount(t["c"], gg * f_x * sw * ch.cos_p, minlength=len(A))
-            if lv.lambertian:
-                B += np.bincount(t["es"], np.where(t["match"], gg * ch.f_p * sw, 0.0), minlength=n_es)
-            with dr.resume_grad():
-                if not lv.wall.lambertian:
-                    dr.backward_from(upload((gg * f_x * sw).astype(np.float32)) * lv.f_p_ad(ch), flags=_FLAGS)
-                if not lv.lambertian:
-                    dr.backward_from(upload((gg * ch.f_p * sw).astype(np.float32)) * lv.f_x_ad(ch), flags=_FLAGS)
+        g_elem = np.zeros(lv.lv.tri.shape) if geometry else None  # d/d(element vertices) [n, 3, 3]
+        for ch, fx_pair in lv.chunks(scene):
+            g_rows = lv.adjoint(ch, grad_ext)
+            for row in lv.rows():
+                t = lv.terms(ch, fx_pair, row)
+                gg = g_rows[row] * ch.geo
+                f_x, sw = t["f_x"], t["sw"]
+                total += float(np.sum(gg * ch.f_p * f_x * sw))
+                C += np.bincount(t["es"], gg * ch.f_p * f_x / lv.side.r_sx[t["e"], t["s"]] ** 2, minlength=n_es)
+                if lv.wall.lambertian:
+                    A += np.bincount(t["c"], gg * f_x * sw * ch.cos_p, minlength=len(A))
+                if lv.lambertian:
+                    B += np.bincount(t["es"], np.where(t["match"], gg * ch.f_p * sw, 0.0), minlength=n_es)
+                with dr.resume_grad():
+                    if not lv.wall.lambertian:
+                        dr.backward_from(upload((gg * f_x * sw).astype(np.float32)) * lv.f_p_ad(ch), flags=_FLAGS)
+                    if not lv.lambertian:
+                        dr.backward_from(upload((gg * ch.f_p * sw).astype(np.float32)) * lv.f_x_ad(ch, row),
+                                         flags=_FLAGS)
+                if geometry:
+                    lv.geometry(g_elem, grad_ext, ch, t, row)
         with dr.resume_grad():
             for coef, value in ((C, lambda: lv.side.intensity_ad(scene, lv.lv.X0)),
                                 (A, lv.wall.value_ad), (B, lambda: lv.lv.surf.toward_ad(lv.side.S))):
@@ -192,10 +241,12 @@ def quadrature_backward(integrator, scene, params, grad_in, sensor) -> None:
                     dr.backward_from(upload(coef.astype(np.float32)) * value(), flags=_FLAGS)
             if total != 0.0:
                 dr.backward_from(n_att() * (total / lv.g.N), flags=_FLAGS)
-    inp = wall_return_inputs(setup, [0])
+        if geometry:
+            vertex_backward(setup.hidden_shapes, mesh_vertex_gradients(setup.hidden_shapes, lv.prov, g_elem), _FLAGS)
+    inp = wall_return_inputs(setup, spots)
     if inp is not None:  # (last: it clears the edges it traverses)
         P = setup.width * setup.height
-        rec = Backward(grad.reshape(1, P, axis.n_bins), taps, axis, 1, P, 1, TimeKernel(axis, 0.0, taps), 1.0)
+        rec = Backward(grad.reshape(G, P, axis.n_bins), taps, axis, 1, P, G, TimeKernel(axis, 0.0, taps), 1.0)
         wall_return_backward(scene, setup.relay_wall.bsdf(), inp, n_att, rec, P)
 
 
@@ -207,7 +258,7 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
     for other BSDFs, the pairs' values, the wall return, ``N``) is pushed forward by one ``dr.forward_to`` (a
     second call would not see the parameters' tangents again). With BSDFs that are not Lambertian forward mode
     holds every chunk's pair data at once (memory grows with the pairs; reverse mode's does not)."""
-    setup, options = check(integrator, scene, sensor, params)
+    setup, options, _ = check(integrator, scene, sensor, params)
     film = sensor.film()
     taps, axis = film.kernel_taps(), film.time_axis()
     n_att = setup.laser.photons_per_pulse_ad
@@ -226,10 +277,10 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
             values += [lv.side.intensity_ad(scene, lv.lv.X0),
                        lv.wall.value_ad() if lv.wall.lambertian else mi.Float(0.0),
                        lv.lv.surf.toward_ad(lv.side.S) if lv.lambertian else mi.Float(0.0)]
-            for ch, t in (lv.chunks(scene) if per_pair else ()):
+            for ch, fx_pair in (lv.chunks(scene) if per_pair else ()):
                 values += [lv.f_p_ad(ch) if not lv.wall.lambertian else mi.Float(0.0),
-                           lv.f_x_ad(ch) if not lv.lambertian else mi.Float(0.0)]
-                held.append((ch, t))
+                           lv.f_x_ad(ch, 0) if not lv.lambertian else mi.Float(0.0)]
+                held.append((ch, fx_pair))
         tangents = [np.asarray(t, dtype=np.float64) for t in dr.forward_to(*values, flags=_FLAGS_FORWARD)]
     d_log_n = float(tangents[0][0]) / g.N
     i = 1
@@ -248,10 +299,11 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
         scratch = np.zeros((1, P, g.n_ext))
         z = np.zeros((1, P))
         ones_es = np.ones((lv.lv.n, lv.G))
-        for ch, t in (held if per_pair else lv.chunks(scene)):
+        for ch, fx_pair in (held if per_pair else lv.chunks(scene)):
             if per_pair:
                 d_fp_pair, d_fx_pair = tangents[i], tangents[i + 1]
                 i += 2
+            t = lv.terms(ch, fx_pair, 0)
             e, s = t["e"], t["s"]
             d_fp = d_wall[t["c"]] * ch.cos_p if lv.wall.lambertian else d_fp_pair
             d_fx = np.where(t["match"], d_elem[t["es"]], 0.0) if lv.lambertian else d_fx_pair

@@ -213,10 +213,16 @@ def masses(buf, tlo, a, b, cell, n_ext):
 
 
 @numba.njit(cache=True, fastmath=False)
+def _masses(buf, tlo, a, b, u1, u2, t1, t2, n_ext):
+    """:func:`masses` of one pair given its cell's widths and tilts (the per-pair form)."""
+    return masses(buf, tlo, a, b, cell_widths(u1, u2, t1, t2), n_ext)
+
+
+@numba.njit(cache=True, fastmath=False)
 def _spread_one(buf, hist_k, bound_k, f, fe, tlo, a, b, u1, u2, t1, t2, n_ext):
     """Deposit one pair's light ``f`` (and its visibility error ``fe``) into one pixel's rows; returns the light
     arriving outside the padded axis (``buf``: scratch of ``n_ext`` bins for :func:`masses`)."""
-    first, last, inside = masses(buf, tlo, a, b, cell_widths(u1, u2, t1, t2), n_ext)
+    first, last, inside = _masses(buf, tlo, a, b, u1, u2, t1, t2, n_ext)
     for bin_ in range(first, last + 1):
         m = buf[bin_]
         hist_k[bin_] += f * m

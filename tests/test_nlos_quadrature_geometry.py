@@ -1,0 +1,229 @@
+"""Geometry derivatives of the deterministic three-bounce estimator (``estimator="quadrature"``):
+transient_mi/integrators/_nlos_quadrature_geom.py and _nlos_mass_adjoint.py, hooked into ``render_backward``
+(docs/quadrature.md, "Derivatives").
+
+Scenes: those of tests/test_nlos_quadrature_ad.py (a 0.2 m Lambertian square 0.4 m in front of a 1 m relay
+wall, 2 x 2 pixels, 128 bins of 50 ps, a 100 ps temporal kernel, 4 cm elements, 2 x 2 cells), without the
+occluder: the derivative is the interior one (visibility held fixed), which central differences of the
+primal see only while no visibility sample changes its verdict, and with nothing in the way none does.
+
+Tolerances (every test here is deterministic: no false-failure rate to state):
+
+* the bin masses in float64 against central differences of the primal's ``_masses`` with step 1e-6 bins:
+  rounding ~1e-16 / 1e-6 = 1e-10 and truncation ~h^2 (h where a bin edge crosses a knot, the second
+  derivative jumps: ~1e-6); tolerance 1e-5 of ``1 + |derivative|`` (measured: below 4e-7);
+* the capture (float32 histograms) against central differences with steps of 0.25 mm and 0.05 rad: the
+  truncation, ~h^2 f''' / 6, is ~1e-6 of the derivative at these steps (16x smaller than at 1 mm, where it
+  is ~1e-3 along z), float32 rounding (6e-8 of a bin) divided by the relative step a few 1e-6 more
+  (measured before the cell tilt: at most 6e-5). The primal's cell tilt (a first-order amplitude slope across
+  a wall cell, main's dda01d8) is not differentiated yet (neither its geometric dependence nor its terms'
+  knot and width derivatives): measured 8e-4 along y and 4e-3 for the rotation about x with it; tolerance
+  relative 1e-2 until the tilt is differentiated.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+import transient_mi  # noqa: F401,E402  (before mitsuba/drjit)
+import drjit as dr  # noqa: E402
+import mitsuba as mi  # noqa: E402
+
+import nlos_helpers as nh  # noqa: E402
+from ad_helpers import detach_all  # noqa: E402
+from test_nlos_quadrature_ad import _scene  # noqa: E402
+from transient_mi.props import PluginParameterError  # noqa: E402
+
+STEP_M = 2.5e-4
+STEP_DEG = 0.2
+REL_TOL = 1e-2
+
+
+def test_mass_derivatives_equal_central_differences():
+    """d(sum_j r_j m_j) / d(t_lo, a, b, w1, w2) against central differences of the primal's masses, for
+    random pairs including coincident knots (a = 0, a = b, a ~ 1e-6 b) and widths the primal treats as
+    infinitesimal (w1 = 0; both zero)."""
+    from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
+    from transient_mi.integrators._nlos_time_spread import _masses
+
+    rng = np.random.default_rng(1)
+    n_ext, h = 40, 1e-6
+    for trial in range(600):
+        kind = trial % 6
+        a0, b0 = sorted(rng.uniform(0, 6, 2))
+        a0 = {1: 0.0, 2: b0, 3: 1e-6 * b0}.get(kind, a0)
+        u1, u2 = rng.uniform(0, 4, 2)
+        if kind >= 4:
+            u1 = 0.0
+        if kind == 5:
+            u2, b0 = 0.0, max(b0, 1.0)
+        p0 = np.array([rng.uniform(5, 25), a0, b0, u1, u2])
+        row = rng.normal(size=n_ext)
+
+        def loss(p):
+            buf = np.zeros(n_ext)
+            f, last, _ = _masses(buf, *p, 0.0, 0.0, n_ext)
+            return float(np.dot(row[f:last + 1], buf[f:last + 1]))
+
+        out = mass_adjoint(row, *p0, 0.0, 0.0, n_ext)
+        assert out[0] == pytest.approx(loss(p0), abs=1e-12)
+        for q in range(5):
+            dp = np.zeros(5)
+            dp[q] = h
+            pp, pm = p0 + dp, p0 - dp
+            if pm[1] < 0 or pp[1] > pp[2] or pm[2] < pm[1] or min(pm[3:]) < 0 or (q >= 3 and p0[q] == 0):
+                continue  # (a one-sided neighbourhood, or a width the primal ignores)
+            fd = (loss(pp) - loss(pm)) / (2 * h)
+            assert abs(out[q + 1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, q, fd, out[q + 1])
+
+
+def _rigid(scene, params, key, x0, t):
+    T = mi.Transform4f
+    params[key] = T().translate([t[0], t[1], t[2]]) @ T().rotate([1, 0, 0], t[3]) @ T().rotate([0, 1, 0], t[4]) @ x0
+    params.update()
+
+
+def _loss(scene, w) -> float:
+    return float(np.sum(np.asarray(mi.render(scene), dtype=np.float64) * w))
+
+
+def _backward(scene, params, setter, n, w):
+    th = [mi.Float(0.0) for _ in range(n)]
+    for t in th:
+        dr.enable_grad(t)
+    setter(th)
+    img = mi.render(scene, params)
+    dr.backward(dr.sum(img * mi.TensorXf(w), axis=None))
+    g = np.array([float(dr.grad(t)[0]) for t in th])
+    for t in th:
+        dr.disable_grad(t)
+    return g
+
+
+@pytest.mark.parametrize("capture", ["array", "confocal"])
+def test_rigid_motion_gradient_equals_central_differences(capture):
+    """``to_world`` of the hidden square: translations along x, y, z and rotations about x and y, reverse mode
+    against central differences of the primal; twice the same bytes."""
+    scene = _scene(capture, occluder=False)
+    params = mi.traverse(scene)
+    key = "target.to_world"
+    x0 = mi.Transform4f(params[key])
+    w = np.random.default_rng(5).random((2, 2, 128)).astype(np.float32)
+
+    def setter(t):
+        _rigid(scene, params, key, x0, t)
+
+    g = _backward(scene, params, setter, 5, w)
+    assert np.array_equal(g, _backward(scene, params, setter, 5, w))
+    for q, h in enumerate([STEP_M] * 3 + [STEP_DEG] * 2):
+        lo = [0.0] * 5
+        hi = [0.0] * 5
+        lo[q], hi[q] = -h, h
+        setter(hi)
+        up = _loss(scene, w)
+        setter(lo)
+        fd = (up - _loss(scene, w)) / (2 * h)
+        assert fd != 0 and g[q] == pytest.approx(fd, rel=REL_TOL), (q, g[q], fd)
+    params[key] = x0
+    params.update()
+    detach_all(params)
+
+
+def _mesh_scene():
+    """The square as a four-vertex mesh without vertex normals (``vertex_positions`` exposed), facing the wall."""
+    v = np.array([[-0.05, -0.08, 0.40], [0.15, -0.08, 0.42], [0.15, 0.12, 0.38], [-0.05, 0.12, 0.41]])
+    f = np.array([[0, 2, 1], [0, 3, 2]], dtype=np.uint32)
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.6}})
+    mesh = mi.Mesh("target", 4, 2, has_vertex_normals=False, props=props)
+    mp = mi.traverse(mesh)
+    mp["vertex_positions"] = mi.Float(v.astype(np.float32).ravel())
+    mp["faces"] = mi.UInt32(f.ravel())
+    mp.update()
+    orig = mi.load_dict
+
+    def load(d, **kw):
+        d["sensor"]["film"]["kernel_sigma_ps"] = 100.0
+        return orig(d, **kw)
+
+    mi.load_dict = load
+    try:
+        scene = nh.nlos_scene(hidden=[mesh], n_bins=128, width=2, height=2, bin_width_ps=50.0, t0_ps=9000.0,
+                              max_depth=4)
+    finally:
+        mi.load_dict = orig
+    scene.integrator().nlos_options.update(estimator="quadrature", element_size_m=0.04, patch_cells=2,
+                                           refine_levels=1)
+    return scene
+
+
+def test_vertex_positions_gradient_equals_central_differences():
+    """A deformation (every vertex along its own random direction: areas, normals and knots change) of a mesh's
+    ``vertex_positions``: the reverse-mode gradient dotted with the direction against a central difference."""
+    scene = _mesh_scene()
+    params = mi.traverse(scene)
+    key = [k for k in params.keys() if k.endswith("vertex_positions")][0]
+    v0 = np.asarray(params[key], dtype=np.float64)
+    w = np.random.default_rng(5).random((2, 2, 128)).astype(np.float32)
+    dirs = np.random.default_rng(2).normal(size=(3, v0.size))
+    vf = mi.Float(v0.astype(np.float32))
+    dr.enable_grad(vf)
+    params[key] = vf
+    params.update()
+    img = mi.render(scene, params)
+    dr.backward(dr.sum(img * mi.TensorXf(w), axis=None))
+    grad = np.asarray(dr.grad(vf), dtype=np.float64)
+    detach_all(params)
+    for d in dirs:
+        d = d / np.abs(d).max()
+        ls = []
+        for s in (1, -1):
+            params[key] = mi.Float((v0 + s * STEP_M * d).astype(np.float32))
+            params.update()
+            ls.append(_loss(scene, w))
+        # (the float32 vertex buffer rounds the step: use the step it actually holds)
+        held = (np.asarray(mi.Float((v0 + STEP_M * d).astype(np.float32)), dtype=np.float64)
+                - np.asarray(mi.Float((v0 - STEP_M * d).astype(np.float32)), dtype=np.float64))
+        fd = (ls[0] - ls[1])
+        assert fd != 0 and float(grad @ held) == pytest.approx(fd, rel=REL_TOL)
+    params[key] = mi.Float(v0.astype(np.float32))
+    params.update()
+
+
+def test_what_is_not_differentiated_is_refused_in_one_line():
+    """The relay wall's geometry, geometry in forward mode and a hidden shape whose BSDF is not diffuse."""
+    scene = _scene(occluder=False)
+    sensor = scene.sensors()[0]
+    w = mi.TensorXf(np.zeros((2, 2, 128), np.float32))
+    integ = scene.integrator()
+    cases = [("relay_wall.to_world", lambda p: integ.render_backward(scene, p, w, sensor, 0, 1),
+              r"relay_wall.to_world is being differentiated; estimator=quadrature cannot: the relay wall's geometry"),
+             ("target.to_world", lambda p: integ.render_forward(scene, p, sensor, 0, 1),
+              r"target.to_world is being differentiated; estimator=quadrature's forward mode differentiates BSDF "
+              r"values")]
+    for key, call, msg in cases:
+        params = mi.traverse(scene)
+        dr.enable_grad(params[key])
+        params.update()
+        with pytest.raises(PluginParameterError, match=msg) as e:
+            call(params)
+        assert "\n" not in str(e.value)
+        detach_all(params)
+    hidden = nh.square((0.05, 0.02, 0.4), 0.2, 0.6)
+    hidden["bsdf"] = {"type": "roughplastic"}
+    glossy = nh.nlos_scene(hidden=[hidden], n_bins=64, width=2, height=2, bin_width_ps=50.0, t0_ps=9000.0)
+    glossy.integrator().nlos_options.update(estimator="quadrature")
+    params = mi.traverse(glossy)
+    dr.enable_grad(params["target.to_world"])
+    params.update()
+    with pytest.raises(PluginParameterError, match=r"its BSDF is not diffuse") as e:
+        glossy.integrator().render_backward(glossy, params, mi.TensorXf(np.zeros((2, 2, 64), np.float32)),
+                                            glossy.sensors()[0], 0, 1)
+    assert "\n" not in str(e.value)
+    detach_all(params)

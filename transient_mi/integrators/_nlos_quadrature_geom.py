@@ -1,0 +1,333 @@
+r"""Geometry derivatives of the deterministic three-bounce estimator (``estimator="quadrature"``): reverse mode
+with respect to the hidden meshes' vertex positions (and so to whatever moves them in Dr.Jit: Mitsuba's
+``vertex_positions``, a ``rectangle``'s ``to_world``, a fit model's parameters).
+
+What moves with a vertex
+------------------------
+Every element is a fixed barycentric combination of its mesh triangle's vertices (the subdivision, the
+midpoint splits and the visibility refinement are linear: :func:`~._nlos_elements.provenance`), so an
+element's vertices move linearly with the mesh's and the chain rule to the mesh is a fixed sparse map. A pair
+(element ``e``, cell ``c``) deposits ``F m_j(t_lo, a, b, w_1, w_2)`` (``F``: its light, the visible share
+included; ``m_j``: the exact bin masses). Differentiated, for the light ``F`` (the product of the element's
+area, ``|cos theta_X|``, ``1 / r_pX^2``, the wall's ``f_p cos``, the element's ``f_X cos``, the spot's
+``f_S cos`` and ``1 / r_SX^2``, all at the centroid ``X_0``, the unit normal ``n`` and the area of the
+element):
+
+* area and normal from the element's vertices (``n A = (V_1 - V_0) x (V_2 - V_0) / 2``);
+* distances and directions from ``X_0`` (the mean of the vertices) to the cell centre and to the spot;
+* the BSDFs: the relay wall's and the differentiated shapes' BSDFs must be diffuse (``f`` independent of the
+  directions: Mitsuba's ``diffuse``, ``twosided`` of it, textured or not), so ``f cos = k cos`` with ``k`` the
+  primal's value over its cosine, and only the cosine moves; a textured reflectance is read at the centroid's
+  fixed barycentric position, so it does not. Other BSDFs are refused in one line. Meshes with smooth vertex
+  normals are refused too (their shading normal would move in a way not differentiated here); flat ones (a
+  ``rectangle``'s) shade with the element's normal.
+
+and for the masses, through the knots (the vertices' path lengths ``|V_v - p| + |V_v - S|``, the 3/4
+convexity shift of the centroid's ``|X_0 - p| + |X_0 - S|``, the cell's shift, which reads ``X_0``) and the
+cell's widths ``w_1, w_2`` (which read the direction ``p -> X_0``) with the closed-form mass derivatives of
+:mod:`~._nlos_mass_adjoint`.
+
+Held fixed: visibility (which samples of an element see the cell and the spot, so the visible share of
+a mixed pair), the elements' subdivision (counts, refinement), the point where the wall is hit. So this is
+the *interior* derivative of the quadrature's primal: light appearing or vanishing behind an occluding
+edge, at a silhouette or where an element's visibility samples change their verdict is not differentiated
+(the primal jumps there); neither is the cell tilt's dependence on the geometry (the first-order amplitude
+slope across a wall cell, ``Chunk.tilt``: its terms enter the masses and their shift derivative, not their
+knot, width or tilt derivatives; measured up to 4e-3 of the gradient on the test scene), the error estimate
+(coarse level), nor a branch switch of the primal
+(a cell width crossing ``REL_WIDTH_EPS`` of the spread: the primal's truncation there is below 1e-6).
+
+Numba, float64, one thread per element looping over its pairs in cell order, jobs (spots) in order: the
+same inputs give the same bytes.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numba
+import numpy as np
+
+from transient_mi.props import PluginParameterError
+
+from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
+
+#: A cosine or distance below this does not take part in the log-derivative of a pair's light (a grazing pair).
+_TINY = 1e-12
+
+
+@numba.njit(cache=True, fastmath=False)
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@numba.njit(cache=True, fastmath=False)
+def _cross(a, b):
+    out = np.empty(3)
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+    return out
+
+
+@numba.njit(cache=True, fastmath=False)
+def _visible_share(vis_p, vis_s, i, e):
+    """``(nvis, share)``: how many of pair ``i``'s four visibility samples see both the cell and the spot, and
+    their share of the pair (centroid 1/2, corners 1/6 each)."""
+    nvis = 0
+    frac = 0.0
+    for s in range(4):
+        if vis_p[i, s] and vis_s[e, s]:
+            nvis += 1
+            frac += 0.5 if s == 0 else 1.0 / 6.0
+    return nvis, frac
+
+
+@numba.njit(cache=True, fastmath=False)
+def _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins):
+    """Pair ``i`` (element ``e``): its smallest knot (bins on the padded axis) and the other two relative to
+    it, ``(t_lo, a, b)``, ``0 <= a <= b`` (see :func:`spread_spot`)."""
+    l0 = opl_d[i] + r_pv[i, 0] + r_sv[e, 0] + spot_opl
+    l1 = opl_d[i] + r_pv[i, 1] + r_sv[e, 1] + spot_opl
+    l2 = opl_d[i] + r_pv[i, 2] + r_sv[e, 2] + spot_opl
+    lc = opl_d[i] + r_px[i] + r_sx[e] + spot_opl
+    shift = 0.75 * (lc - (l0 + l1 + l2) / 3.0) + cell_shift[i]
+    t0 = (l0 + shift) / bin_m - t_origin_bins
+    t1 = (l1 + shift) / bin_m - t_origin_bins
+    t2 = (l2 + shift) / bin_m - t_origin_bins
+    if t0 > t1:
+        t0, t1 = t1, t0
+    if t1 > t2:
+        t1, t2 = t2, t1
+    if t0 > t1:
+        t0, t1 = t1, t0
+    return t0, t1 - t0, t2 - t0
+
+
+@numba.njit(cache=True, parallel=True, fastmath=False)
+def pair_lengths(cell_p, X0, tri, e0, e1, D, ax, ay, fl, has_cells):
+    """The detector-side lengths :func:`geometry_adjoint` reads, per pair of a chunk (cells x elements ``e0:e1``,
+    cell-major, as :class:`~._nlos_pairs.Chunk`): ``r_pv [n, 3]`` (cell centre to the element's vertices),
+    ``r_px`` (to its centroid), ``opl_d`` (the detector leg) and ``cell_shift`` (the cell's convexity shift), m;
+    the primal folds them into its knots (:func:`~._nlos_pair_kernels.pair_geometry`)."""
+    C = cell_p.shape[0]
+    ne = e1 - e0
+    n = C * ne
+    r_pv = np.empty((n, 3))
+    r_px = np.empty(n)
+    opl_d = np.empty(n)
+    cell_shift = np.zeros(n)
+    for i in numba.prange(n):
+        c = i // ne
+        e = e0 + i - c * ne
+        p = cell_p[c]
+        r = np.sqrt(_dot(X0[e] - p, X0[e] - p))
+        r_px[i] = r
+        for v in range(3):
+            r_pv[i, v] = np.sqrt(_dot(tri[e, v] - p, tri[e, v] - p))
+        rd = np.sqrt(_dot(p - D, p - D))
+        opl_d[i] = fl * rd
+        if has_cells:
+            acc = 0.0
+            for cu in (-0.5, 0.5):
+                for cv in (-0.5, 0.5):
+                    q = p + cu * ax + cv * ay
+                    acc += fl * np.sqrt(_dot(q - D, q - D)) + np.sqrt(_dot(X0[e] - q, X0[e] - q))
+            cell_shift[i] = (acc / 4.0 - (fl * rd + r)) / 3.0
+    return r_pv, r_px, opl_d, cell_shift
+
+
+@numba.njit(cache=True, parallel=True, fastmath=False)
+def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, ay, D, fl, has_cells, wall_n,
+                     tri, X0, nrm, area, base, f_x, vis_p, r_pv, r_px, opl_d, cell_shift, w1, w2, tilt, vis_s,
+                     spot_weight, S, r_sv, r_sx, spot_opl, bin_m, t_origin_bins):
+    """Add to ``out [n, 3, 3]`` (per element, per vertex, xyz) the derivative of ``sum(grad_ext * hist)`` with
+    respect to the element vertices, for one job of a chunk: the elements ``e0 .. e0 + ne - 1`` and the cells
+    ``c_lo .. c_hi - 1`` (pair ``i = c ne + (e - e0)``) lit by the spot ``S``.
+
+    ``grad_ext [n_pixels, n_ext]``: the adjoint of the padded histograms (pixel ``cell_pixel[c]``). Per pair
+    (chunk order, as :class:`~._nlos_pairs.Chunk`): ``base`` (``geo f_p``), ``f_x``, ``vis_p`` (bool ``[n, 4]``),
+    ``r_pv``, ``r_px``, ``opl_d``, ``cell_shift`` (:func:`pair_lengths`), ``w1``, ``w2``. Per element (this spot): ``vis_s``, ``spot_weight``,
+    ``r_sv``, ``r_sx``; ``tri``, ``X0``, ``nrm``, ``area`` of :func:`~._nlos_pairs.element_terms`. ``ax``,
+    ``ay``: the cell's edge vectors (m); ``wall_n``: the relay wall's unit normal; ``D``: the detector; ``fl``: 1
+    when the detector leg is in the path length. Lengths in metres, ``spot_opl`` the laser leg,
+    ``t_origin_bins`` the padded axis's origin in path-length bins.
+    """
+    for j in numba.prange(ne):
+        e = e0 + j
+        xb = np.zeros(3)  # adjoint of the centroid
+        nb = np.zeros(3)  # of the unit normal
+        ab = 0.0  # of the area
+        vb = np.zeros((3, 3))  # of the vertices directly (the knots' path lengths)
+        x0 = X0[e]
+        nn = nrm[e]
+        us = S - x0
+        rs = np.sqrt(_dot(us, us))
+        us = us / rs  # element -> spot
+        c_x = _dot(nn, us)
+        c_s = -_dot(wall_n, us)
+        perm = np.empty(3, dtype=np.int64)
+        tk = np.empty(3)
+        tb = np.empty(3)
+        for c in range(c_lo, c_hi):
+            i = c * ne + j
+            full = base[i] * f_x[i] * spot_weight[e]
+            if full == 0.0:
+                continue
+            nvis, frac = _visible_share(vis_p, vis_s, i, e)
+            if nvis == 0:
+                continue
+            f = full * frac
+            k = cell_pixel[c]
+            tlo, a, b = _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins)
+            acc, s_t, s_a, s_b, s_w1, s_w2 = mass_adjoint(grad_ext[k], tlo, a, b, w1[i], w2[i], tilt[i, 0], tilt[i, 1],
+                                                        grad_ext.shape[1])
+            if acc == 0.0 and s_t == 0.0 and s_a == 0.0 and s_b == 0.0 and s_w1 == 0.0 and s_w2 == 0.0:
+                continue
+            p = cell_p[c]
+            d = x0 - p
+            r = np.sqrt(_dot(d, d))
+            d = d / r  # cell -> centroid
+            # --- the light F (log-derivative of each factor, times F * acc)
+            fa = f * acc
+            ab += fa / area[e]
+            cx = _dot(nn, d)
+            if abs(cx) > _TINY:
+                nb += fa * d / cx
+                xb += fa * (nn - cx * d) / (r * cx)
+            xb += fa * (-2.0 / r) * d
+            cp = _dot(wall_n, d)
+            if abs(cp) > _TINY:
+                xb += fa * (wall_n - cp * d) / (r * cp)
+            if abs(c_x) > _TINY:
+                nb += fa * us / c_x
+                xb -= fa * (nn - c_x * us) / (rs * c_x)
+            if abs(c_s) > _TINY:
+                xb += fa * (wall_n + c_s * us) / (rs * c_s)  # d/dX0 of wall_n . (-us)
+            xb += fa * (2.0 / rs) * us
+            # --- the masses: knots (sorted as _pair_knots sorts them) and widths
+            for v in range(3):
+                tk[v] = r_pv[i, v] + r_sv[e, v]
+                perm[v] = v
+            for (u, w) in ((0, 1), (1, 2), (0, 1)):
+                if tk[perm[u]] > tk[perm[w]] or (tk[perm[u]] == tk[perm[w]] and perm[u] > perm[w]):
+                    perm[u], perm[w] = perm[w], perm[u]
+            tb[perm[0]] = s_t - s_a - s_b
+            tb[perm[1]] = s_a
+            tb[perm[2]] = s_b
+            fb = f / bin_m
+            for v in range(3):
+                lb = fb * (tb[v] - 0.25 * s_t)  # knot v = (l_v + 0.75 (l_c - mean l) + cell_shift) / bin_m - origin
+                qv = tri[e, v] - p
+                sv = tri[e, v] - S
+                vb[v] += lb * (qv / r_pv[i, v] + sv / r_sv[e, v])
+            xb += (0.75 * fb * s_t) * (d - us)  # the centroid's path length r_pX + r_SX
+            if has_cells:
+                g = np.zeros(3)
+                for cu in (-0.5, 0.5):
+                    for cv in (-0.5, 0.5):
+                        q = x0 - (p + cu * ax + cv * ay)
+                        g += q / np.sqrt(_dot(q, q))
+                xb += (fb * s_t / 3.0) * (0.25 * g - d)
+            if s_w1 != 0.0 or s_w2 != 0.0:
+                qd = p - D
+                gv = fl * qd / np.sqrt(_dot(qd, qd)) - d
+                for (wv, sw) in ((ax, s_w1), (ay, s_w2)):
+                    if sw != 0.0:
+                        sg = 1.0 if _dot(gv, wv) > 0.0 else -1.0
+                        xb -= (f * sw * sg / bin_m) * (wv - _dot(wv, d) * d) / r
+        # --- centroid, unit normal and area to the vertices
+        e1 = tri[e, 1] - tri[e, 0]
+        e2 = tri[e, 2] - tri[e, 0]
+        nr = _cross(e1, e2)
+        ln = np.sqrt(_dot(nr, nr))
+        nrb = ab * 0.5 * nn + (nb - _dot(nb, nn) * nn) / ln
+        e1b = _cross(e2, nrb)
+        e2b = _cross(nrb, e1)
+        for v in range(3):
+            for q in range(3):
+                out[e, v, q] += vb[v, q] + xb[q] / 3.0
+        for q in range(3):
+            out[e, 1, q] += e1b[q]
+            out[e, 2, q] += e2b[q]
+            out[e, 0, q] -= e1b[q] + e2b[q]
+
+
+def mesh_vertex_gradients(shapes, prov: np.ndarray, grad_elem: np.ndarray) -> list[np.ndarray]:
+    """Pull the element-vertex gradients ``grad_elem [n, 3, 3]`` back to every hidden mesh's vertices: one
+    ``[V_s, 3]`` float64 array per shape (order of ``shapes``), through the elements' ``prov [n, 3, 4]``
+    (:func:`~._nlos_elements.provenance` on :func:`~._nlos_elements.mesh_triangles`' rows). Deterministic
+    (``np.add.at`` adds in order)."""
+    src = np.rint(prov[:, 0, 3]).astype(np.int64)
+    contrib = np.einsum("evu,evk->euk", prov[:, :, :3], grad_elem)  # [n, source vertex, xyz]
+    faces = [np.asarray(s.faces_buffer(), dtype=np.int64).reshape(-1, 3) for s in shapes]
+    n_tri = sum(len(f) for f in faces)
+    per_tri = np.zeros((n_tri, 3, 3))
+    np.add.at(per_tri, src, contrib)
+    out, row = [], 0
+    for s, f in zip(shapes, faces):
+        g = np.zeros((int(s.vertex_count()), 3))
+        np.add.at(g, f.ravel(), per_tri[row: row + len(f)].reshape(-1, 3))
+        out.append(g)
+        row += len(f)
+    return out
+
+
+def is_diffuse(bsdf) -> bool:
+    """Whether ``bsdf`` reflects diffusely only (``f`` independent of the directions: ``diffuse``, ``twosided``
+    of it; a texture is allowed)."""
+    ok = int(mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
+             | mi.BSDFFlags.SpatiallyVarying)
+    f = int(bsdf.flags())
+    return bool(f & int(mi.BSDFFlags.DiffuseReflection)) and not (f & ~ok)
+
+
+def flat_shaded(mesh) -> bool:
+    """Whether ``mesh``'s shading normal is its faces' geometric normal (no vertex normals, or each face's equal
+    to its normal within 1e-5 rad, as a ``rectangle``'s): then the element normal's derivative is the shading
+    normal's."""
+    if not mesh.has_vertex_normals():
+        return True
+    v = np.asarray(mesh.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+    n = np.asarray(mesh.vertex_normals_buffer(), dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(mesh.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    cos = np.einsum("fk,fvk->fv", fn, n[f]) / np.maximum(np.linalg.norm(n[f], axis=2), 1e-300)
+    return bool(np.all(cos > 1.0 - 5e-11))
+
+
+def check_geometry(name: str, setup, params, keys) -> None:
+    """Refuse, in one line, a geometry parameter the quadrature's reverse mode does not differentiate: anything
+    but a hidden mesh's ``vertex_positions`` or ``to_world``, the relay wall's geometry, meshes with vertex
+    normals, BSDFs that are not diffuse (of the moving shape or of the relay wall)."""
+    hidden = {s.id(): s for s in setup.hidden_shapes}
+    wall = setup.relay_wall.id()
+    for key in keys:
+        node = params.properties[key][2]
+        why = None
+        if node.id() == wall:
+            why = "the relay wall's geometry is not differentiated"
+        elif key.rsplit(".", 1)[-1] not in ("vertex_positions", "to_world"):
+            why = "only a hidden mesh's vertex_positions or to_world are"
+        elif node.id() not in hidden:
+            why = "it is not a hidden mesh of the capture"
+        elif not flat_shaded(node):
+            why = "the mesh has smooth vertex normals (the moving shading normal is not differentiated)"
+        elif not is_diffuse(node.bsdf()):
+            why = "its BSDF is not diffuse (only a direction-independent f is differentiated in the directions)"
+        elif not is_diffuse(setup.relay_wall.bsdf()):
+            why = "the relay wall's BSDF is not diffuse"
+        if why is not None:
+            raise PluginParameterError(f"{name}: {key} is being differentiated; estimator=quadrature cannot: {why} "
+                                       "(use estimator=monte_carlo)")
+
+
+def vertex_backward(shapes, grads, flags) -> None:
+    """Back-propagate each shape's vertex gradient ``[V, 3]`` into whatever its vertex buffer is attached to
+    (``vertex_positions``, ``to_world``); shapes whose buffer is not attached are skipped."""
+    with dr.resume_grad():
+        for s, g in zip(shapes, grads):
+            buf = s.vertex_positions_buffer()
+            if dr.grad_enabled(buf) and np.any(g):
+                dr.backward_from(buf * mi.Float(g.astype(np.float32).ravel()), flags=flags)
