@@ -159,6 +159,30 @@ def adjoint_group(g, grad_ext, per_pixel, e0, ne, vis_p, A, w1, w2, tilt, vis_s,
                 g[row, i] = _SHARE[m] * acc
 
 
+@numba.njit(cache=True, parallel=True, fastmath=False)
+def pairs_lit(geo, cos_p, side_x, e0, ne, per_pixel, vis_s, side_s, wall_lambertian, lambertian, confocal):
+    """Which pairs of a chunk can carry light for some spot of the group, by geometry alone (so a zero BSDF value
+    or intensity still gets its derivative): ``geo > 0``, the element in front of a Lambertian wall (``cos_p >
+    0``), and a spot that sees one of the element's samples, on the cell's side of a Lambertian element. The
+    others have no light and no derivative whatever their visibility from the cell, so it is not tested (bool
+    ``[n]``; arguments as :func:`spread_group`)."""
+    n = geo.shape[0]
+    G = side_s.shape[1]
+    lit = np.zeros(n, dtype=np.bool_)
+    for i in numba.prange(n):
+        if geo[i] == 0.0 or (wall_lambertian and cos_p[i] == 0.0):
+            continue
+        e = e0 + i % ne
+        k = i // per_pixel
+        s_lo = k if confocal else 0
+        s_hi = k + 1 if confocal else G
+        for s in range(s_lo, s_hi):
+            if vis_s[e, s] != 0 and (not lambertian or side_x[i] * side_s[e, s] > 0):
+                lit[i] = True
+                break
+    return lit
+
+
 def cell_terms(cell_p: np.ndarray, D: np.ndarray, ax: np.ndarray, ay: np.ndarray, fl: float, ap_n: np.ndarray,
                wall_n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What :func:`pair_geometry` needs of each cell alone (cells ``[C, 3]``, edge vectors ``ax``, ``ay``):

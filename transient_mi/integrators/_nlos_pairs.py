@@ -19,7 +19,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from transient_mi.integrators._nlos_elements import sample_points
-from transient_mi.integrators._nlos_pair_kernels import pair_geometry, spot_knots, spread_group, visibility_mask
+from transient_mi.integrators._nlos_pair_kernels import (pair_geometry, pairs_lit, spot_knots, spread_group,
+                                                         visibility_mask)
 from transient_mi.integrators._nlos_surfaces import (ElementSurfaces, WallCells, sample_visibility,
                                                      spot_intensity)
 
@@ -100,16 +101,18 @@ class SpotSide:
 
 class Chunk:
     """The detector side of the pairs of every cell with the elements ``e0:e1`` (cell-major: pair ``i`` is cell
-    ``i // ne``, element ``e0 + i % ne``): visibility of the element's samples from the cell ``vis_p [n]`` (masks),
-    :func:`~._nlos_pair_kernels.pair_geometry`'s arrays and the wall's BSDF ``f_p`` (per cell times ``cos_p``
-    for a Lambertian wall, per pair otherwise)."""
+    ``i // ne``, element ``e0 + i % ne``): :func:`~._nlos_pair_kernels.pair_geometry`'s arrays, the wall's BSDF
+    ``f_p`` (per cell times ``cos_p`` for a Lambertian wall, per pair otherwise) and the visibility of the element's
+    samples from the cell ``vis_p [n]`` (masks), tested for the pairs that can carry light for a spot of ``side``
+    (:func:`~._nlos_pair_kernels.pairs_lit`; 0 for the others, which the kernels then skip as they skip any pair
+    without light)."""
 
-    def __init__(self, scene, g, lv: LevelElements, wall: WallCells, e0: int, e1: int):
+    def __init__(self, scene, g, lv: LevelElements, wall: WallCells, e0: int, e1: int, side: SpotSide,
+                 confocal: bool):
         C = len(g.cell_p)
         self.e0, self.e1, self.ne = e0, e1, e1 - e0
         self.n = C * self.ne
         self.per_pixel = g.m * g.m * self.ne
-        self.vis_p = visibility_mask(sample_visibility(scene, g.cell_p, g.normal, lv.pts, e0, e1))
         (self.geo, self.cos_p, self.A, self.w1, self.w2, self.tilt,
          self.side_x) = pair_geometry(g.cell_p, g.cell_w0, *g.cell_terms, lv.X0, lv.tri, lv.nrm, lv.area, lv.surf.n_sh,
                                       wall.n_sh, wall.side, e0, e1, g.cell_ax, g.cell_ay, g.fl, g.bin_m, g.N,
@@ -118,6 +121,14 @@ class Chunk:
             self.f_p = (wall.value[:, None] * self.cos_p.reshape(C, self.ne)).reshape(-1)
         else:
             self.f_p = np.asarray(wall.pair_values(g.cell_p, lv.X0, e0, e1), dtype=np.float64)
+        lit = pairs_lit(self.geo, self.cos_p, self.side_x, e0, self.ne, self.per_pixel, side.vis, side.side_s,
+                        wall.lambertian, lv.surf.lambertian, confocal)
+        if lit.all():
+            self.vis_p = visibility_mask(sample_visibility(scene, g.cell_p, g.normal, lv.pts, e0, e1))
+        else:
+            self.vis_p = np.zeros(self.n, dtype=np.uint8)
+            idx = np.flatnonzero(lit)
+            self.vis_p[idx] = visibility_mask(sample_visibility(scene, g.cell_p, g.normal, lv.pts, e0, e1, idx))
 
     def spot_of_pair(self) -> np.ndarray:
         """Confocal captures: each pair's spot (its pixel's: spot ``k`` lies on pixel ``k``'s patch)."""

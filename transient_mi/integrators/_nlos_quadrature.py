@@ -313,7 +313,7 @@ def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_
     side = SpotSide(scene, setup, g, spot_ids, lv)
     wall = WallCells(scene, setup, g.cell_p, g.D)
     for e0, e1 in chunk_starts(len(g.cell_p), lv.n):
-        ch = Chunk(scene, g, lv, wall, e0, e1)
+        ch = Chunk(scene, g, lv, wall, e0, e1, side, confocal)
         ch.spread(out, lv, side, confocal, ch.fx_pairs(g, lv, side, confocal))
         out["pairs"] += ch.n * (1 if confocal else len(spot_ids))
         del ch

@@ -120,7 +120,7 @@ class _FineLevel:
         """``(chunk, fx_pair)`` per chunk (:meth:`~._nlos_pairs.Chunk.fx_pairs`: the primal's per-pair ``f_x`` of
         BSDFs that are not Lambertian)."""
         for e0, e1 in chunk_starts(len(self.g.cell_p), self.lv.n):
-            ch = Chunk(scene, self.g, self.lv, self.wall, e0, e1)
+            ch = Chunk(scene, self.g, self.lv, self.wall, e0, e1, self.side, self.confocal)
             yield ch, ch.fx_pairs(self.g, self.lv, self.side, self.confocal)
 
     def rows(self):

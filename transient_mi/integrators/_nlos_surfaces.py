@@ -104,9 +104,11 @@ def spot_intensity(scene, laser_origin: np.ndarray, beam_dir: np.ndarray, spot: 
     return bsdf_value(sig, to_x / np.linalg.norm(to_x, axis=1, keepdims=True))
 
 
-def sample_visibility(scene, origins: np.ndarray, normal: np.ndarray, pts: np.ndarray, e0: int, e1: int) -> np.ndarray:
+def sample_visibility(scene, origins: np.ndarray, normal: np.ndarray, pts: np.ndarray, e0: int, e1: int,
+                      pairs: np.ndarray | None = None) -> np.ndarray:
     """Visibility of the elements ``e0:e1``'s four samples from every origin (on the relay wall: cell centres,
-    laser spots), ``bool [n_origins * (e1 - e0), 4]`` origin-major (pair ``o * (e1 - e0) + e - e0``).
+    laser spots), ``bool [n_origins * (e1 - e0), 4]`` origin-major (pair ``o * (e1 - e0) + e - e0``); with
+    ``pairs`` (indices in that order) only those pairs, ``bool [len(pairs), 4]``.
 
     A sample is visible when Mitsuba's shadow-ray test (``scene.ray_test``) finds no surface along the ray from
     the origin (offset ``WALL_OFFSET_M`` along the wall's ``normal``) before ``1 - VISIBILITY_REL_TOL`` of the
@@ -115,17 +117,18 @@ def sample_visibility(scene, origins: np.ndarray, normal: np.ndarray, pts: np.nd
     the launch that traces them.
     """
     ne = e1 - e0
-    n_rays = len(origins) * ne * 4
-    if n_rays == 0:
+    n_pairs = len(origins) * ne if pairs is None else len(pairs)
+    if n_pairs == 0:
         return np.zeros((0, 4), dtype=bool)
     org = _d3(np.asarray(origins, dtype=np.float64) + WALL_OFFSET_M * np.asarray(normal, dtype=np.float64))
     tgt = _d3(pts[e0:e1].reshape(-1, 3))
-    j = dr.arange(mi.UInt32, n_rays)
-    pair = j // 4
+    j = dr.arange(mi.UInt32, n_pairs * 4)
+    k = j // 4
+    pair = k if pairs is None else dr.gather(mi.UInt32, _u(pairs), k)
     ne_o = dr.opaque(mi.UInt32, ne)
     o_i = pair // ne_o
     o = _gather3(org, o_i)
-    t = _gather3(tgt, (pair - o_i * ne_o) * 4 + (j - pair * 4))
+    t = _gather3(tgt, (pair - o_i * ne_o) * 4 + (j - k * 4))
     d, r = _unit32([t[0] - o[0], t[1] - o[1], t[2] - o[2]])
     ray = mi.Ray3f(mi.Point3f(mi.Float(o[0]), mi.Float(o[1]), mi.Float(o[2])), d,
                    mi.Float(r) * (1.0 - VISIBILITY_REL_TOL), 0.0, [])

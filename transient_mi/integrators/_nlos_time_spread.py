@@ -38,6 +38,8 @@ import numpy as np
 
 #: Widths below this share of an element's total spread are treated as infinitesimal (see module doc).
 REL_WIDTH_EPS = 1e-3
+#: From this many bins on, a pair's CDF is evaluated at all its edges first (a loop the compiler vectorises).
+VECTOR_EDGES = 4
 
 
 _INV3 = 1.0 / 3.0
@@ -102,9 +104,22 @@ def _g23(y, k):
     z4 = z2 * z2
     d = y - k[2]
     d2 = d * d
-    if y <= k[0]:
-        return k[7] * y4, k[8] * y4 * yp
-    return 0.5 * d2 + k[3] - k[11] * z4, d * (d2 * _INV6 + k[3]) - k[4] + k[12] * z4 * z
+    near = y <= k[0]  # (a select, not a branch: the edge loop of masses vectorises)
+    return (k[7] * y4 if near else 0.5 * d2 + k[3] - k[11] * z4,
+            k[8] * y4 * yp if near else d * (d2 * _INV6 + k[3]) - k[4] + k[12] * z4 * z)
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _cdf_widths(x, k, h1, h2, c0, c1, c2):
+    """:func:`_cdf` with both widths finite: ``G_2`` and ``G_3`` at the four points ``x +- h1 +- h2``, no branch
+    but the pieces' (the tilt terms are added with their factors, 0 without a tilt)."""
+    pp2, pp3 = _g23(x + h1 + h2, k)
+    mp2, mp3 = _g23(x - h1 + h2, k)
+    pm2, pm3 = _g23(x + h1 - h2, k)
+    mm2, mm3 = _g23(x - h1 - h2, k)
+    d3 = pp3 - mp3 - pm3 + mm3
+    return (pp2 - mp2 - pm2 + mm2) * c0 + (c1 * (d3 - h1 * (pp2 + mp2 - pm2 - mm2))
+                                           + c2 * (d3 - h2 * (pp2 + pm2 - mp2 - mm2)))
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
@@ -114,15 +129,7 @@ def _cdf(x, k, h1, h2, mode, c0, c1, c2):
     (``G_2``, ``G_3`` at the four points ``x +- h1 +- h2``); 1: only ``w_2`` (``G_1``, ``G_2`` at ``x +- h2``);
     2: only ``w_1``; 3: neither (``G_0``). ``c0, c1, c2``: the prepared factors of :func:`masses`."""
     if mode == 0:
-        pp2, pp3 = _g23(x + h1 + h2, k)
-        mp2, mp3 = _g23(x - h1 + h2, k)
-        pm2, pm3 = _g23(x + h1 - h2, k)
-        mm2, mm3 = _g23(x - h1 - h2, k)
-        cur = (pp2 - mp2 - pm2 + mm2) * c0
-        if c1 != 0.0 or c2 != 0.0:
-            d3 = pp3 - mp3 - pm3 + mm3
-            cur += c1 * (d3 - h1 * (pp2 + mp2 - pm2 - mm2)) + c2 * (d3 - h2 * (pp2 + pm2 - mp2 - mm2))
-        return cur
+        return _cdf_widths(x, k, h1, h2, c0, c1, c2)
     if mode == 3:
         return _g0(x, k)
     h = h2 if mode == 1 else h1
@@ -200,6 +207,19 @@ def masses(buf, tlo, a, b, cell, n_ext):
     if first > b0:  # the CDF at the first inside bin's lower edge (the bins below the axis are not needed)
         edge = float(first) - tlo
         prev = 1.0 if edge + tlo >= hi else _cdf(edge, k, h1, h2, mode, c0, c1, c2)
+    if mode == 0 and last - first >= VECTOR_EDGES:
+        # the CDF at every edge first (no edge depends on another: the loop runs several edges per instruction),
+        # then the masses in bin order
+        for bin_ in range(first, last + 1):
+            edge = float(bin_ + 1) - tlo
+            cur = _cdf_widths(edge, k, h1, h2, c0, c1, c2)
+            buf[bin_] = 1.0 if edge + tlo >= hi else cur
+        for bin_ in range(first, last + 1):
+            cur = buf[bin_]
+            buf[bin_] = cur - prev
+            inside += cur - prev
+            prev = cur
+        return first, last, inside
     for bin_ in range(first, last + 1):
         edge = float(bin_ + 1) - tlo
         if edge + tlo >= hi:
