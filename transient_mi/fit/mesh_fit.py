@@ -181,7 +181,11 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
         if resuming:
             state = FitState.load(ckpt)
             stage, reg_scale = int(st["stage"]), float(st["reg_scale"])
-            model = _model(v0, f0, float(st["albedo"]), mesh, reg_scale)
+            model = _model(v0, f0, float(st["albedo"]), replace(mesh, step_m=mesh.step_m / 2 ** stage), reg_scale)
+            if len(state.theta) != 3 * len(v0) + 1:  # (stopped between a stage's mesh and its first checkpoint)
+                k = starts[stage]
+                state = FitState(theta=model.initial().tolist(), iteration=k, history=state.history[:k],
+                                 elapsed_s=state.elapsed_s)
             first = json.loads((out / "start.json").read_text())
             start_v, start_f, start_albedo = np.asarray(first["vertices"]), np.asarray(first["faces"]), first["albedo"]
         else:
