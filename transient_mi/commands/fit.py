@@ -36,6 +36,11 @@ def fit_command(
     patches: int = typer.Option(3, "--patches", parser=whole_number("--patches"), metavar="<int>",
                                 help="--model patches: how many."),
     patch_side_m: float = typer.Option(0.2, "--patch-side-m", help="--model patches: side of each patch, metres."),
+    estimator: str = typer.Option("monte_carlo", "--estimator", help="Forward model: monte_carlo, quadrature "
+                                  "(deterministic; slower per iteration, see docs/fit.md), or auto (the quadrature "
+                                  "where the scene allows it)."),
+    element_size_m: float = typer.Option(0.03, "--element-size-m", help="--estimator quadrature: element size "
+                                         "at the end (twice as large for the first half of the iterations), m."),
     start: str = typer.Option("front", "--start", help="--model mesh: start from the backprojection's front surface "
                               "(front) or a closed surface around its occupied voxels (closed)."),
     start_mesh: Path = typer.Option(None, "--start-mesh", help="--model mesh: start from this mesh file instead "
@@ -56,7 +61,7 @@ def fit_command(
     from transient_mi.fit import FitSettings, fit_capture
 
     settings = FitSettings(iterations=iterations, spp=spp, spp_residual=spp_residual, sigma_start_ps=sigma_start_ps,
-                           sigma_end_ps=sigma_end_ps, seed=seed)
+                           sigma_end_ps=sigma_end_ps, seed=seed, estimator=estimator, element_size_m=element_size_m)
     from transient_mi.fit.mesh_fit import MeshSettings
 
     mesh = MeshSettings(start=start, start_mesh=None if start_mesh is None else str(start_mesh), cell_m=cell_m,

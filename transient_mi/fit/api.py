@@ -6,8 +6,9 @@
    with a checkpoint every few iterations (``--resume`` continues from it).
 3. Outputs in the output directory (each file written atomically, ``fit.json`` last):
 
-   ``fit.json``       parameters (start, fitted, truth where known), settings, the objective per iteration,
-                      time, the Poisson NLL of the counts under the start and the fit, metrics
+   ``fit.json``       parameters (start, fitted, truth where known), settings, the estimator used (the
+                      quadrature where the scene allows it, else Monte Carlo, and why), the objective per
+                      iteration, time, the Poisson NLL of the counts under the start and the fit, metrics
    ``fitted.ply``     the fitted mesh (the mannequin as ``transient-mi mannequin`` builds it: watertight)
    ``loss.png``       the objective per iteration and the temporal blur
    ``fit.png``        front views (depth maps) of ground truth, backprojection and fit
@@ -260,7 +261,8 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
         t_start = time.perf_counter()
         manifest = read_manifest(capture)
         mdl = MannequinModel(detail) if model == "mannequin" else PatchesModel(n_patches, patch_side_m)
-        cap = CaptureModel(capture, mdl.faces, mdl.n_vertices, bin_width_ps=bin_width_ps)
+        cap = CaptureModel(capture, mdl.faces, mdl.n_vertices, bin_width_ps=bin_width_ps,
+                           estimator=settings.estimator, element_size_m=settings.element_size_m)
         bounds = _bounds(manifest)
         rec_bp = _backprojection(capture, bounds)
         # (everything checked: only now is anything written)
@@ -302,6 +304,7 @@ def _match_brightness(mdl, cap, theta0: np.ndarray, settings: FitSettings) -> np
     from .optimize import resolve_spp
 
     spp = resolve_spp(settings, cap.width * cap.height)[1]
+    cap.set_element_size(2.0 * settings.element_size_m)  # (the first iterations' elements)
     mu = cap.expected_counts(cap.ideal(settings.seed + 7919, spp, cap.jitter_sigma_ps))
     total = float(mu.sum())
     if total > 0:
@@ -315,6 +318,7 @@ def _finish(out, mdl, cap, manifest, rec_bp, theta0, theta, state, settings, con
     from .optimize import resolve_spp
 
     spp_eval = 4 * resolve_spp(settings, cap.width * cap.height)[1]
+    cap.set_element_size(settings.element_size_m)
     nll = {}
     for label, th in (("start", theta0), ("fit", theta)):
         cap.set_mesh(mdl.vertices(th), mdl.albedo(th))
@@ -346,7 +350,11 @@ def _finish(out, mdl, cap, manifest, rec_bp, theta0, theta, state, settings, con
         "status": "complete", "format": "transient-mi-fit", "format_version": 1, "config": config,
         "parameters": {"names": mdl.names, "start": mdl.as_dict(theta0), "fit": mdl.as_dict(theta),
                        "truth": truth, "error": errors},
-        "poisson_nll": {**nll, "spp": spp_eval, "counts": float(cap.counts.sum())},
+        "estimator": {"requested": settings.estimator, "used": cap.estimator, "why_not_quadrature":
+                      cap.estimator_reason, "element_size_m": cap.element_size_m if cap.estimator == "quadrature"
+                      else None},
+        "poisson_nll": {**nll, "spp": spp_eval if cap.estimator == "monte_carlo" else None,
+                        "counts": float(cap.counts.sum())},
         "metrics": metrics,
         "history": {"objective": [h[0] for h in state.history], "sigma_ps": [h[1] for h in state.history],
                     "seconds": [h[2] for h in state.history],

@@ -79,7 +79,7 @@ class CaptureModel:
     """
 
     def __init__(self, capture_dir, faces: np.ndarray, n_vertices: int, *, bin_width_ps: float = 10.0,
-                 albedo: float = 0.5):
+                 albedo: float = 0.5, estimator: str = "auto", element_size_m: float = 0.03):
         self.capture_dir = Path(capture_dir)
         m = read_manifest(self.capture_dir)
         if m.get("kind") != "counts":
@@ -118,6 +118,7 @@ class CaptureModel:
         self.k_floor = float(held.mean()) if held.size else 1.0
         self._detector_setup(m)
         self._scene_setup(render, faces, n_vertices, albedo)
+        self._choose_estimator(estimator, element_size_m)
         self._blurred = {}
         self._keep = None
 
@@ -225,6 +226,41 @@ class CaptureModel:
         self.rkey = [k for k in self.params.keys() if k.startswith("model.bsdf.reflectance")][0]
         self.spots = list(range(self.n_spots)) if self.manifest["capture"] == "array" else [0]
 
+    def _choose_estimator(self, requested: str, element_size_m: float) -> None:
+        """``estimator``: ``quadrature`` where the capture's scene allows it (meshes, a planar relay wall, no
+        windows, media or beam divergence: :func:`~transient_mi.integrators._nlos_quadrature.check_supported`),
+        else ``monte_carlo``; ``estimator_reason`` says why not (None when it is the quadrature or was asked
+        for)."""
+        from transient_mi.integrators._nlos_quadrature import check_supported
+        from transient_mi.props import PluginParameterError
+
+        if requested not in ("auto", "quadrature", "monte_carlo"):
+            raise UserInputError(f"estimator={requested!r}: expected auto, quadrature or monte_carlo")
+        if not (isinstance(element_size_m, (int, float)) and 0.002 <= element_size_m <= 0.5):
+            raise UserInputError(f"element_size_m={element_size_m!r}: expected a length in metres from 0.002 to 0.5")
+        why = None
+        if requested != "monte_carlo":
+            if self.sensor.get_medium() is not None:
+                why = "the detector sees the wall through a medium"
+            else:
+                try:
+                    check_supported(self.sensor.nlos_setup(self.scene), {"max_depth": 4}, "fit")
+                except PluginParameterError as e:
+                    why = str(e).split("capture: ", 1)[-1].split("; use", 1)[0]
+            if why is not None and requested == "quadrature":
+                raise UserInputError(f"estimator=quadrature: the capture's scene cannot be rendered by it: {why}")
+        self.estimator = "monte_carlo" if requested == "monte_carlo" or why else "quadrature"
+        self.estimator_reason = why
+        self.element_size_m = float(element_size_m)
+        if self.estimator == "quadrature":
+            self.integrator.nlos_options.update(estimator="quadrature", element_size_m=self.element_size_m,
+                                                patch_cells=2, refine_levels=1)
+
+    def set_element_size(self, element_size_m: float) -> None:
+        """The quadrature's element size for the next renders (coarse to fine; no effect with Monte Carlo)."""
+        if self.estimator == "quadrature":
+            self.integrator.nlos_options["element_size_m"] = float(element_size_m)
+
     @staticmethod
     def _mesh_props(albedo: float) -> mi.Properties:
         props = mi.Properties()
@@ -291,8 +327,15 @@ class CaptureModel:
         shape = (len(self.spots), self.height, self.width, self.n_bins) if len(self.spots) > 1 \
             else (self.height, self.width, self.n_bins)
         try:
-            nlos_backward(self.integrator, self.scene, self.params, g_ideal.astype(np.float32).reshape(shape),
-                          self.sensor, int(seed), int(spp), spots=self.spots)
+            if self.estimator == "quadrature":  # (deterministic: no seed, no samples)
+                from transient_mi.integrators._nlos_quadrature_ad import quadrature_backward
+
+                self.sensor.forget_nlos_setup()
+                quadrature_backward(self.integrator, self.scene, self.params, g_ideal.reshape(shape), self.sensor,
+                                    spots=self.spots)
+            else:
+                nlos_backward(self.integrator, self.scene, self.params, g_ideal.astype(np.float32).reshape(shape),
+                              self.sensor, int(seed), int(spp), spots=self.spots)
             gv = np.asarray(dr.grad(self.params[self.vkey]), dtype=np.float64).reshape(-1, 3)
             gr = float(np.sum(np.asarray(dr.grad(self.params[self.rkey]), dtype=np.float64)))
         finally:

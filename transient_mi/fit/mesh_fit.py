@@ -7,8 +7,9 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
 2. Stages: Adam on the regularised objective (:mod:`~transient_mi.fit.mesh_optimize`), the mesh subdivided in
    four between stages; the forward model is the capture's (:class:`~transient_mi.fit.capture_model.CaptureModel`:
    its scene, detector, gate, dark counts, pile-up, dead time, jitter) with the deterministic three-bounce
-   estimator (``estimator="quadrature"``), whose vertex derivative holds the area change a free deformation
-   makes (the Monte Carlo renderer's does not: refused in one line).
+   estimator (``estimator="quadrature"``, always, whatever ``FitSettings.estimator`` or ``--estimator`` say),
+   whose vertex derivative holds the area change a free deformation makes (the Monte Carlo renderer's does not);
+   a capture the quadrature cannot render is refused in one line.
 3. Outputs in the output directory, each file written atomically, ``fit.json`` last:
 
    ``fit.json``        settings, the start and the fit summarised (vertices, faces, bounding box, reflectance),
@@ -89,13 +90,15 @@ def stage_starts(n: int, stages: int) -> list[int]:
 def _capture_model(capture, v, f, settings, bin_width_ps):
     from .capture_model import CaptureModel
 
-    cap = CaptureModel(capture, np.asarray(f, dtype=np.uint32), len(v), bin_width_ps=bin_width_ps,
-                       estimator=settings.estimator, element_size_m=settings.element_size_m)
-    if cap.estimator != "quadrature":
-        why = cap.estimator_reason or "--estimator monte_carlo was asked for"
+    try:  # (always the quadrature, whatever settings.estimator says: see the module docstring)
+        return CaptureModel(capture, np.asarray(f, dtype=np.uint32), len(v), bin_width_ps=bin_width_ps,
+                            estimator="quadrature", element_size_m=settings.element_size_m)
+    except UserInputError as e:
+        if not str(e).startswith("estimator=quadrature:"):
+            raise
+        why = str(e).split(": ", 2)[-1]
         raise UserInputError(f"--model mesh needs the quadrature forward model (its vertex derivative holds a free "
-                             f"deformation's area change); this capture cannot use it: {why}")
-    return cap
+                             f"deformation's area change); this capture cannot use it: {why}") from None
 
 
 def _model(v, f, albedo, mesh: MeshSettings, reg_scale: float):

@@ -15,11 +15,12 @@ Each model maps its parameter vector ``theta`` (float64, the units above) to ver
 vertex gradient a render gives becomes a gradient in ``theta``) and gives per-parameter Adam step sizes
 and bounds.
 
-Gradient of the size (the mannequin's height): the renderer differentiates a rigidly moving hidden
+Gradient of the size (the mannequin's height): the Monte Carlo renderer differentiates a rigidly moving hidden
 surface, not a change of its area (``docs/differentiable.md``); the hidden light is proportional to the
 hidden area ``A`` at fixed samples (area sampling, three-bounce light) and to the reflectance ``rho``, so
 the missing term of a uniform scale ``s`` is ``(2 / s) ds sum(g . H) = (2 rho / s) (dL / d rho) ds``,
-which :meth:`MannequinModel.gradient` adds.
+which :meth:`MannequinModel.gradient` adds (not with the quadrature, whose vertex gradient holds the area's
+change).
 """
 
 from __future__ import annotations
@@ -96,11 +97,13 @@ class MannequinModel:
     def albedo(self, theta) -> float:
         return float(theta[-1])
 
-    def gradient(self, theta, grad_vertices: np.ndarray, grad_albedo: float) -> np.ndarray:
-        """``dL/dtheta`` from the gradient with respect to the vertices ``[V, 3]`` and the reflectance."""
+    def gradient(self, theta, grad_vertices: np.ndarray, grad_albedo: float, area_term: bool = True) -> np.ndarray:
+        """``dL/dtheta`` from the gradient with respect to the vertices ``[V, 3]`` and the reflectance;
+        ``area_term``: add the size's area term (the Monte Carlo renderer's vertex gradient lacks it; the
+        quadrature's holds it)."""
         out = _chain(self._vertices, theta, grad_vertices, grad_albedo)
-        # the hidden area's share of a change of size (see the module docstring)
-        out[-2] += 2.0 * float(theta[-1]) / float(theta[-2]) * grad_albedo
+        if area_term:  # the hidden area's share of a change of size (see the module docstring)
+            out[-2] += 2.0 * float(theta[-1]) / float(theta[-2]) * grad_albedo
         return out
 
 
@@ -153,7 +156,7 @@ class PatchesModel:
     def albedo(self, theta) -> float:
         return float(theta[-1])
 
-    def gradient(self, theta, grad_vertices: np.ndarray, grad_albedo: float) -> np.ndarray:
+    def gradient(self, theta, grad_vertices: np.ndarray, grad_albedo: float, area_term: bool = True) -> np.ndarray:
         return _chain(lambda t: mi.Point3f(*(dr.concat(list(c)) for c in self._vertices(t))), theta, grad_vertices,
                       grad_albedo)
 

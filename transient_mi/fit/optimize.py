@@ -1,8 +1,13 @@
 """The fit's optimiser: Adam on the capture's objective, coarse to fine in time, with checkpoints.
 
-Each iteration renders the model twice with independent seeds (:mod:`transient_mi.fit.capture_model`):
-one render gives the residual, the other the derivative, so the step is an unbiased estimate of the
-objective's gradient; Adam (Kingma and Ba 2015) averages the Monte Carlo noise out. Step sizes are per
+With the Monte Carlo estimator each iteration renders the model twice with independent seeds
+(:mod:`transient_mi.fit.capture_model`): one render gives the residual, the other the derivative, so the step is
+an unbiased estimate of the objective's gradient; Adam (Kingma and Ba 2015) averages the Monte Carlo noise out.
+With the quadrature (``estimator="quadrature"``, deterministic) the residual and the derivative are exact for
+the quadrature's primal, the same inputs give the same bytes, and the elements are coarse (twice
+``element_size_m``) for the first half of the iterations. Adam is kept for both (same schedule): the objective
+changes with the temporal blur every iteration, which a quasi-Newton method's curvature pairs (L-BFGS) would
+mix up, and the per-parameter step sizes in degrees and millimetres keep joints and placement balanced. Step sizes are per
 parameter, in the parameter's units (``model.step``: about 1.5 degrees and 4 mm at the start), and decay
 on a cosine to a tenth; parameters are clipped to their bounds. The fit is the mean of the iterates of
 the last quarter (Polyak-Ruppert averaging: the iterates wander by the gradient's Monte Carlo noise
@@ -44,6 +49,8 @@ class FitSettings:
     tail_fraction: float = 0.25  # the fit is the mean of the last quarter's iterates (Polyak averaging)
     beta1: float = 0.9
     beta2: float = 0.99
+    estimator: str = "monte_carlo"  # or quadrature, or auto (the quadrature where the scene allows it)
+    element_size_m: float = 0.03  # the quadrature's elements at the end (twice as large for the first half)
 
 
 @dataclass
@@ -86,6 +93,12 @@ def sigma_schedule(i: int, n: int, start_ps: float, end_ps: float) -> float:
     return end_ps + (max(start_ps, end_ps) - end_ps) * (1.0 - u) ** 2
 
 
+def element_size(i: int, n: int, end_m: float) -> float:
+    """The quadrature's element size at iteration ``i`` of ``n``: twice ``end_m`` for the first half, then
+    ``end_m`` (coarse to fine: while the blur is wide a coarse mesh of elements resolves the light)."""
+    return 2.0 * end_m if i < n // 2 else end_m
+
+
 def step_scale(i: int, n: int) -> float:
     """Step size factor: a cosine from 1 to 0.1."""
     return 0.1 + 0.45 * (1.0 + math.cos(math.pi * min(i, n) / max(n, 1)))
@@ -110,6 +123,7 @@ def run_adam(model, capture, state: FitState, settings: FitSettings, *, progress
         t0 = time.perf_counter()
         sigma = sigma_schedule(i, n, settings.sigma_start_ps, end)
         capture.set_mesh(model.vertices(theta), model.albedo(theta))
+        capture.set_element_size(element_size(i, n, settings.element_size_m))
         seed = 2 * (settings.seed * 1_000_003 + i)
         # The renders always use the final blur (the film's kernel; changing it would recompile the kernels);
         # the coarser blur of this iteration is a Gaussian convolution of the expected counts (and, for the
@@ -121,7 +135,7 @@ def run_adam(model, capture, state: FitState, settings: FitSettings, *, progress
         obj_end, _ = capture.objective(mu_end, end)
         obj, resid = capture.objective(capture.blur(mu_end, end, sigma), sigma)
         gv, ga = capture.backward(capture.blur(resid, end, sigma), ideal_end, seed + 1, spp, end, factor)
-        g = model.gradient(theta, gv, ga)
+        g = model.gradient(theta, gv, ga, area_term=capture.estimator != "quadrature")
         g = np.where(np.isfinite(g), g, 0.0)
         m = b1 * m + (1 - b1) * g
         v = b2 * v + (1 - b2) * g * g

@@ -96,9 +96,9 @@ class _FineLevel:
     """The primal's fine level for ``mi.render``'s capture (spot 0, or every spot of a confocal capture):
     the same elements (visibility refinement included), cells, spot side and chunks."""
 
-    def __init__(self, scene, setup, film, options):
+    def __init__(self, scene, setup, film, options, spots=(0,)):
         self.confocal = setup.capture == "confocal"
-        self.spot_ids = list(range(setup.n_spots)) if self.confocal else [0]
+        self.spot_ids = list(range(setup.n_spots)) if self.confocal else list(spots)
         self.g = _Geometry(setup, film, patch_cells(setup, options))
         self.P = self.g.W * self.g.H
         self.active = bool(setup.hidden_shapes) and options.get("max_depth", 4) >= 4
@@ -123,7 +123,8 @@ class _FineLevel:
                               np.tile(self.X0, (len(spots), 1)))
 
     def chunks(self, scene):
-        """``(chunk, spot_of_pair, f_x, [(spot, pair slice, job pixel_start)])`` per chunk (primal values)."""
+        """``(chunk, spot_of_pair, f_x, [(spot, pair slice, job pixel_start, f_x of the job)])`` per chunk (primal
+        values; ``f_x`` the last job's, which is every job's in a confocal or one-spot capture)."""
         for e0, e1 in chunk_starts(self.g, len(self.tri)):
             ch = Chunk(scene, self.g, self.tri, self.idx, self.hidden_ptrs, self.pts, self.area, self.nrm, e0, e1)
             n = len(ch.ee)
@@ -134,9 +135,11 @@ class _FineLevel:
                 if sl.stop <= sl.start:
                     continue
                 spot_of[sl] = si_idx
+                if not self.confocal and jobs:  # (another spot of an array capture: its own BSDF values)
+                    f_x = np.zeros(n)
                 f_x[sl] = np.asarray(bsdf_value(ch.si_x_of(self.confocal, sl),
                                                 ch.to_spot(self.X0, self.side.S[si_idx], sl)), dtype=np.float64)
-                jobs.append((si_idx, sl, ch.job_pixel_start(self.confocal, si_idx, sl)))
+                jobs.append((si_idx, sl, ch.job_pixel_start(self.confocal, si_idx, sl), f_x))
             yield ch, spot_of, f_x, jobs
             del ch
 
@@ -170,28 +173,32 @@ class _FineLevel:
         return bsdf_value(ch.si_x, to_s / np.linalg.norm(to_s, axis=1, keepdims=True))
 
 
-def _grad_shape(setup, grad_in, T) -> np.ndarray:
+def _grad_shape(setup, grad_in, T, G: int = 1) -> np.ndarray:
     g = np.asarray(grad_in, dtype=np.float64)
-    want = (setup.height, setup.width, T)
+    want = (G, setup.height, setup.width, T) if G > 1 else (setup.height, setup.width, T)
     if g.size != int(np.prod(want)):
         raise PluginParameterError(f"render_backward: grad_in has shape {g.shape}; expected {want}")
-    return g.reshape(setup.height * setup.width, T)
+    return g.reshape(G, setup.height * setup.width, T)
 
 
-def quadrature_backward(integrator, scene, params, grad_in, sensor) -> None:
-    """Reverse mode: propagate ``grad_in`` (``[height, width, n_bins]``, the adjoint of ``mi.render``'s capture)
-    to the BSDF parameters and the laser's pulse energy (see the module docstring)."""
+def quadrature_backward(integrator, scene, params, grad_in, sensor, spots=None) -> None:
+    """Reverse mode: propagate ``grad_in`` (``[height, width, n_bins]``, the adjoint of ``mi.render``'s capture;
+    with ``spots`` of an array capture ``[len(spots), height, width, n_bins]``, the adjoint of those spots'
+    captures) to the BSDF parameters, the laser's pulse energy and the hidden meshes' vertices (see the module
+    docstring and :mod:`~._nlos_quadrature_geom`)."""
     setup, options, geometry = check(integrator, scene, sensor, params, allow_geometry=True)
+    spots = [0] if spots is None or setup.capture == "confocal" else [int(j) for j in spots]
     with dr.suspend_grad():  # (the pairs' geometry detached: its derivative is geometry_adjoint's)
-        _backward(scene, setup, options, sensor, grad_in, geometry)
+        _backward(scene, setup, options, sensor, grad_in, geometry, spots)
 
 
-def _backward(scene, setup, options, sensor, grad_in, geometry: bool) -> None:
+def _backward(scene, setup, options, sensor, grad_in, geometry: bool, spots) -> None:
     film = sensor.film()
     taps, axis = film.kernel_taps(), film.time_axis()
-    grad = _grad_shape(setup, grad_in, axis.n_bins)
+    G = len(spots)
+    grad = _grad_shape(setup, grad_in, axis.n_bins, G)
     n_att = setup.laser.photons_per_pulse_ad
-    lv = _FineLevel(scene, setup, film, options)
+    lv = _FineLevel(scene, setup, film, options, spots)
     if lv.active:
         grad_ext = kernel_adjoint(grad, taps)
         C = np.zeros_like(lv.spot_weight)  # coefficients of the spots' intensities [G, n]
@@ -199,10 +206,17 @@ def _backward(scene, setup, options, sensor, grad_in, geometry: bool) -> None:
         g_elem = np.zeros(lv.tri.shape) if geometry else None  # d/d(element vertices) [n, 3, 3]
         for ch, spot_of, f_x, jobs in lv.chunks(scene):
             g = np.zeros(len(ch.ee))
-            for si_idx, sl, ps in jobs:
-                adjoint_spot(g, grad_ext, ps, ch.pe, *ch.spread_args(), *lv.spot_args(si_idx))  # (g[sl])
+            for si_idx, sl, ps, f_x in jobs:
+                ge = grad_ext[0 if lv.confocal else si_idx]
+                g_job = np.zeros(len(ch.ee)) if G > 1 else g
+                adjoint_spot(g_job, ge, ps, ch.pe, *ch.spread_args(), *lv.spot_args(si_idx))  # (g[sl])
+                if G > 1:  # (every spot's pairs are all of the chunk's: one g per spot)
+                    _spot_terms(lv, ch, f_x, g_job, si_idx, C)
+                    total += float(np.sum(g_job * ch.geo * ch.f_p * f_x * lv.spot_weight[si_idx, ch.ee]))
                 if geometry:
-                    lv.geometry_job(g_elem, grad_ext, ch, f_x, si_idx, sl)
+                    lv.geometry_job(g_elem, ge, ch, f_x, si_idx, sl)
+            if G > 1:
+                continue
             sw = lv.spot_weight[spot_of, ch.ee]
             gg = g * ch.geo
             total += float(np.sum(gg * ch.f_p * f_x * sw))
@@ -221,11 +235,24 @@ def _backward(scene, setup, options, sensor, grad_in, geometry: bool) -> None:
             if geometry:
                 vertex_backward(setup.hidden_shapes, mesh_vertex_gradients(setup.hidden_shapes, lv.prov, g_elem),
                                 _FLAGS)
-    inp = wall_return_inputs(setup, [0])
+    inp = wall_return_inputs(setup, spots)
     if inp is not None:  # (last: it clears the edges it traverses)
         P = setup.width * setup.height
-        rec = Backward(grad.reshape(1, P, axis.n_bins), taps, axis, 1, P, 1, TimeKernel(axis, 0.0, taps), 1.0)
+        rec = Backward(grad.reshape(G, P, axis.n_bins), taps, axis, 1, P, G, TimeKernel(axis, 0.0, taps), 1.0)
         wall_return_backward(scene, setup.relay_wall.bsdf(), inp, n_att, rec, P)
+
+
+def _spot_terms(lv, ch, f_x, g, si_idx: int, C) -> None:
+    """One spot's BSDF terms of a chunk (array captures of several spots: ``g`` that spot's pair adjoints),
+    back-propagated as in the one-spot pass, and its spot-intensity coefficients added to ``C``."""
+    sw = lv.spot_weight[si_idx, ch.ee]
+    gg = g * ch.geo
+    C[si_idx, :] += np.bincount(ch.ee, weights=gg * ch.f_p * f_x / lv.side.r_sx[si_idx, ch.ee] ** 2,
+                                minlength=C.shape[1])
+    spot_of = np.full(len(ch.ee), si_idx, dtype=np.int64)
+    with dr.resume_grad():
+        dr.backward_from(mi.Float((gg * f_x * sw).astype(np.float32)) * bsdf_value(ch.si_p, ch.d_px)
+                         + mi.Float((gg * ch.f_p * sw).astype(np.float32)) * lv.f_x_ad(ch, spot_of), flags=_FLAGS)
 
 
 def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
@@ -280,7 +307,7 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
             d_sw = d_int[spot_of, ch.ee] / lv.side.r_sx[spot_of, ch.ee] ** 2
             t = ch.geo * (d_fp * f_x * sw + ch.f_p * d_fx * sw + ch.f_p * f_x * d_sw + ch.f_p * f_x * sw * d_log_n)
             ones = np.ones(len(ch.ee))
-            for si_idx, sl, ps in jobs:
+            for si_idx, sl, ps, _ in jobs:
                 spread_spot(hist, scratch, z.copy(), z.copy(), z.copy(), ps, ch.pe, t, *ch.spread_args(), ones,
                             np.ascontiguousarray(lv.side.vis[si_idx]), ones_e, *lv.spot_args(si_idx)[1:])
     out = apply_kernel(hist, taps) if g.pad else hist
