@@ -76,6 +76,11 @@ def subdivide_provenance(tri: np.ndarray, prov: np.ndarray, max_edge_m: float) -
     return np.concatenate(out)
 
 
+def fine_provenance(tri0: np.ndarray, max_edge_m: float) -> np.ndarray:
+    """The provenance of the quadrature's fine elements before refinement: ``split4(subdivide(tri0, max_edge_m))``."""
+    return split4(subdivide_provenance(tri0, provenance(len(tri0)), max_edge_m))
+
+
 def split4(tri: np.ndarray) -> np.ndarray:
     """Midpoint subdivision: each triangle ``[n, 3, k]`` into four, ``[4 n, 3, k]`` (children of one parent
     consecutive; any ``k``: vertices, or their :func:`provenance`)."""

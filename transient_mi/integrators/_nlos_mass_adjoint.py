@@ -26,7 +26,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from transient_mi.integrators._nlos_time_spread import REL_WIDTH_EPS, _gk
+from transient_mi.integrators._nlos_time_spread import REL_WIDTH_EPS, _gk, _hk, _tilt
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -52,7 +52,7 @@ def _gk_knots(k, y, a, b, mu):
         d = y - mu
         return -d / 3.0 + (2.0 * a - b) / 36.0, -d / 3.0 + (2.0 * b - a) / 36.0
     if y <= a:  # G = c y^(k+2) with c ~ 1 / (a b)
-        g = _gk(k, y, a, b, mu, 0.0)  # (var is not read below b)
+        g = _gk(k, y, a, b, mu, 0.0, 0.0)  # (var is not read below b)
         return -g / a, -g / b
     z = b - y
     K = b * (b - a)
@@ -72,7 +72,7 @@ def _gk_any(k, y, a, b, mu, var):
     """``G_k`` for ``k`` in -1..2 (``G_{-1}`` the density)."""
     if k < 0:
         return _density(y, a, b)
-    return _gk(k, y, a, b, mu, var)
+    return _gk(k, y, a, b, mu, var, 0.0)
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -81,7 +81,7 @@ def _diff1(k, y, w, a, b, mu, var):
     caller from the end values)."""
     ga0, gb0 = _gk_knots(k, y, a, b, mu)
     ga1, gb1 = _gk_knots(k, y - w, a, b, mu)
-    return ((_gk(k, y, a, b, mu, var) - _gk(k, y - w, a, b, mu, var)) / w,
+    return ((_gk(k, y, a, b, mu, var, 0.0) - _gk(k, y - w, a, b, mu, var, 0.0)) / w,
             (_gk_any(k - 1, y, a, b, mu, var) - _gk_any(k - 1, y - w, a, b, mu, var)) / w,
             (ga0 - ga1) / w, (gb0 - gb1) / w)
 
@@ -92,21 +92,21 @@ def cdf_derivatives(x, a, b, w1, w2, mu, var, small1, small2):
     y = x + 0.5 * (w1 + w2)
     if small1 and small2:
         da, db = _gk_knots(0, x, a, b, mu)
-        return _gk(0, x, a, b, mu, var), _density(x, a, b), da, db, 0.0, 0.0
+        return _gk(0, x, a, b, mu, var, 0.0), _density(x, a, b), da, db, 0.0, 0.0
     if small1 or small2:
         w = w2 if small1 else w1
         y1 = x + 0.5 * w
         c, cx, ca, cb = _diff1(1, y1, w, a, b, mu, var)
         # d/dw: y1 moves by w/2, the lower end by -w/2, and the 1/w
-        cw = 0.5 * (_gk(0, y1, a, b, mu, var) + _gk(0, y1 - w, a, b, mu, var)) / w - c / w
+        cw = 0.5 * (_gk(0, y1, a, b, mu, var, 0.0) + _gk(0, y1 - w, a, b, mu, var, 0.0)) / w - c / w
         if small1:
             return c, cx, ca, cb, 0.0, cw
         return c, cx, ca, cb, cw, 0.0
     y1, y2, y3 = y - w1, y - w2, y - w1 - w2
-    g0, g1_, g2_, g3 = (_gk(2, y, a, b, mu, var), _gk(2, y1, a, b, mu, var), _gk(2, y2, a, b, mu, var),
-                        _gk(2, y3, a, b, mu, var))
-    h0, h1, h2, h3 = (_gk(1, y, a, b, mu, var), _gk(1, y1, a, b, mu, var), _gk(1, y2, a, b, mu, var),
-                      _gk(1, y3, a, b, mu, var))
+    g0, g1_, g2_, g3 = (_gk(2, y, a, b, mu, var, 0.0), _gk(2, y1, a, b, mu, var, 0.0), _gk(2, y2, a, b, mu, var, 0.0),
+                        _gk(2, y3, a, b, mu, var, 0.0))
+    h0, h1, h2, h3 = (_gk(1, y, a, b, mu, var, 0.0), _gk(1, y1, a, b, mu, var, 0.0), _gk(1, y2, a, b, mu, var, 0.0),
+                      _gk(1, y3, a, b, mu, var, 0.0))
     a0, b0 = _gk_knots(2, y, a, b, mu)
     a1, b1 = _gk_knots(2, y1, a, b, mu)
     a2, b2 = _gk_knots(2, y2, a, b, mu)
@@ -122,16 +122,32 @@ def cdf_derivatives(x, a, b, w1, w2, mu, var, small1, small2):
 
 
 @numba.njit(cache=True, fastmath=False)
-def mass_adjoint(row, tlo, a, b, u1, u2, n_ext):
-    """For one pair (as ``_masses``: knots ``tlo``, ``tlo + a``, ``tlo + b``, widths ``u1``, ``u2``, bins of the
-    padded axis) and a row of bin adjoints ``row [n_ext]``: ``(sum_j row_j m_j`` and its derivatives with
-    respect to ``tlo, a, b, u1, u2)``, the bins outside ``[0, n_ext)`` left out as in the primal."""
+def _tilt_dx(x, w, w_other, a, b, mu, var, mu3, small_other):
+    """``d/dx`` of ``_tilt`` (its shift derivative)."""
+    lo = x - 0.5 * w
+    hi = x + 0.5 * w
+    return (_hk(1, hi, a, b, mu, var, mu3, w_other, small_other) - _hk(1, lo, a, b, mu, var, mu3, w_other, small_other)
+            - 0.5 * w * (_hk(0, lo, a, b, mu, var, mu3, w_other, small_other)
+                         + _hk(0, hi, a, b, mu, var, mu3, w_other, small_other))) / (w * w)
+
+
+@numba.njit(cache=True, fastmath=False)
+def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext):
+    """For one pair (as ``_masses``: knots ``tlo``, ``tlo + a``, ``tlo + b``, widths ``u1``, ``u2``, the cell's
+    amplitude tilts ``t1``, ``t2``, bins of the padded axis) and a row of bin adjoints ``row [n_ext]``:
+    ``(sum_j row_j m_j`` and its derivatives with respect to ``tlo, a, b, u1, u2)``, the bins outside
+    ``[0, n_ext)`` left out as in the primal. The tilt's terms enter the sum and the ``tlo`` derivative exactly;
+    their own ``a, b, u`` derivatives are not taken (a first-order correction times a derivative: see
+    :mod:`~._nlos_quadrature_geom`)."""
     spread = b + u1 + u2
     eps = REL_WIDTH_EPS * spread
     small1 = u1 <= eps
     small2 = u2 <= eps
+    tilt1 = t1 != 0.0 and not small1
+    tilt2 = t2 != 0.0 and not small2
     mu = (a + b) / 3.0
     var = (a * a + b * b - a * b) / 18.0
+    mu3 = (b - 2.0 * a) * (a + b) * (2.0 * b - a) / 270.0
     lo = tlo - 0.5 * (u1 + u2)
     hi = tlo + b + 0.5 * (u1 + u2)
     b0 = int(np.floor(lo))
@@ -144,6 +160,12 @@ def mass_adjoint(row, tlo, a, b, u1, u2, n_ext):
             c0, c1, c2, c3, c4, c5 = 1.0, 0.0, 0.0, 0.0, 0.0, 0.0
         else:
             c0, cx, c2, c3, c4, c5 = cdf_derivatives(edge, a, b, u1, u2, mu, var, small1, small2)
+            if tilt1:
+                c0 += t1 * _tilt(edge, a, b, u1, u2, mu, var, mu3, small2)
+                cx += t1 * _tilt_dx(edge, u1, u2, a, b, mu, var, mu3, small2)
+            if tilt2:
+                c0 += t2 * _tilt(edge, a, b, u2, u1, mu, var, mu3, small1)
+                cx += t2 * _tilt_dx(edge, u2, u1, a, b, mu, var, mu3, small1)
             c1 = -cx  # d/dtlo of C(edge - tlo)
         if 0 <= bin_ < n_ext:
             r = row[bin_]

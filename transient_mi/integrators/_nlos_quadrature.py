@@ -55,8 +55,7 @@ legs or in hidden space, a divergent laser beam, a non-planar relay wall, shapes
 With ``max_depth`` above 4 (or -1) the light beyond three bounces is added by the Monte Carlo estimator
 restricted to the remaining paths (``KernelConstants.skip_three_bounce``: without the three-bounce connection
 and the wall return); its variance, from the replicates, is stored beside the quadrature's error
-(:mod:`transient_mi.capture_error`). Differentiable with respect to BSDF values and the pulse energy, not
-geometry (:mod:`transient_mi.integrators._nlos_quadrature_ad`).
+(:mod:`transient_mi.capture_error`). Differentiable (:mod:`~._nlos_quadrature_ad`, :mod:`~._nlos_quadrature_geom`).
 """
 
 from __future__ import annotations
@@ -70,8 +69,7 @@ from scipy.ndimage import maximum_filter1d
 
 from transient_core.units import C_M_PER_PS
 from transient_mi.integrators._lanes import to_mono
-from transient_mi.integrators._nlos_elements import (mesh_triangles, provenance, sample_points, split4, subdivide,
-                                                     subdivide_provenance)
+from transient_mi.integrators._nlos_elements import fine_provenance, mesh_triangles, sample_points, split4, subdivide
 from transient_mi.integrators._nlos_time_spread import pair_geometry, spread_spot, visibility_rays
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
@@ -267,10 +265,8 @@ def _mixed_elements(scene, g: _Geometry, spot_side: _SpotSide, tri, shape_index,
     return mixed
 
 
-def refine_visibility(scene, setup, g: _Geometry, spots, tri, shape_index, refine_levels: int, hidden_ptrs,
-                      prov=None):
-    """Split elements of mixed visibility in four, up to ``refine_levels`` times: ``(tri, shape_index, levels,
-    prov)`` (``prov``: the elements' :func:`~._nlos_elements.provenance`, split alike; None if not given)."""
+def refine_visibility(scene, setup, g: _Geometry, spots, tri, shape_index, refine_levels: int, hidden_ptrs, prov=None):
+    """Split mixed-visibility elements (and ``prov``) in four, ``refine_levels`` times at most."""
     levels = 0
     for _ in range(refine_levels):
         side = _SpotSide(scene, setup, spots, tri, shape_index, hidden_ptrs)
@@ -294,16 +290,14 @@ def patch_cells(setup, options: dict) -> int:
 
 
 def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_ptrs, with_provenance=False):
-    """The elements of both levels: ``(tri_c, idx_c, tri_f, idx_f, refine_levels_used)`` (coarse: edges of at
-    most twice ``element_size_m``; fine: each coarse one split in four, then refined where visibility is
-    mixed), and ``with_provenance``: the fine elements' provenance on :func:`~._nlos_elements.mesh_triangles`."""
+    """The elements of both levels: ``(tri_c, idx_c, tri_f, idx_f, refine_levels_used[, fine provenance])`` (coarse:
+    edges of at most twice ``element_size_m``; fine: each coarse one split in four, then refined where mixed)."""
     h = float(options.get("element_size_m", DEFAULT_ELEMENT_SIZE_M))
     tri0, idx0 = mesh_triangles(setup.hidden_shapes)
     tri_c, idx_c = subdivide(tri0, idx0, 2.0 * h)
     tri_f, idx_f = split4(tri_c), np.repeat(idx_c, 4)
-    prov = split4(subdivide_provenance(tri0, provenance(len(tri0)), 2.0 * h)) if with_provenance else None
-    # which elements to split is decided from the coarse level's cells (a quarter of the rays); pairs that are
-    # still mixed at the fine level's cells are bounded there
+    prov = fine_provenance(tri0, 2.0 * h) if with_provenance else None
+    # split as the coarse level's cells see it (a quarter of the rays); still-mixed fine pairs are bounded
     tri_f, idx_f, levels, prov = refine_visibility(scene, setup, g.with_cells(max(1, g.m // 2)), spot_ids, tri_f,
                                                    idx_f, int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)),
                                                    hidden_ptrs, prov)

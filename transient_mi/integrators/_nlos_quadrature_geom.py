@@ -31,7 +31,10 @@ Held fixed: visibility (which samples of an element see the cell and the spot, s
 a mixed pair), the elements' subdivision (counts, refinement), the point where the wall is hit. So this is
 the *interior* derivative of the quadrature's primal: light appearing or vanishing behind an occluding
 edge, at a silhouette or where an element's visibility samples change their verdict is not differentiated
-(the primal jumps there); neither is the error estimate (coarse level), nor a branch switch of the primal
+(the primal jumps there); neither is the cell tilt's dependence on the geometry (the first-order amplitude
+slope across a wall cell, ``Chunk.tilt``: its terms enter the masses and their shift derivative, not their
+knot, width or tilt derivatives; measured ~1e-3 of the gradient on the test scene), the error estimate
+(coarse level), nor a branch switch of the primal
 (a cell width crossing ``REL_WIDTH_EPS`` of the spread: the primal's truncation there is below 1e-6).
 
 Numba, float64, one thread per element looping over its pairs in cell order, jobs (spots) in order: the
@@ -70,8 +73,8 @@ def _cross(a, b):
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
 def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, ay, D, fl, has_cells, wall_n,
-                     tri, X0, nrm, area, base, f_x, vis_p, r_pv, r_px, opl_d, cell_shift, w1, w2, vis_s, spot_weight,
-                     S, r_sv, r_sx, spot_opl, bin_m, t_origin_bins):
+                     tri, X0, nrm, area, base, f_x, vis_p, r_pv, r_px, opl_d, cell_shift, w1, w2, tilt, vis_s,
+                     spot_weight, S, r_sv, r_sx, spot_opl, bin_m, t_origin_bins):
     """Add to ``out [n, 3, 3]`` (per element, per vertex, xyz) the derivative of ``sum(grad_ext * hist)`` with
     respect to the element vertices, for one job of a chunk: the elements ``e0 .. e0 + ne - 1`` and the cells
     ``c_lo .. c_hi - 1`` (pair ``i = c ne + (e - e0)``) lit by the spot ``S``.
@@ -111,7 +114,8 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
             f = full * frac
             k = cell_pixel[c]
             tlo, a, b = _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins)
-            acc, s_t, s_a, s_b, s_w1, s_w2 = mass_adjoint(grad_ext[k], tlo, a, b, w1[i], w2[i], grad_ext.shape[1])
+            acc, s_t, s_a, s_b, s_w1, s_w2 = mass_adjoint(grad_ext[k], tlo, a, b, w1[i], w2[i], tilt[i, 0], tilt[i, 1],
+                                                        grad_ext.shape[1])
             if acc == 0.0 and s_t == 0.0 and s_a == 0.0 and s_b == 0.0 and s_w1 == 0.0 and s_w2 == 0.0:
                 continue
             p = cell_p[c]
