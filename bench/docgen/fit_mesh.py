@@ -14,8 +14,16 @@ def _f(x) -> str:
 
 
 def fit_mesh_table(R) -> str:
-    """Fit, start and backprojection against the scene's hidden shapes, and the targets."""
-    rec = R("fit_mesh_letter")
+    """The letter: fit, start and backprojection against the scene's hidden shapes, and the targets."""
+    return _table(R("fit_mesh_letter"))
+
+
+def fit_mesh_plane_table(R) -> str:
+    """The tilted plane, as :func:`fit_mesh_table`."""
+    return _table(R("fit_mesh_tilted_plane"))
+
+
+def _table(rec) -> str:
     r = rec["result"]
     m = r["metrics"]
     t = r["targets"]
@@ -30,7 +38,7 @@ def fit_mesh_table(R) -> str:
             f"{'met' if t['met']['silhouette_iou'] else 'not met'} |",
             f"| occupancy IoU | {_f(m['fit']['iou'])} | {_f(m['start']['iou'])} | {_f(m['backprojection']['iou'])} | |"]
     nll = r["poisson_nll"]
-    return (f"The {r['scene'].removeprefix('nlos_')} at a small configuration ({r['width']} x {r['width']} pixels, "
+    return (f"The {r['scene'].removeprefix('nlos_').replace('_', ' ')} at a small configuration ({r['width']} x {r['width']} pixels, "
             f"{r['spots']} x {r['spots']} laser spots, the paper's detector for {r['exposure_ms']:g} ms per spot, the "
             f"capture rendered by the quadrature); {r['iterations']} iterations in {r['stages']} stages from "
             f"{r['cell_m'] * 100:g} cm cells ({r['n_faces']['start']} -> {r['n_faces']['fit']} triangles), "
