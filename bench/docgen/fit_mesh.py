@@ -38,10 +38,11 @@ def _table(rec) -> str:
             f"{'met' if t['met']['silhouette_iou'] else 'not met'} |",
             f"| occupancy IoU | {_f(m['fit']['iou'])} | {_f(m['start']['iou'])} | {_f(m['backprojection']['iou'])} | |"]
     nll = r["poisson_nll"]
-    return (f"The {r['scene'].removeprefix('nlos_').replace('_', ' ')} at a small configuration ({r['width']} x {r['width']} pixels, "
+    return (f"The {r['scene'].removeprefix('nlos_').replace('_', ' ')} at a small configuration ({r['width']} x {r['width']} pixels of {32 / r['width']:g} cm, "
             f"{r['spots']} x {r['spots']} laser spots, the paper's detector for {r['exposure_ms']:g} ms per spot, the "
             f"capture rendered by the quadrature); {r['iterations']} iterations in {r['stages']} stages from "
             f"{r['cell_m'] * 100:g} cm cells ({r['n_faces']['start']} -> {r['n_faces']['fit']} triangles), "
             f"{r['time_s']['fit_wall']:.0f} s (fit, wall):\n\n" + "\n".join(rows) + "\n\n"
-            f"Poisson NLL of the counts: {nll['start']:.6g} at the start, {nll['fit']:.6g} fitted. "
+            f"Poisson NLL of the counts: {nll['start']:.6g} at the start, {nll['fit']:.6g} fitted; fitted reflectance "
+            f"{r['fit_albedo']:.2f}. "
             + provenance(rec))
