@@ -49,7 +49,7 @@ from docgen.recon import (  # noqa: E402
     completion_limit_inline, completion_aspect_para, recon_quality_para, methods_trend_para,
 )
 from docgen.quadrature import quadrature_cost_inline, quadrature_inline, quadrature_table  # noqa: E402
-from docgen.fit_mesh import fit_mesh_plane_table, fit_mesh_table  # noqa: E402
+from docgen.fit_mesh import fit_mesh_plane_table, fit_mesh_plane_vertex_table, fit_mesh_table  # noqa: E402
 from docgen.studies import (  # noqa: E402
     studies_para, _study_inline, dataset_para, dataset_docs_table, view_para, view_docs_table, fit_para,
 )
@@ -102,6 +102,7 @@ GENERATORS = {
     "quadrature_cost": (quadrature_cost_inline, ["quadrature_cost"], True),
     "fit_mesh": (fit_mesh_table, ["fit_mesh_letter"], False),
     "fit_mesh_plane": (fit_mesh_plane_table, ["fit_mesh_tilted_plane"], False),
+    "fit_mesh_plane_vertex": (fit_mesh_plane_vertex_table, ["fit_mesh_tilted_plane_vertex"], False),
     "recon_targets": (recon_targets_table, ["study_methods_paper_mannequin", "study_methods_nlos_letter",
                                             "mannequin_features", "recon_methods", "completion_seeds"], False),
 }

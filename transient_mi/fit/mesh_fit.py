@@ -41,7 +41,7 @@ from .optimize import FitState
 
 __all__ = ["MeshSettings", "fit_mesh_capture"]
 
-_OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "loss.png", "fit.png", "views.png", "checkpoint.json",
+_OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "start.json", "loss.png", "fit.png", "views.png", "checkpoint.json",
             "stage.json", "config.json")
 _STARTS = ("front", "closed")
 
@@ -60,6 +60,7 @@ class MeshSettings:
     edge: float = 0.05
     normal: float = 0.1
     step_m: float = 0.003  # Adam's step per iteration at the start
+    moments: str = "uniform"  # Adam's second moments of the vertices: uniform (one) or vertex (one per vertex)
 
 
 def _check(mesh: MeshSettings, settings) -> None:
@@ -75,6 +76,8 @@ def _check(mesh: MeshSettings, settings) -> None:
             raise UserInputError(f"{name}={v!r}: expected a finite number >= 0")
     if not (isinstance(mesh.step_m, (int, float)) and math.isfinite(mesh.step_m) and 0 < mesh.step_m <= 0.05):
         raise UserInputError(f"step_m={mesh.step_m!r}: expected a step in metres, > 0 and <= 0.05")
+    if mesh.moments not in ("uniform", "vertex"):
+        raise UserInputError(f"moments={mesh.moments!r}: expected uniform or vertex")
     if settings.iterations < mesh.stages:
         raise UserInputError(f"iterations={settings.iterations}: fewer than the {mesh.stages} stages")
 
@@ -105,7 +108,9 @@ def _model(v, f, albedo, mesh: MeshSettings, reg_scale: float):
     from .mesh_model import MeshModel
 
     w = RegularizerWeights(laplacian=mesh.laplacian, edge=mesh.edge, normal=mesh.normal)
-    return MeshModel(v, f, albedo, smoothing=mesh.smoothing, weights=w, step_m=mesh.step_m, reg_scale=reg_scale)
+    model = MeshModel(v, f, albedo, smoothing=mesh.smoothing, weights=w, step_m=mesh.step_m, reg_scale=reg_scale)
+    model.moments = mesh.moments
+    return model
 
 
 def _start_mesh(mesh: MeshSettings, rec_bp):

@@ -5,10 +5,12 @@ Per iteration (global index ``i`` of ``n``): the capture's objective at this ite
 (:func:`~transient_mi.fit.optimize.sigma_schedule`, as the other models) and its vertex and reflectance
 gradient (:meth:`~transient_mi.fit.capture_model.CaptureModel.backward`), plus the regularisers
 (:meth:`~transient_mi.fit.mesh_model.MeshModel.regularization`), pulled back to ``u`` through the large-steps
-parametrisation. Adam with a *uniform* second moment for the vertex block (Nicolet et al. 2021: the
-largest of the coordinates' second moments, one scalar): per-coordinate Adam would give a vertex whose
-elements receive almost no light (a tiny, noisy gradient) a full step; the uniform moment keeps the vertices'
-steps proportional to their gradients. The reflectance has its own moment. Step sizes decay on a cosine
+parametrisation. Adam with a *uniform* second moment for the vertex block (``moments="uniform"``, the default;
+Nicolet et al. 2021: the largest of the coordinates' second moments, one scalar): per-coordinate Adam would give
+a vertex whose elements receive almost no light (a tiny gradient) a full step; the uniform moment keeps the
+vertices' steps proportional to their gradients. ``moments="vertex"``: one moment per vertex (the mean of its
+three coordinates'), floored at a thousandth of the largest: every vertex with a real gradient moves by about
+the step. The reflectance has its own moment. Step sizes decay on a cosine
 (:func:`~transient_mi.fit.optimize.step_scale`); the result is the mean of the last quarter's iterates (within
 the last stage).
 
@@ -103,11 +105,18 @@ def run_mesh_adam(model, capture, state: FitState, settings, *, stage_start: int
         g = np.where(np.isfinite(g), g, 0.0)
         m = b1 * m + (1 - b1) * g
         gu, ga2 = g[:-1], g[-1]
-        v2 = b2 * v2 + (1 - b2) * np.array([float(np.max(gu * gu)) if len(gu) else 0.0, ga2 * ga2])
+        per_vertex = getattr(model, "moments", "uniform") == "vertex"
+        sq = np.mean((gu * gu).reshape(-1, 3), axis=1) if per_vertex else np.array([float(np.max(gu * gu))])
+        if len(v2) != len(sq) + 1:
+            v2 = np.zeros(len(sq) + 1)
+        v2 = b2 * v2 + (1 - b2) * np.concatenate([sq, [ga2 * ga2]])
         k = i - stage_start + 1
         mh = m / (1 - b1 ** k)
         vh = v2 / (1 - b2 ** k)
-        denom = np.concatenate([np.full(len(gu), np.sqrt(vh[0])), [np.sqrt(vh[1])]]) + 1e-30
+        dv = np.repeat(np.sqrt(vh[:-1]), 3) if per_vertex else np.full(len(gu), np.sqrt(vh[0]))
+        if per_vertex:  # (a floor: vertices whose gradient is a millionth of the largest stay put)
+            dv = np.maximum(dv, 1e-3 * float(np.max(dv)))
+        denom = np.concatenate([dv, [np.sqrt(vh[-1])]]) + 1e-30
         theta = np.clip(theta - step_scale(i, n) * model.step * mh / denom, model.lower, model.upper)
         if i >= tail_from:
             state.tail_sum = (np.asarray(state.tail_sum) + theta).tolist() if state.tail_count else theta.tolist()
