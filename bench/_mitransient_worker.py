@@ -11,6 +11,8 @@ the peak up to the end of ``mi.render`` + ``dr.eval`` (mitransient's renderer
 alone), ``max_rss_mb`` the peak including the one float32 numpy copy of the
 result that the benchmark needs to save it. No float64 copy is made.
 
+``save_spots`` (optional): the spots whose data are kept and saved (array captures; all are rendered).
+
 Only numpy, mitsuba, mitransient and ``_rss.py`` (beside this file, standard
 library only) are imported: this file must run with that environment's interpreter.
 Usage: ``python _mitransient_worker.py CONFIG.json``.
@@ -95,6 +97,8 @@ def main(path):
             data = data.reshape(H, W, W * H, -1).transpose(2, 0, 1, 3)
         else:
             data = data[None]
+        if cfg.get("save_spots") is not None:  # only these spots are kept (the rest are rendered and timed)
+            data = np.ascontiguousarray(data[cfg["save_spots"]])
         if save:
             np.save(save, data)
         del transient

@@ -8,6 +8,10 @@ renderers render it from these definitions (transient-mi from :func:`ours_scene_
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
 
 C_M_PER_PS = 299792458.0 * 1e-12
 
@@ -123,3 +127,64 @@ def ours_scene_xml(cfg, n_spots_side: int) -> str:
 {chr(10).join(rects)}
 </scene>
 """
+
+
+# ------------------------------------------------------------------ both sides
+
+
+def mean_agreement(cfg, ours, mt, spots, mt_has_spots_only: bool = False) -> dict:
+    """Compare transient-mi's and mitransient's references after dividing out the known geometric factors.
+
+    ``ours``: transient-mi's capture ``[spot, H, W, T]`` (photons per pulse; array captures: the ``spots``
+    only); ``mt``: mitransient's ``[spot, H, W, T]`` (array captures: every spot, indexed by ``spots``, or
+    with ``mt_has_spots_only`` those spots alone).
+    Per (spot, pixel) totals: ours divided by the pixel's solid-angle and aperture factor, mitransient's
+    multiplied by ``N d^2 / cos`` of the spot; the fitted ratio of the two is ``1 / I`` (the projector's
+    axial intensity) when both renderers compute the same light.
+    """
+    W = cfg["size"]
+    fp = 2 * WALL["half_size"] / W
+    o = np.asarray(ours, dtype=np.float64)  # [s, H, W, T]
+    m = mt
+    if cfg["capture"] == "array" and not mt_has_spots_only:
+        m = m[spots]
+    m = np.asarray(m, dtype=np.float64)
+    u = (np.arange(W) - (W - 1) / 2) * fp
+    P = np.stack(np.meshgrid(u, u, indexing="xy"), -1)  # [H, W, 2]: x = u[ix], y = u[iy]
+    P = np.concatenate([P, np.zeros(P.shape[:2] + (1,))], -1)
+    D = np.array(DETECTOR)
+    L = np.array(LASER)
+    pd = D - P
+    dpd = np.linalg.norm(pd, axis=-1)
+    n_ap = -D / np.linalg.norm(D)
+    a_ap = math.pi * (APERTURE_DIAMETER_M / 2) ** 2
+    g_pix = fp * fp * (pd[..., 2] / dpd) * a_ap * ((-pd / dpd[..., None]) @ n_ap) / dpd ** 2  # [H, W]
+    h, c = 6.62607015e-34, 299792458.0
+    N = PULSE_ENERGY_J / (h * c / (WAVELENGTH_NM * 1e-9))
+    if cfg["capture"] == "confocal":
+        S = P  # spot of pixel k = its patch centre
+        ls = L - S
+        g_spot = N * np.linalg.norm(ls, axis=-1) ** 2 / (ls[..., 2] / np.linalg.norm(ls, axis=-1))  # [H, W]
+        g_spot = g_spot[None]
+    else:
+        Sj = P.reshape(-1, 3)[spots]
+        ls = L - Sj
+        dls = np.linalg.norm(ls, axis=-1)
+        g_spot = (N * dls ** 2 / (ls[:, 2] / dls))[:, None, None]
+    o_tot = o.sum(-1) / g_pix[None]  # ours -> radiance per unit projector intensity
+    m_tot = m.sum(-1) * g_spot
+    mask = (o_tot > 0) & (m_tot > 0)
+    scale = float((o_tot[mask] * m_tot[mask]).sum() / (m_tot[mask] ** 2).sum())
+    resid = float(np.sqrt(((o_tot - scale * m_tot)[mask] ** 2).mean()) / np.sqrt((o_tot[mask] ** 2).mean()))
+    t = np.arange(o.shape[-1]) + 0.5
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mo = (o * t).sum(-1) / o.sum(-1)
+        mm = (m * t).sum(-1) / m.sum(-1)
+    dt = (mo - mm)[mask]
+    return {"scale_ours_over_mitransient": scale,
+            "expected_scale": None,
+            "note": "totals per (spot, pixel) divided by the pixel's solid-angle factor (ours) and multiplied by "
+                    "N d^2 / cos of the spot (mitransient)",
+            "rel_rms_residual_of_totals": resid,
+            "mean_arrival_bin_difference": {"mean": float(dt.mean()), "rms": float(np.sqrt((dt ** 2).mean()))},
+            "compared_values": int(mask.sum())}

@@ -12,6 +12,12 @@ worker process.
     python bench/bench_dataset.py --workers 2 --repeats 2  # fewer items (repeats per grid point)
     python bench/bench_dataset.py --scheduler tcp://127.0.0.1:8786
     python bench/bench_dataset.py --tiny --repeats 1 --workers 1   # CI-sized
+    python bench/bench_dataset.py --spec docs/examples/dataset_nlos_mannequin.yaml --noise-target 0.1 --repeats 1
+                                         # every item rendered to the noise standard (the spec's detector budget)
+
+The record is ``dataset_<spec>[_tiny][_nt<R>_<estimator>]``: with ``--noise-target`` it also holds, per run,
+the estimator that made the captures (from each item's ``result.json``) and the largest rendering / photon
+noise ratio of the items (``render_noise_ratio`` as ``detect`` states it).
 """
 
 from __future__ import annotations
@@ -35,8 +41,10 @@ DEFAULT_SPEC = ROOT / "docs" / "examples" / "dataset_example.yaml"
 TINY = {"width": 8, "height": 8, "n_bins": 50, "spp": 2}
 
 
-def make_spec(src: Path, dst: Path, repeats: int | None, tiny: bool) -> dict:
-    """Copy a spec with its scene path made absolute, optionally fewer repeats or tiny renders."""
+def make_spec(src: Path, dst: Path, repeats: int | None, tiny: bool, noise_target: float | None = None,
+              defines: dict | None = None) -> dict:
+    """Copy a spec with its scene path made absolute, optionally fewer repeats, tiny renders, a noise target
+    or other fixed ``defines``."""
     import yaml
 
     from transient_mi.dataset.spec import resolve_scene
@@ -53,6 +61,10 @@ def make_spec(src: Path, dst: Path, repeats: int | None, tiny: bool) -> dict:
                 defines[k] = TINY[k]
         if "n_bins" in defines and "bin_width_ps" in defines:
             defines["bin_width_ps"] = 200
+    if noise_target is not None:
+        data["noise_target"] = noise_target
+    if defines:
+        data["defines"] = dict(data.get("defines") or {}, **defines)
     dst.write_text(yaml.safe_dump(data, sort_keys=False))
     return data
 
@@ -70,6 +82,8 @@ def one_run(spec: Path, workers: int | None, scheduler: str | None) -> dict:
         item_s = [r["total_time_s"] for r in results]
         render_s = [r.get("render_time_s", 0.0) for r in results]
         size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+        ratios = [r["render_noise_ratio"] for r in results if r.get("render_noise_ratio") is not None]
+        spp = [r["spp_used"] for r in results if r.get("spp_used") is not None]
         return {
             "workers": workers, "scheduler": scheduler, "cluster": report.cluster, "items": report.built,
             "wall_s": round(wall, 3), "items_per_hour": round(report.built / wall * 3600, 1),
@@ -77,6 +91,11 @@ def one_run(spec: Path, workers: int | None, scheduler: str | None) -> dict:
             "mean_render_s_in_worker": round(sum(render_s) / len(render_s), 4),
             "items_per_worker_process": sorted(per_worker.values(), reverse=True),
             "dataset_bytes": size,
+            "estimators": dict(Counter(r.get("estimator", "monte_carlo") for r in results)),
+            "render_noise_ratio_max": max(ratios) if ratios else None,
+            "render_noise_ratio_median": sorted(ratios)[len(ratios) // 2] if ratios else None,
+            "noise_target_met": sum(bool((r.get("noise_target") or {}).get("met")) for r in results),
+            "spp_used_range": [min(spp), max(spp)] if spp else None,
         }
     finally:
         shutil.rmtree(out.parent, ignore_errors=True)
@@ -89,6 +108,10 @@ def main(argv=None) -> int:
     ap.add_argument("--scheduler", default=None, help="time on this Dask scheduler instead of local clusters")
     ap.add_argument("--repeats", type=int, default=None, help="override the spec's repeats (fewer items)")
     ap.add_argument("--tiny", action="store_true", help="8x8 pixels, 50 bins, 2 spp (CI)")
+    ap.add_argument("--noise-target", type=float, default=None,
+                    help="the spec's noise_target (every item rendered to it; needs the spec's detector)")
+    ap.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
+                    help="a fixed scene define added to the spec's (e.g. -D estimator=monte_carlo); repeatable")
     _record.add_arguments(ap)
     args = ap.parse_args(argv)
     load_start = list(os.getloadavg())
@@ -98,7 +121,8 @@ def main(argv=None) -> int:
 
     with tempfile.TemporaryDirectory() as td:
         spec = Path(td) / "spec.yaml"
-        data = make_spec(args.spec, spec, args.repeats, args.tiny)
+        defines = dict(d.split("=", 1) for d in args.defines)
+        data = make_spec(args.spec, spec, args.repeats, args.tiny, args.noise_target, defines)
         runs = ([one_run(spec, None, args.scheduler)] if args.scheduler else
                 [one_run(spec, w, None) for w in args.workers])
     try:
@@ -107,11 +131,15 @@ def main(argv=None) -> int:
         spec_name = str(args.spec)
     result = {
         "benchmark": "dataset", "spec": spec_name, "tiny": args.tiny, "repeats": data.get("repeats", 1),
-        "defines": data.get("defines"), "spp": data.get("spp"), "cores": int(CPU_COUNT),
+        "defines": data.get("defines"), "spp": data.get("spp"), "noise_target": args.noise_target,
+        "detector": data.get("detector"), "cores": int(CPU_COUNT),
         "cpu": _record.cpu_model(), "runs": runs,
     }
     print(json.dumps(result, indent=2))
     name = "dataset_" + Path(spec_name).stem + ("_tiny" if args.tiny else "")
+    if args.noise_target is not None:
+        est = sorted({e for r in runs for e in r["estimators"]})
+        name += f"_nt{args.noise_target:g}_" + "+".join(est)
     _record.maybe_save(args, name, result, load_start=load_start)
     return 0
 

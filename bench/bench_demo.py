@@ -12,6 +12,7 @@ and the metrics table (Chamfer distance etc.; the same for every run: seeded).
     python bench/bench_demo.py                 # the full demo (4x4 .. 32x32)
     python bench/bench_demo.py --quick         # demo --quick
     python bench/bench_demo.py --small         # CI: demo --quick --arrays 4
+    python bench/bench_demo.py --exposure-ms 1000 --save   # demo --exposure-ms 1000 -> bench/results/demo_e1000ms.json
 """
 
 from __future__ import annotations
@@ -60,14 +61,21 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="time `demo --quick`")
     ap.add_argument("--small", action="store_true", help="CI: `demo --quick --arrays 4`, one run")
     ap.add_argument("--repeats", type=int, default=1, help="runs of the command (each in a fresh process)")
+    ap.add_argument("--exposure-ms", type=float, default=None,
+                    help="demo --exposure-ms (default: the demo's 10 ms); the record is demo_e<ms>ms")
+    ap.add_argument("--arrays", default=None, help="demo --arrays (default: the demo's 4,8,16,32)")
     _record.add_arguments(ap)
     a = ap.parse_args(argv)
     load_start = list(os.getloadavg())
     args = ["--quick", "--arrays", "4"] if a.small else (["--quick"] if a.quick else [])
+    if a.exposure_ms is not None:
+        args += ["--exposure-ms", f"{a.exposure_ms:g}"]
+    if a.arrays is not None and not a.small:
+        args += ["--arrays", a.arrays]
     with tempfile.TemporaryDirectory(prefix="bench-demo-") as td:
         runs = [one_run(args, Path(td), i) for i in range(1 if a.small else max(1, a.repeats))]
     ok = [r for r in runs if r["status"] == "ok"]
-    result = {"benchmark": "demo", "small": a.small, "quick": a.quick or a.small,
+    result = {"benchmark": "demo", "small": a.small, "quick": a.quick or a.small, "exposure_ms": a.exposure_ms,
               "command": "transient-mi demo " + " ".join(args + ["-o", "OUT"]), "cpu_count": os.cpu_count(),
               "runs": runs}
     if ok:
@@ -75,6 +83,10 @@ def main(argv=None) -> int:
         result["fastest"] = {k: best[k] for k in ("wall_s", "peak_rss_mb", "step_sums_s", "figures_and_rest_s")}
     print(json.dumps(result, indent=1))
     name = "demo_small" if a.small else ("demo_quick" if a.quick else "demo")
+    if a.exposure_ms is not None:
+        name += f"_e{a.exposure_ms:g}ms"
+    if a.arrays is not None and not a.small:
+        name += "_a" + a.arrays.replace(",", "-")
     _record.maybe_save(a, name, result, load_start=load_start)
     return 0 if len(ok) == len(runs) else 1
 

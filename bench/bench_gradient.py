@@ -52,7 +52,7 @@ def _worker(config: str, mode: str, size: int, bins: int, bin_width: float, spp:
                        {"width": str(size), "height": str(size), "n_bins": str(bins), "capture": "confocal",
                         "spp": str(spp), "max_depth": "8" if config == "bsdf_depth8" else "4",
                         "bin_width_ps": str(bin_width),
-                        "pixel_footprint_m": "0.015"})
+                        "pixel_footprint_m": "0.015", "estimator": "monte_carlo"})  # Monte Carlo's AD
     sensor = scene.sensors()[0]
     sensor.film().kernel_sigma_ps = 32.0
     integ = scene.integrator()

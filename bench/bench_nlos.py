@@ -60,7 +60,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _record  # noqa: E402
 from _rss import peak_rss_mb, reset_peak_rss  # noqa: E402
 from _nlos_scene import (APERTURE_DIAMETER_M, DETECTOR, EPS, LASER, LETTER_SIZE, LETTER_Z, PULSE_ENERGY_J,  # noqa: E402,F401
-                         RECTANGLES, START_OPL, WALL, WAVELENGTH_NM, configs, ours_scene_dict, ours_scene_xml,
+                         RECTANGLES, START_OPL, WALL, WAVELENGTH_NM, configs, mean_agreement, ours_scene_dict,
+                         ours_scene_xml,
                          time_axis)
 from _peers import MT_VENV, MT_VERSION, mitransient_python, mt_env as _mt_env, run as _run  # noqa: E402,F401
 
@@ -243,63 +244,14 @@ def _compare(cfg, tmp, py) -> dict:
         entry["speedup_basis"] = {
             eps: ("measured" if o["time_to_rel_rmse_basis"][eps] == m["time_to_rel_rmse_basis"][eps] == "measured"
                   else "extrapolated") for eps in o["time_to_rel_rmse_s"]}
-        entry["mean_agreement"] = _mean_agreement(cfg, r_ours[-1][2], r_mt[-1][2], spots)
+        entry["mean_agreement"] = mean_agreement(cfg, np.load(r_ours[-1][2]), np.load(r_mt[-1][2], mmap_mode="r"),
+                                                 spots)
         # mitransient's spot irradiance is I cos / d^2 for a projector of axial intensity I, ours puts all N
         # photons at the spot: the normalised totals then differ by the factor 1 / I
         entry["mean_agreement"]["expected_scale"] = 1.0 / m["projector_intensity"]
     else:
         entry["mitransient"] = None
     return entry
-
-
-def _mean_agreement(cfg, ours_ref: str, mt_ref: str, spots) -> dict:
-    """Compare the two references after dividing out the known geometric factors."""
-    W = cfg["size"]
-    fp = 2 * WALL["half_size"] / W
-    o = np.load(ours_ref).astype(np.float64)  # [s, H, W, T]
-    m = np.load(mt_ref, mmap_mode="r")
-    if cfg["capture"] == "array":
-        m = m[spots]
-    m = np.asarray(m, dtype=np.float64)
-    u = (np.arange(W) - (W - 1) / 2) * fp
-    P = np.stack(np.meshgrid(u, u, indexing="xy"), -1)  # [H, W, 2]: x = u[ix], y = u[iy]
-    P = np.concatenate([P, np.zeros(P.shape[:2] + (1,))], -1)
-    D = np.array(DETECTOR)
-    L = np.array(LASER)
-    pd = D - P
-    dpd = np.linalg.norm(pd, axis=-1)
-    n_ap = -D / np.linalg.norm(D)
-    a_ap = math.pi * (APERTURE_DIAMETER_M / 2) ** 2
-    g_pix = fp * fp * (pd[..., 2] / dpd) * a_ap * ((-pd / dpd[..., None]) @ n_ap) / dpd ** 2  # [H, W]
-    h, c = 6.62607015e-34, 299792458.0
-    N = PULSE_ENERGY_J / (h * c / (WAVELENGTH_NM * 1e-9))
-    if cfg["capture"] == "confocal":
-        S = P  # spot of pixel k = its patch centre
-        ls = L - S
-        g_spot = N * np.linalg.norm(ls, axis=-1) ** 2 / (ls[..., 2] / np.linalg.norm(ls, axis=-1))  # [H, W]
-        g_spot = g_spot[None]
-    else:
-        Sj = P.reshape(-1, 3)[spots]
-        ls = L - Sj
-        dls = np.linalg.norm(ls, axis=-1)
-        g_spot = (N * dls ** 2 / (ls[:, 2] / dls))[:, None, None]
-    o_tot = o.sum(-1) / g_pix[None]  # ours -> radiance per unit projector intensity
-    m_tot = m.sum(-1) * g_spot
-    mask = (o_tot > 0) & (m_tot > 0)
-    scale = float((o_tot[mask] * m_tot[mask]).sum() / (m_tot[mask] ** 2).sum())
-    resid = float(np.sqrt(((o_tot - scale * m_tot)[mask] ** 2).mean()) / np.sqrt((o_tot[mask] ** 2).mean()))
-    t = np.arange(o.shape[-1]) + 0.5
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mo = (o * t).sum(-1) / o.sum(-1)
-        mm = (m * t).sum(-1) / m.sum(-1)
-    dt = (mo - mm)[mask]
-    return {"scale_ours_over_mitransient": scale,
-            "expected_scale": None,
-            "note": "totals per (spot, pixel) divided by the pixel's solid-angle factor (ours) and multiplied by "
-                    "N d^2 / cos of the spot (mitransient)",
-            "rel_rms_residual_of_totals": resid,
-            "mean_arrival_bin_difference": {"mean": float(dt.mean()), "rms": float(np.sqrt((dt ** 2).mean()))},
-            "compared_values": int(mask.sum())}
 
 
 def _pipeline(cfg, tmp: Path) -> dict:

@@ -79,7 +79,7 @@ def run_techniques(spp: int) -> list[dict]:
     from transient_mi.experiment import PaperConfig, paper_detector, scene_file
     from transient_mi.render_capture import prepare_render, run_render
 
-    cfg = PaperConfig(array=8, spots=2, spp=spp)
+    cfg = PaperConfig(array=8, spots=2, spp=spp, estimator="monte_carlo")
     out = []
     variants = [("all on (default)", {}), ("rqmc off (plain Monte Carlo)", {"rqmc": False}),
                 ("hidden-geometry sampling off (BSDF sampling only)", {"hidden_geometry_prob": 0.0})]

@@ -43,7 +43,7 @@ def main(argv=None) -> int:
     from transient_mi.experiment import PaperConfig, scene_file
     from transient_mi.render_capture import prepare_render, run_render
 
-    cfg = PaperConfig(array=a.array, spp=a.spp)
+    cfg = PaperConfig(array=a.array, spp=a.spp, estimator="monte_carlo")
     runs = {8: [], 1: []}
     sizes = {}
     with tempfile.TemporaryDirectory() as td:

@@ -67,7 +67,8 @@ def main(argv=None) -> int:
     from transient_mi.study.scene import base_detector, load_study_ground_truth, study_scene
     from transient_mi.experiment import PAPER_BOUNDS_M
 
-    sc = study_scene("paper_mannequin", {"spp": a.spp, "bin_width_ps": 4, "n_bins": 2875, "array": 32})
+    sc = study_scene("paper_mannequin", {"spp": a.spp, "bin_width_ps": 4, "n_bins": 2875, "array": 32,
+                                        "estimator": "monte_carlo"})
     gt, gt_desc = load_study_ground_truth(sc)
     params = base_detector(sc)
     per = {"midpoint-fk": {k: [] for k in KEYS}, "midpoint-fk+completion": {k: [] for k in KEYS}}

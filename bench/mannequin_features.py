@@ -52,7 +52,7 @@ def main(argv=None) -> int:
     from transient_mi.experiment import PAPER_BOUNDS_M, PaperConfig, ground_truth, paper_detector, render_ideal
     from transient_mi.study.detection import Detection, IdealCapture
 
-    cfg = PaperConfig(array=32, spots=2, spp=a.spp, bin_width_ps=4.0, n_bins=2875)
+    cfg = PaperConfig(array=32, spots=2, spp=a.spp, bin_width_ps=4.0, n_bins=2875, estimator="monte_carlo")
     mesh = ground_truth(cfg)
     out = {}
     with tempfile.TemporaryDirectory(dir=ROOT / "bench") as tmp:

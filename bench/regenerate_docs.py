@@ -48,10 +48,14 @@ from docgen.recon import (  # noqa: E402
     recon_readme_table, recon_docs_table, recon_speedups_inline, recon_targets_table, front_limit_inline,
     completion_limit_inline, completion_aspect_para, recon_quality_para, methods_trend_para,
 )
-from docgen.quadrature import quadrature_cost_inline, quadrature_inline, quadrature_table  # noqa: E402
+from docgen.quadrature import (  # noqa: E402
+    PAPER_ESTIMATORS, paper_estimators_table, quadrature_cost_inline, quadrature_inline, quadrature_table,
+)
+from docgen.nlos_quadrature import nlos_quadrature_table  # noqa: E402
 from docgen.fit_mesh import fit_mesh_plane_table, fit_mesh_plane_vertex_table, fit_mesh_table  # noqa: E402
 from docgen.studies import (  # noqa: E402
     studies_para, _study_inline, dataset_para, dataset_docs_table, view_para, view_docs_table, fit_para,
+    dataset_noise_standard_table, DATASET_NT,
 )
 
 
@@ -89,6 +93,7 @@ GENERATORS = {
     "noise_cost": (noise_cost_inline, ["render_variance_cost", "render_variance_cost_16k"], True),
     "noise_vs_spp": (noise_vs_spp_inline, ["render_noise_vs_spp"], True),
     "dataset_docs_table": (dataset_docs_table, ["dataset_dataset_example"], False),
+    "dataset_noise_standard": (dataset_noise_standard_table, list(DATASET_NT), False),
     "gradient": (gradient_para, ["gradient"], False),
     "fit": (fit_para, ["fit"], False),
     "front_limit": (front_limit_inline, ["front_surface_limit"], True),
@@ -100,6 +105,8 @@ GENERATORS = {
     "quadrature_table": (quadrature_table, ["quadrature"], False),
     "quadrature_inline": (quadrature_inline, ["quadrature"], True),
     "quadrature_cost": (quadrature_cost_inline, ["quadrature_cost"], True),
+    "paper_estimators": (paper_estimators_table, list(PAPER_ESTIMATORS), False),
+    "nlos_quadrature_table": (nlos_quadrature_table, ["nlos_quadrature", "nlos_quadrature_64x64"], False),
     "fit_mesh": (fit_mesh_table, ["fit_mesh_letter"], False),
     "fit_mesh_plane": (fit_mesh_plane_table, ["fit_mesh_tilted_plane"], False),
     "fit_mesh_plane_vertex": (fit_mesh_plane_vertex_table, ["fit_mesh_tilted_plane_vertex"], False),

@@ -55,7 +55,7 @@ def main(argv=None) -> int:
     gt = GroundTruth(mesh=ground_truth(PaperConfig()), source="paper mannequin")
     rows = []
     for n in (int(v) for v in a.spots.split(",")):
-        cfg = PaperConfig(array=a.array, spots=n, spp=a.spp, bin_width_ps=4.0, n_bins=2875)
+        cfg = PaperConfig(array=a.array, spots=n, spp=a.spp, bin_width_ps=4.0, n_bins=2875, estimator="monte_carlo")
         with tempfile.TemporaryDirectory(dir=ROOT / "bench") as tmp:
             t0 = time.perf_counter()
             ideal = render_ideal(cfg, Path(tmp) / "ideal", progress=False)

@@ -28,7 +28,7 @@ def main() -> None:
     from transient_mi.reporting import save_figure
     from transient_mi.scenes.mannequin_skeleton import parse_joints
 
-    cfg = PaperConfig(array=16, spp=256, n_bins=1150, bin_width_ps=10.0).replace(**UNSEEN)
+    cfg = PaperConfig(array=16, spp=256, n_bins=1150, bin_width_ps=10.0, estimator="monte_carlo").replace(**UNSEEN)
     with tempfile.TemporaryDirectory() as tmp:
         ideal = render_ideal(cfg, Path(tmp) / "ideal", progress=False)
         counts = detect_counts(ideal, Path(tmp) / "counts", exposure_s=0.01, progress=False)

@@ -70,7 +70,8 @@ def files(tmp_path_factory):
     make_ideal_capture(d / "ideal", data, bin_width_ps=64.0)
     from spad_detector import detect_stack
 
-    r = run_cli("render", ROOT / "scenes" / "nlos_tilted_plane.xml", "-o", d / "rendered", *NLOS_D, "--spp", "8")
+    r = run_cli("render", ROOT / "scenes" / "nlos_tilted_plane.xml", "-o", d / "rendered", *NLOS_D, "--spp", "8",
+                "-D", "estimator=monte_carlo")
     assert r.code == 0, r.err  # fit renders the capture's own scene again: a rendered capture
     detect_stack(d / "rendered", d / "counts", pulses=1000, seed=0, progress=False, warn=lambda line: None)
     (d / "spec.yaml").write_text(SPEC)

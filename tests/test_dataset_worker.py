@@ -118,7 +118,7 @@ def test_ground_truth_only_object_matches_the_mannequin_the_scene_builds(tmp_pat
 
     spec = parse_spec({
         "scene": "paper_mannequin", "seed": 3, "spp": 2,
-        "defines": {"array": 4, "n_bins": 50, "bin_width_ps": 100, "pose": "${object.pose}",
+        "defines": {"array": 4, "n_bins": 50, "bin_width_ps": 100, "estimator": "monte_carlo", "pose": "${object.pose}",
                     "distance": "${object.position_z}", "rotation": "${object.rotation_deg}"},
         "object": {"kind": "mannequin", "define": None, "pose": "arms_raised", "position_z": 0.55,
                    "rotation_deg": 10.0},

@@ -29,7 +29,7 @@ def paper_capture(tmp_path_factory):
     from transient_mi.experiment import PaperConfig, detect_counts, render_ideal
 
     root = tmp_path_factory.mktemp("paper")
-    cfg = PaperConfig(array=4, spots=4, spp=64, bin_width_ps=8.0, n_bins=1438)
+    cfg = PaperConfig(array=4, spots=4, spp=64, bin_width_ps=8.0, n_bins=1438, estimator="monte_carlo")
     ideal = render_ideal(cfg, root / "ideal", seed=3, progress=False)
     counts = detect_counts(ideal, root / "counts", exposure_s=0.002, seed=4, progress=False)
     return cfg, ideal, counts
@@ -90,7 +90,7 @@ def test_gate_suppresses_the_first_bounce_wall_return(paper_capture):
 @pytest.fixture(scope="module")
 def quick_demo(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo") / "quick"
-    r = cli("demo", "--quick", "-o", out)
+    r = cli("demo", "--quick", "--estimator", "monte_carlo", "-o", out)
     assert r.returncode == 0, r.stderr
     return out
 

@@ -212,6 +212,7 @@ fit_capture(sys.argv[1], sys.argv[2], model="patches", n_patches=1, patch_side_m
 def test_fit_killed_after_its_checkpoint_resumes_to_the_end(tmp_path):
     ideal, counts = tmp_path / "ideal", tmp_path / "counts"
     r = run_cli("render", ROOT / "scenes" / "nlos_tilted_plane.xml", "-o", ideal, "--spp", "16", "-D", "width=4",
+                "-D", "estimator=monte_carlo",
                 "-D", "height=4", "-D", "spots_x=1", "-D", "spots_y=1", "-D", "n_bins=48", "-D", "bin_width_ps=128")
     assert r.code == 0, r.err
     assert run_cli("detect", ideal, "-o", counts, *DETECT).code == 0

@@ -35,7 +35,8 @@ def capture(tmp_path_factory):
     d = tmp_path_factory.mktemp("fitcap")
     ideal = render(scene_path("nlos_tilted_plane"), d / "ideal", spp=256, progress=False,
                    defines={"width": "8", "height": "8", "spots_x": "2", "spots_y": "2", "spot_spacing_m": "0.3",
-                            "pixel_footprint_m": "0.01", "aperture_diameter_m": "0.002", "n_bins": "400", "bin_width_ps": "16", "t0_ps": "9000"})
+                            "pixel_footprint_m": "0.01", "aperture_diameter_m": "0.002", "n_bins": "400", "bin_width_ps": "16", "t0_ps": "9000",
+                            "estimator": "monte_carlo"})
     return detect_stack(ideal, d / "counts", paper_detector(), exposure_s=0.01, seed=0, progress=False)
 
 

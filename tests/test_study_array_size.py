@@ -8,7 +8,7 @@ import json
 import pytest
 
 #: 4x4 and 8x8 arrays, 2x2 laser spots, 8 ps bins, 64 spp, 1 ms per spot; 32x32x16 voxels.
-TINY = dict(arrays=(4, 8), defines={"spp": 64}, exposure_s=1e-3, quick=True, voxels=(32, 32, 16), progress=False)
+TINY = dict(arrays=(4, 8), defines={"spp": 64, "estimator": "monte_carlo"}, exposure_s=1e-3, quick=True, voxels=(32, 32, 16), progress=False)
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +59,7 @@ def test_rows_report_the_rendering_noise_the_methods_study_measures(study, tmp_p
         assert r["render_noise_ratio"] > 0.1
     assert "above the usual 0.1" in study.summary.read_text()
     _, rows = run_methods_study("paper_mannequin", tmp_path / "m", arrays=(4,), exposures_s=(1e-3,), methods=("bp",),
-                                defines={"spp": 64}, quick=True, voxels=(32, 32, 16), progress=False)
+                                defines={"spp": 64, "estimator": "monte_carlo"}, quick=True, voxels=(32, 32, 16), progress=False)
     assert rows[0]["render_noise_ratio"] == pytest.approx(study.rows[0]["render_noise_ratio"], rel=1e-9)
 
 

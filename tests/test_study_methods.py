@@ -12,7 +12,7 @@ import pytest
 
 #: 4x4 and 8x8 arrays, 2x2 laser spots, 8 ps bins, 64 spp, 1 ms per spot; 32x32x16 voxels; two methods, each
 #: also completed behind its front.
-TINY = dict(arrays=(4, 8), exposures_s=(1e-3,), methods=("bp", "midpoint-fk"), defines={"spp": 64}, quick=True,
+TINY = dict(arrays=(4, 8), exposures_s=(1e-3,), methods=("bp", "midpoint-fk"), defines={"spp": 64, "estimator": "monte_carlo"}, quick=True,
             voxels=(32, 32, 16), progress=False, complete="auto")
 METRICS = ("chamfer_m", "completeness_m", "iou", "depth_mae_m", "visible_completeness_m", "visible_iou",
            "silhouette_iou")
@@ -183,7 +183,7 @@ def test_the_fit_sees_the_counts_the_methods_see(tmp_path):
     from transient_mi.study.methods import _detect
     from transient_mi.study.scene import array_size_defines, base_detector, study_scene
 
-    sc = study_scene("paper_mannequin", {"spp": 64}, quick=True)
+    sc = study_scene("paper_mannequin", {"spp": 64, "estimator": "monte_carlo"}, quick=True)
     ideal = render(sc.with_defines(**array_size_defines(sc, 4)), tmp_path / "ideal", 0)
     params = base_detector(sc)
     cap = _detect(ideal, params, 1e-3, 1)[0]

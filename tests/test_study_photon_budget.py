@@ -13,7 +13,7 @@ import pytest
 from stats_helpers import z_bound
 
 #: 8x8 array, 2x2 laser spots, 8 ps bins, 256 spp (8 replicates of 32); 32x32x16 voxels.
-TINY = dict(defines={"array": 8, "spp": 256}, quick=True, dark_count_rates_cps=(25.0,), dead_times_ns=(10.0,),
+TINY = dict(defines={"array": 8, "spp": 256, "estimator": "monte_carlo"}, quick=True, dark_count_rates_cps=(25.0,), dead_times_ns=(10.0,),
             seeds=(0, 1, 2), voxels=(32, 32, 16), progress=False)
 #: Starved (5 pulses, ~0.07 detected counts per pixel per spot) to plenty (5000 pulses, ~70).
 EXPOSURES = (1e-7, 1e-6, 1e-4)
@@ -215,7 +215,8 @@ def test_same_seed_same_bytes(tmp_path):
     import transient_mi  # noqa: F401
     from transient_mi.study import run_photon_budget_study
 
-    kw = dict(TINY, exposures_s=(1e-6,), seeds=(0, 1), voxels=(16, 16, 8), defines={"array": 4, "spp": 32})
+    kw = dict(TINY, exposures_s=(1e-6,), seeds=(0, 1), voxels=(16, 16, 8),
+              defines={"array": 4, "spp": 32, "estimator": "monte_carlo"})
     a = run_photon_budget_study("paper_mannequin", tmp_path / "a", **kw)
     b = run_photon_budget_study("paper_mannequin", tmp_path / "b", **kw)
     for name in ("results.csv", "results.json", "snr_bins.csv", "snr_pixels.csv"):

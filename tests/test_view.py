@@ -483,7 +483,7 @@ def scene_captures(tmp_path_factory):
         "fog_camera": {"width": "8", "height": "6", "n_bins": "60"},
         "nlos_letter": nlos, "nlos_point_targets": nlos, "nlos_tilted_plane": nlos, "fog_nlos": nlos,
         "glass_window_nlos": nlos,
-        "paper_mannequin": {"array": "4", "spots": "1", "n_bins": "1500", "bin_width_ps": "8"},
+        "paper_mannequin": {"array": "4", "spots": "1", "n_bins": "1500", "bin_width_ps": "8", "estimator": "monte_carlo"},
     }
     assert sorted(settings) == sorted(p.stem for p in (REPO / "scenes").glob("*.xml"))
     for name, defines in settings.items():

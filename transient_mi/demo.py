@@ -49,6 +49,10 @@ class ArrayResult:
     files: dict = field(default_factory=dict)
     spp: int = 0
     render_noise: dict = field(default_factory=dict)
+    #: which estimator made the ideal capture (``quadrature`` or ``monte_carlo``) and, for the quadrature, the
+    #: largest element size (m) and fewest cells per patch side its spots were rendered with
+    estimator: str = "monte_carlo"
+    quadrature: dict = field(default_factory=dict)
 
 
 def _is_previous_demo(out: Path) -> bool:
@@ -118,9 +122,11 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
         hists[n] = (t_ideal, h_ideal, h_counts, m["detector"]["resolved"])
         n_spots = m["n_files"]
         rn = m["detector"]["resolved"].get("render_noise") or {}
-        spp_used = rendered_spp(ideal, s.spp)
+        estimator, quad = _estimator_of(ideal)
+        spp_used = 0 if estimator == "quadrature" else rendered_spp(ideal, s.spp)
         results.append(ArrayResult(
             array=n, metrics=metrics, pulses_per_spot=pulses, spp=spp_used, render_noise=rn,
+            estimator=estimator, quadrature=quad,
             counts_per_pixel_per_spot=float(h_counts.sum() / (n * n * n_spots)),
             times_s={"render": t1 - t0, "detect": t2 - t1, "reconstruct": t3 - t2},
             files={"ideal": f"captures/array_{n:02d}/ideal", "counts": f"captures/array_{n:02d}/counts",
@@ -128,6 +134,21 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
         with np.load(tmp / "recon" / f"array_{n:02d}" / "volume.npz") as z:
             assert z["volume"].shape == tuple(reversed(s.voxels))
     return results, hists
+
+
+def _estimator_of(ideal: Path) -> tuple[str, dict]:
+    """``(estimator, settings)`` of a rendered ideal capture (its manifest): for the quadrature, the coarsest
+    element size and cells per patch side over its spots (refined ones with a noise target)."""
+    m = json.loads((Path(ideal) / "manifest.json").read_text())
+    est = (m.get("render") or {}).get("estimator", "monte_carlo")
+    if est != "quadrature":
+        return est, {}
+    per = (m.get("variance") or {}).get("settings_per_spot")
+    if per:
+        return est, {"element_size_m": max(p["element_size_m"] for p in per),
+                     "patch_cells": min(p["patch_cells"] for p in per)}
+    st = (m.get("variance") or {}).get("settings") or {}
+    return est, {k: st[k] for k in ("element_size_m", "patch_cells") if k in st}
 
 
 # ------------------------------------------------------------------ figures
@@ -293,7 +314,8 @@ def _write_metrics(root: Path, results: list[ArrayResult]) -> None:
         row = {"array": f"{r.array}x{r.array}", "pixels": r.array * r.array}
         row.update({k: (r.metrics or {}).get(k) for k in METRIC_KEYS})
         row.update({"counts_per_pixel_per_spot": r.counts_per_pixel_per_spot, "pulses_per_spot": r.pulses_per_spot,
-                    "spp": r.spp, "render_noise_ratio": r.render_noise.get("ratio"),
+                    "spp": r.spp, "estimator": r.estimator, **{f"quadrature_{k}": v for k, v in r.quadrature.items()},
+                    "render_noise_ratio": r.render_noise.get("ratio"),
                     "render_noise_ratio_pixel_totals": (r.render_noise.get("pixel_totals") or {}).get("ratio_pooled")})
         row.update({f"{k}_s": round(v, 3) for k, v in r.times_s.items()})
         rows.append(row)
@@ -310,28 +332,45 @@ def metrics_table_markdown(rows: list[dict]) -> str:
     def ratio(v):
         return "n/a" if v is None else f"{v:.3g}"
 
+    def rendered(r):  # which estimator made the capture, and with what
+        if r.get("estimator", "monte_carlo") != "quadrature":
+            return f"{r.get('spp', 'n/a')} spp"
+        h, c = r.get("quadrature_element_size_m"), r.get("quadrature_patch_cells")
+        return "quadrature" + (f", {1000 * h:.3g} mm, {c} cells" if h is not None and c is not None else "")
+
     lines = ["| array | Chamfer (cm) | accuracy (cm) | completeness (cm) | depth MAE (cm) | depth coverage | IoU | "
-             "counts / pixel / spot | spp | rendering / photon noise (bins; pixel totals) |",
+             "counts / pixel / spot | rendered with | rendering / photon noise (bins; pixel totals) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cov = "n/a" if r["depth_coverage"] is None else f"{r['depth_coverage']:.2f}"
         iou = "n/a" if r["iou"] is None else f"{r['iou']:.3f}"
         lines.append(f"| {r['array']} | {cm(r['chamfer_m'])} | {cm(r['accuracy_m'])} | {cm(r['completeness_m'])} | "
                      f"{cm(r['depth_mae_m'])} | {cov} | {iou} | {r['counts_per_pixel_per_spot']:.0f} | "
-                     f"{r.get('spp', 'n/a')} | {ratio(r.get('render_noise_ratio'))}; "
+                     f"{rendered(r)} | {ratio(r.get('render_noise_ratio'))}; "
                      f"{ratio(r.get('render_noise_ratio_pixel_totals'))} |")
     return "\n".join(lines)
 
 
 def _spp_text(s: DemoSettings) -> str:
+    if s.estimator == "quadrature":
+        if s.noise_target is None:
+            return ("Three-bounce light integrated deterministically (estimator=quadrature, the scene's element size "
+                    "and cells; docs/quadrature.md)")
+        return ("Three-bounce light integrated deterministically (estimator=quadrature), its elements and cells "
+                f"refined per spot until the stated error is at most {s.noise_target:g} x the photon noise at the "
+                "budget (`transient-mi render --noise-target`)")
     if s.noise_target is None:
-        return f"{s.spp} samples per pixel per spot"
-    return (f"Samples per pixel per spot chosen per spot so that rendering noise is at most {s.noise_target:g} x "
-            f"the photon noise at the budget (pilot {s.spp} spp; `transient-mi render --noise-target`)")
+        return f"Monte Carlo, {s.spp} samples per pixel per spot"
+    return (f"Monte Carlo, samples per pixel per spot chosen per spot so that rendering noise is at most "
+            f"{s.noise_target:g} x the photon noise at the budget (pilot {s.spp} spp; "
+            "`transient-mi render --noise-target`)")
 
 
 def _noise_text(s: DemoSettings, results: list) -> str:
     worst = max((r.render_noise.get("ratio") or 0.0) for r in results)
+    if s.noise_target is None and s.estimator == "quadrature":
+        return (f"This run used the quadrature's default settings and no noise target: the ratio reaches "
+                f"{worst:.3g}.")
     if s.noise_target is None:
         return (f"This run used a fixed {s.spp} spp and no noise target: the ratio reaches {worst:.3g}, so the "
                 "detected counts here show rendering noise as much as photon noise (run without --quick for "
@@ -370,11 +409,12 @@ reconstruction); depth MAE over the columns where both exist; IoU of occupied vo
 
 ## Rendering noise against photon noise
 
-The ideal capture is a Monte Carlo estimate; detection draws photon counts around it, so the counts carry
-the render's noise as well as the photon noise. "rendering / photon noise" is the ratio of the two variances
-in the detected bins (after gate, PDE and jitter; the largest over classes of bins holding >= 1 % of the
-counts), and on per-pixel totals; `detect` computes it from the variance every ideal capture stores
-(`variance/`, from independent replicates). {_noise_text(s, results)}
+The ideal capture is an estimate (by {s.estimator}; the "rendered with" column); detection draws photon counts
+around it, so the counts carry the render's error as well as the photon noise. "rendering / photon noise" is the
+ratio of the two variances in the detected bins (after gate, PDE and jitter; the largest over classes of bins
+holding >= 1 % of the counts), and on per-pixel totals; `detect` computes it from the error every ideal capture
+stores (`variance/`: a Monte Carlo capture's variance from independent replicates, or the quadrature's error
+estimate squared). {_noise_text(s, results)}
 
 ## Figures
 

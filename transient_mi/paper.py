@@ -72,6 +72,13 @@ class PaperSetup:
 
 #: The paper's setup.
 PAPER = PaperSetup()
+#: The paper scene's estimator of three-bounce light, for the scene file's default, :class:`PaperConfig`,
+#: :class:`DemoSettings` and so the demo, the studies on this scene and the NLOS dataset example. The mannequin is a
+#: mesh, so ``quadrature`` applies, but it is not the default yet: at the paper's budgets Monte Carlo reaches the
+#: noise standard with comparatively few samples, and the quadrature was slower to the same target at the demo's
+#: 10 ms (bench/bench_paper_estimators.py; docs/quadrature.md, "When Monte Carlo is still used"). One line to change
+#: when it is faster.
+PAPER_ESTIMATOR = "monte_carlo"
 #: Array sizes compared in the paper (Fig. 4 and Fig. 5).
 PAPER_ARRAY_SIZES = (4, 8, 16, 32)
 #: Reconstruction volume: the wall's extent in x and y, 25 cm to 75 cm in front of it.
@@ -104,6 +111,10 @@ class PaperConfig:
         Time axis (t = 0: the pulse leaves the laser); the paper's 1 ps TCSPC bins.
     max_depth : int
         4 = three-bounce light (the paper's model), -1 = every bounce.
+    estimator : str
+        ``monte_carlo`` (``spp`` samples; the default, :data:`PAPER_ESTIMATOR`) or ``quadrature`` (deterministic
+        three-bounce light with a stored error estimate; ``spp`` unused unless ``max_depth`` > 4;
+        docs/quadrature.md).
     """
 
     array: int = 16
@@ -119,6 +130,7 @@ class PaperConfig:
     n_bins: int = 11500
     bin_width_ps: float = PAPER.tcspc_bin_width_ps
     max_depth: int = 4
+    estimator: str = PAPER_ESTIMATOR
 
     def defines(self) -> dict[str, str]:
         """The ``-D`` values for ``scenes/paper_mannequin.xml``."""
@@ -127,7 +139,8 @@ class PaperConfig:
             "distance": repr(float(self.distance_m)), "pose": self.pose, "rotation": repr(float(self.rotation_deg)),
             "power_w": repr(float(self.power_w)), "spp": str(self.spp), "t0_ps": repr(float(self.t0_ps)),
             "n_bins": str(self.n_bins), "bin_width_ps": repr(float(self.bin_width_ps)),
-            "max_depth": str(self.max_depth), **({"joints": self.joints} if self.joints else {}),
+            "max_depth": str(self.max_depth), "estimator": self.estimator,
+            **({"joints": self.joints} if self.joints else {}),
         }
 
     def replace(self, **changes) -> "PaperConfig":
@@ -153,13 +166,18 @@ class DemoSettings:
     voxels: tuple[int, int, int] = (64, 64, 32)
     threshold: str = "rel:0.3"
     seed: int = 0
-    #: Largest ratio of rendering to photon variance (None: render ``spp`` and report the ratio); with a target,
-    #: ``spp`` is the pilot (transient_mi.noise_target).
+    #: Largest ratio of rendering to photon variance (None: render as set and report the ratio); with a target,
+    #: ``spp`` is the Monte Carlo pilot, or the quadrature's elements and cells are refined
+    #: (transient_mi.noise_target).
     noise_target: float | None = 0.1
+    #: ``monte_carlo`` (:data:`PAPER_ESTIMATOR`) or ``quadrature`` (deterministic three-bounce light; the mannequin
+    #: is a mesh; ``demo --estimator quadrature``).
+    estimator: str = PAPER_ESTIMATOR
 
     def config(self, array: int) -> PaperConfig:
         return PaperConfig(array=array, spots=self.spots, power_w=self.power_w, spp=self.spp,
-                           t0_ps=self.t0_ps, n_bins=self.n_bins, bin_width_ps=self.bin_width_ps)
+                           t0_ps=self.t0_ps, n_bins=self.n_bins, bin_width_ps=self.bin_width_ps,
+                           estimator=self.estimator)
 
 
 #: ``--quick``: coarser time bins and fewer samples (same physics), no noise target (the ratio is reported).
@@ -194,9 +212,9 @@ def scene_defaults() -> list[tuple[str, str]]:
         ("distance", repr(c.distance_m)), ("pose", c.pose), ("rotation", repr(c.rotation_deg)),
         ("power_w", repr(c.power_w)), ("spp", str(SCENE_SPP)), ("t0_ps", repr(c.t0_ps)),
         ("n_bins", str(c.n_bins)), ("bin_width_ps", repr(c.bin_width_ps)), ("max_depth", str(c.max_depth)),
-        # the estimator of three-bounce light (docs/quadrature.md): Monte Carlo by default; the quadrature's
-        # element size (m) and cells per patch side as the plug-in's defaults
-        ("estimator", "monte_carlo"), ("element_size_m", "0.01"), ("patch_cells", "4"),
+        # the estimator of three-bounce light (docs/quadrature.md): PAPER_ESTIMATOR; the quadrature's element size
+        # (m) and cells per patch side as the plug-in's defaults
+        ("estimator", c.estimator), ("element_size_m", "0.01"), ("patch_cells", "4"),
         ("capture", "array"), ("include_wall_return", "true"),
         ("wavelength_nm", repr(PAPER.wavelength_nm)), ("repetition_rate_hz", repr(PAPER.repetition_rate_hz)),
         ("laser_origin", _vec(PAPER.laser_origin_m)), ("detector_origin", _vec(PAPER.detector_origin_m)),

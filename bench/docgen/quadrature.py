@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .common import provenance
+from .common import Missing, provenance
 
 
 def _r(x) -> str:
@@ -65,3 +65,41 @@ def quadrature_cost_inline(R) -> str:
     return (f"multiplying one factor by 4 multiplies the render time by: " + ", ".join(parts)
             + f" (base {rows['base']['time_s']:.2f} s: the letter at 4 x 4 pixels, 2 spots, 512 bins, 2 cm elements; "
             + f"{provenance(rec, short=True)})")
+
+
+#: bench/bench_paper_estimators.py's records quoted in quadrature.md ("When Monte Carlo is still used"): the demo's
+#: 10 ms (both estimators), then 1 s per spot (Monte Carlo alone: its samples reach the cap).
+PAPER_ESTIMATORS = ("paper_estimators_a4_e10ms", "paper_estimators_a4_e1000ms")
+
+
+def paper_estimators_table(R) -> str:
+    """The paper scene at a noise target by each estimator, side by side (one run each, the same load)."""
+    lines = ["  | exposure per spot | estimator | render (s) | ended with | ratio stated by detect (bins; pixel "
+             "totals) | target met |", "  |---|---|---:|---|---:|---|"]
+    recs = [R(PAPER_ESTIMATORS[0])]
+    try:
+        recs.append(R(PAPER_ESTIMATORS[1]))
+    except Missing:
+        pass
+    for rec in recs:
+        r = rec["result"]
+        for x in r["runs"]:
+            sp = x["spots"]
+            if x["estimator"] == "quadrature":
+                h = max(s_["element_size_m"] for s_ in sp)
+                how = (f"{1000 * h:.3g} mm elements, {min(s_['patch_cells'] for s_ in sp)} cells, "
+                       f"{max(s_['rounds'] for s_ in sp)} round(s)")
+            else:
+                lo, hi = min(s_["spp"] for s_ in sp), max(s_["spp"] for s_ in sp)
+                how = f"{lo} spp" if lo == hi else f"{lo}-{hi} spp"
+            tot = x.get("render_noise_ratio_pixel_totals")
+            lines.append(f"  | {r['exposure_ms']:g} ms | {x['estimator']} | {x['render_wall_s']:.0f} | {how} | "
+                         f"{x['render_noise_ratio_detect']:.3g}; {'n/a' if tot is None else format(tot, '.3g')} | "
+                         f"{'yes' if x['met'] else 'no'} |")
+    r = recs[0]["result"]
+    q = r["quadrature_start"]
+    lines += ["", f"  ({r['array']} x {r['array']} pixels, {r['spots']} spots, {r['bin_width_ps']:g} ps bins, target "
+              f"{r['target']:g}, the paper's detector; Monte Carlo from the demo's 1024-spp pilot, capped at 2^20 spp, "
+              f"the quadrature from {1000 * q['element_size_m']:g} mm elements and {q['patch_cells']} cells; render "
+              "times include the first render's JIT compilation.) " + " ".join(provenance(rec) for rec in recs)]
+    return "\n" + "\n".join(lines) + "\n"

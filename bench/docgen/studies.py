@@ -4,7 +4,7 @@ docs/view.md, docs/fit.md).
 
 from __future__ import annotations
 
-from docgen.common import Missing, _gb, provenance, shown_command
+from docgen.common import Missing, _gb, not_measured, provenance, shown_command
 
 
 def _study_cases(R):
@@ -165,3 +165,33 @@ def fit_para(R) -> str:
             f"{st['iterations']} iterations with its defaults:\n\n" + head + body
             + f"\n\nPoisson NLL of the counts: {r['poisson_nll']['start']:.6g} at the start, {r['poisson_nll']['fit']:.6g} "
             f"fitted. {provenance(rec)}\n")
+
+
+#: The NLOS example at the noise standard, before (Monte Carlo, the default until the quadrature became it) and
+#: after (the quadrature): ``bench_dataset.py --spec docs/examples/dataset_nlos_mannequin.yaml --noise-target 0.1``.
+DATASET_NT = ("dataset_dataset_nlos_mannequin_nt0.1_monte_carlo", "dataset_dataset_nlos_mannequin_nt0.1_quadrature")
+
+
+def dataset_noise_standard_table(R) -> str:
+    """Items per hour of the NLOS example with every item rendered to the noise standard, by each estimator."""
+    lines = ["| estimator | items | wall (s) | items per hour | mean render time per item in a worker (s) | "
+             "spp per item | largest ratio (median) | target met |", "|---|---|---|---|---|---|---|---|"]
+    recs, missing = [], []
+    for name in DATASET_NT:
+        try:
+            recs.append(R(name))
+        except Missing:
+            missing.append(name)
+    for rec in recs:
+        for x in rec["result"]["runs"]:
+            est = "+".join(sorted(x["estimators"]))
+            spp = "-" if not x.get("spp_used_range") else "{}-{}".format(*x["spp_used_range"])
+            lines.append(f"| {est} (`--workers {x['workers']}`) | {x['items']} | {x['wall_s']:.0f} | "
+                         f"{x['items_per_hour']:.1f} | {x['mean_render_s_in_worker']:.1f} | {spp} | "
+                         f"{x['render_noise_ratio_max']:.3g} ({x['render_noise_ratio_median']:.3g}) | "
+                         f"{x['noise_target_met']} of {x['items']} |")
+    lines.append("")
+    lines += [provenance(rec) for rec in recs]
+    if missing:
+        lines += ["", not_measured(missing, True).strip("()") + "."]
+    return "\n" + "\n".join(lines) + "\n"

@@ -19,6 +19,10 @@ def demo(
     spots: Optional[int] = typer.Option(
         None, "--spots", help="Laser scan grid side N (N x N spots over the 1 m wall; default 2). Render time and "
                               "data grow as N^2; docs/recon.md, 'Sampling designs'."),
+    estimator: Optional[str] = typer.Option(
+        None, "--estimator", help="Estimator of three-bounce light: quadrature (deterministic, an error estimate "
+                                  "instead of noise) or monte_carlo (samples); default: the demo's "
+                                  "(docs/demo.md)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty output directory (an earlier "
                                    "demo's output is replaced without it)."),
 ) -> None:
@@ -47,6 +51,10 @@ def demo(
         if not 1 <= spots <= 64:
             raise UserInputError(f"--spots {spots}: must be between 1 and 64 (N x N laser spots)")
         changes["spots"] = spots
+    if estimator is not None:
+        if estimator not in ("quadrature", "monte_carlo"):
+            raise UserInputError(f"--estimator {estimator!r}: allowed quadrature, monte_carlo")
+        changes["estimator"] = estimator
     if not 0 <= seed < 2**31:
         raise UserInputError(f"--seed {seed}: must be in [0, 2**31)")
     run_demo(out, settings=dataclasses.replace(s, **changes), quick=quick, overwrite=overwrite,

@@ -29,7 +29,7 @@ from .worker import CAPTURE_NAME, PARAMS_NAME, RESULT_NAME
 INDEX_CSV = "index.csv"
 INDEX_JSONL = "index.jsonl"
 FIXED_COLUMNS = ("item", "index", "repeat", "grid_index", "params_sha256", "render_seed", "detector_seed", "spp",
-                 "render_noise_ratio", "kind", "capture", "ideal", "mesh")
+                 "render_noise_ratio", "estimator", "kind", "capture", "ideal", "mesh")
 
 
 def item_row(item_dir: Path, root: Path) -> dict:
@@ -51,6 +51,7 @@ def item_row(item_dir: Path, root: Path) -> dict:
         "detector_seed": res.get("detector_seed", det["seed"] if det else None),
         "spp": res.get("spp_used", rec["spp"]),
         "render_noise_ratio": res.get("render_noise_ratio"),
+        "estimator": res.get("estimator", "monte_carlo"),  # which estimator made the capture
         "kind": kind,
         "capture": capture,
         "ideal": ideal,

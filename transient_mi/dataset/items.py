@@ -212,6 +212,8 @@ def expand_items(spec: DatasetSpec, *, variant: str, scene_sha256: str) -> list[
                 "parameters": values,
                 "varied": spec.varied_keys(),
             }
+            if spec.noise_target is not None:  # only when set: items of a spec without it keep their hashes
+                record["noise_target"] = spec.noise_target
             record["params_sha256"] = params_digest(record)
             record["scene_file"] = str(spec.scene_file)
             record["commands"] = redo_commands(record, spec)
@@ -232,8 +234,16 @@ def redo_commands(record: dict, spec: DatasetSpec) -> list[str]:
     out = "capture/ideal" if record["detector"] is not None else "capture"
     d = " ".join(f"-D {k}={_shell(v)}" for k, v in record["defines"].items())
     variant = f" --variant {record['variant']}"
+    target = ""
+    if record.get("noise_target") is not None:
+        # the detector the target is judged with is the item's (params.json); `render` plans for the budget below
+        # with its default detector, so this line redoes the item exactly only for that detector
+        det = record["detector"]
+        budget = (f" --pulses {det['pulses']}" if det.get("pulses") is not None else
+                  f" --exposure-s {det['exposure_s']!r}" if det.get("exposure_s") is not None else "")
+        target = f" --noise-target {record['noise_target']!r}{budget}"
     cmds.append(f"transient-mi render {_shell(str(spec.scene_file))} -o {out} {d} --spp {record['spp']} "
-                f"--seed {record['render_seed']}{variant}".replace("  ", " "))
+                f"--seed {record['render_seed']}{variant}{target}".replace("  ", " "))
     return cmds
 
 

@@ -22,6 +22,7 @@ dataset. Every key is documented in ``docs/dataset.md``; in short::
     detector:                      # optional: turn each ideal capture into counts
       pulses: 100000
       pde: 0.7
+    noise_target: 0.1              # optional (needs detector): render each item to this rendering/photon ratio
 
 Parameter names in ``grid`` and ``random``: ``spp``, ``object.<name>``,
 ``detector.<name>``, and anything else is a scene ``-D`` parameter (also
@@ -61,6 +62,7 @@ TOP_KEYS: dict[str, str] = {
     "random": "parameters -> distributions (seeded draws)",
     "object": "generated mesh: kind, define, fixed parameters",
     "detector": "detector settings (enables counts)",
+    "noise_target": "largest rendering / photon variance ratio at the item's budget, number > 0 (needs detector)",
 }
 #: Detector settings that are arguments of ``detect_stack`` rather than ``DetectorParams`` fields.
 DETECT_ARGS = ("pulses", "exposure_s", "engine")
@@ -130,6 +132,9 @@ class DatasetSpec:
     object_define: str | None = "mesh"
     object_params: dict[str, Any] = field(default_factory=dict)
     detector: dict[str, Any] | None = None
+    #: Largest ratio of rendering to photon variance at each item's detector budget (``render --noise-target``);
+    #: None: render the item's spp (or the quadrature's settings) as they are.
+    noise_target: float | None = None
     name: str | None = None
     description: str | None = None
     spec_file: Path | None = None
@@ -172,6 +177,8 @@ class DatasetSpec:
             {"kind": self.object_kind, "define": self.object_define, **self.object_params},
             "detector": None if self.detector is None else dict(self.detector),
         }
+        if self.noise_target is not None:  # only when set: dataset.json of a spec without it is unchanged
+            d["noise_target"] = self.noise_target
         return d
 
 
@@ -349,10 +356,22 @@ def parse_spec(data: dict, *, spec_file: str | Path | None = None) -> DatasetSpe
             if key.startswith("detector.") and spec.detector is None:
                 spec.detector = {}
     _check_spp_values(spec)
+    if "noise_target" in data:
+        spec.noise_target = _noise_target(data["noise_target"], spec)
     if spec.has_detector and detector_param_names() is None:
         raise UserInputError("detector: the spec asks for detector settings, but spad_detector is not "
                              "available in this installation; remove the detector settings")
     return spec
+
+
+def _noise_target(v: Any, spec: DatasetSpec) -> float:
+    """The spec's ``noise_target``: a finite number > 0, with a detector section giving the budget."""
+    if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(float(v)) or v <= 0:
+        raise UserInputError(f"noise_target: {v!r}; expected a finite number > 0 (e.g. 0.1, the noise standard)")
+    if not spec.has_detector:
+        raise UserInputError(f"noise_target: {v!r} needs a detector section (the photon budget the rendering "
+                             "noise is compared with: detector: {exposure_s: ...})")
+    return float(v)
 
 
 def _check_detector_name(where: str, name: Any) -> None:

@@ -263,12 +263,20 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
         ideal.parent.mkdir(parents=True, exist_ok=True)
         with resolver_first(tmp):
             job = prepare_render(scene_file, ideal, defines=rec["defines"], spp=rec["spp"], seed=rec["render_seed"],
-                                 variant=rec["variant"])
+                                 variant=rec["variant"], noise_target=_noise_target(rec))
         t = time.perf_counter()
         run_render(job, progress=False, on_spot=_kill_hook(rec["index"], tmp))
         times["render_time_s"] = time.perf_counter() - t
-        spp_used = job.spp
         ideal = job.ideal_dir  # capture/ideal when the scene's spad_film ran the detector itself
+        from transient_core import stack
+
+        render_m = stack.read_manifest(ideal).get("render") or {}
+        estimator = render_m.get("estimator", "monte_carlo")
+        target = render_m.get("noise_target")
+        # the samples a Monte Carlo spot received (the largest over spots with a target); a quadrature capture
+        # has none to count
+        spp_used = None if estimator == "quadrature" else max(
+            [sp["spp"] for sp in (target or {}).get("spots") or [] if sp and "spp" in sp] or [job.spp])
         del job
         if rec["detector"] is not None:
             t = time.perf_counter()
@@ -278,8 +286,6 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
         detector_seed = None
         render_noise = None
         if counts:
-            from transient_core import stack
-
             det_m = stack.read_manifest(capture).get("detector") or {}
             detector_seed = det_m.get("seed")
             render_noise = (det_m.get("resolved") or {}).get("render_noise")
@@ -296,6 +302,9 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
         # rendering variance / photon variance of the counts (spad_detector.render_noise), None without
         # a detector or without stored variance
         "render_noise_ratio": (render_noise or {}).get("ratio"),
+        # which estimator made the capture (transient_nlos_path's estimator: quadrature or monte_carlo)
+        "estimator": estimator,
+        "noise_target": None if target is None else {"target": target["target"], "met": target.get("met")},
         **times,
         "total_time_s": time.perf_counter() - t_start,
         "worker": _worker_id(),
@@ -304,6 +313,18 @@ def _build_into(tmp: Path, rec: dict, scene_file: Path) -> dict:
     }
     _write_json(tmp / RESULT_NAME, result)
     return result
+
+
+def _noise_target(rec: dict):
+    """The item's :class:`transient_mi.noise_target.NoiseTargetSpec` (its detector and budget), or None."""
+    if rec.get("noise_target") is None:
+        return None
+    from spad_detector import DetectorParams
+    from transient_mi.noise_target import NoiseTargetSpec
+
+    det = rec["detector"]
+    return NoiseTargetSpec(target=rec["noise_target"], params=DetectorParams.from_dict(det["params"]),
+                           pulses=det["pulses"], exposure_s=det["exposure_s"])
 
 
 def _detect(ideal: Path, out: Path, det: dict) -> None:

@@ -33,7 +33,7 @@ the *interior* derivative of the quadrature's primal: light appearing or vanishi
 edge, at a silhouette or where an element's visibility samples change their verdict is not differentiated
 (the primal jumps there); neither is the cell tilt's dependence on the geometry (the first-order amplitude
 slope across a wall cell, ``Chunk.tilt``: its terms enter the masses and their shift derivative, not their
-knot, width or tilt derivatives; measured ~1e-3 of the gradient on the test scene), the error estimate
+knot, width or tilt derivatives; measured up to 4e-3 of the gradient on the test scene), the error estimate
 (coarse level), nor a branch switch of the primal
 (a cell width crossing ``REL_WIDTH_EPS`` of the spread: the primal's truncation there is below 1e-6).
 

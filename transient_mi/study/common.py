@@ -25,6 +25,14 @@ def render(scene, out_dir, seed: int, noise_target=None, log=None) -> Path:
     return run_render(job, progress=False, log=log or (lambda line: None))
 
 
+def capture_estimator(ideal_dir) -> str:
+    """Which estimator made a rendered ideal capture: ``quadrature`` or ``monte_carlo`` (its manifest's
+    ``render.estimator``; camera captures are Monte Carlo)."""
+    from transient_core.stack import read_manifest
+
+    return (read_manifest(ideal_dir).get("render") or {}).get("estimator", "monte_carlo")
+
+
 def resolve_noise_target(noise_target, quick: bool) -> float | None:
     """The study's noise target: ``"auto"`` is 0.1 (:data:`spad_detector.render_noise.DEFAULT_THRESHOLD`),
     or None with ``quick``; None renders the scene's spp as it is; a number must be finite and > 0."""

@@ -56,7 +56,7 @@ from transient_mi.noise_target import rendered_spp
 from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv, write_json
 
 from . import validate as V
-from .common import bar_enabled, front_view, quiet_inner_bars, render, resolve_noise_target
+from .common import bar_enabled, capture_estimator, front_view, quiet_inner_bars, render, resolve_noise_target
 from .scene import array_size_defines, base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
 
 #: Every method that reconstructs array captures.
@@ -195,19 +195,23 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
     with atomic_output_dir(out, V.flag(overwrite, "overwrite")) as tmp, quiet_inner_bars():
         with progress_bar("methods study", total=n_steps, disable=not bar_enabled(progress)) as advance:
             warmed = False
+            estimators = {}  # array -> the estimator that made its ideal capture
             for n in arrays:
                 log(f"{n}x{n}: render")
                 cap_dir = tmp / "captures" / f"array_{n:02d}"
                 cap_dir.mkdir(parents=True)
                 ideal_dir = render(sc.with_defines(**array_size_defines(sc, n)), cap_dir / "ideal", seed,
                                    noise_target=spec)
-                spp = rendered_spp(ideal_dir, sc.spp)
+                estimator = capture_estimator(ideal_dir)
+                estimators[n] = estimator
+                spp = None if estimator == "quadrature" else rendered_spp(ideal_dir, sc.spp)  # no samples to count
                 advance(1)
                 for e in exposures:
                     cap, counts_per, noise_ratio = _detect(ideal_dir, params, e, seed + 1)
                     if spec is not None and noise_ratio is not None and noise_ratio > spec.target:
                         log(f"{n}x{n}, {e * 1e3:g} ms per spot: rendering noise {noise_ratio:.3g}x the photon noise, "
-                            f"above the target {spec.target:g} (the render stopped at its spp cap)")
+                            f"above the target {spec.target:g} (the render stopped at its "
+                            + ("refinement rounds)" if estimator == "quadrature" else "spp cap)"))
                     base = {"scene": sc.path.stem, "array": n, "exposure_s": e,
                             "counts_per_pixel_per_spot": counts_per, "render_spp": spp,
                             "render_noise_ratio": noise_ratio}
@@ -246,7 +250,7 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                     "voxels": list(vox), "bounds_m": list(bnds) if bnds is not None else None,
                     "threshold": threshold or "each method's default (recon.pipeline.default_threshold)",
                     "completion": None if complete is None else str(complete),
-                    "noise_target": noise_target,
+                    "noise_target": noise_target, "estimators": {str(k): v for k, v in estimators.items()},
                     "fit": None if fit is None else {"model": fit, **asdict(fit_settings)},
                     "render_seed": seed, "detection_seed": seed + 1,
                     "detector": params.to_dict(), "ground_truth": gt_desc,
@@ -416,13 +420,18 @@ def summary_markdown(rows: list[dict], settings: dict) -> str:
     worst = max(ratios) if ratios else None
     if s.get("noise_target") is not None:
         noise_note = (f" Each array's ideal capture was rendered until its rendering noise was at most "
-                      f"{s['noise_target']:g} x the photon noise at the largest exposure (the scene's spp as the pilot); "
+                      f"{s['noise_target']:g} x the photon noise at the largest exposure; "
                       f"measured at every point: at most {worst:.3g} x.") if worst is not None else ""
     else:
         noise_note = ("" if worst is None else
                       f" Ideal captures rendered at {s['spp']} spp without a noise target: rendering noise up to "
                       f"{worst:.3g} x the photon noise" + (" (above the usual 0.1: read small differences with care)."
                                                             if worst > 0.1 else "."))
+    est = sorted(set((s.get("estimators") or {}).values()))
+    if est:  # which estimator made the ideal captures (a one-line note)
+        noise_note += (" Ideal captures rendered by " + " and ".join(est) +
+                       (" (deterministic three-bounce quadrature, its stated error standing for the rendering noise; "
+                        "docs/quadrature.md)." if est == ["quadrature"] else "."))
     fit = s.get("fit")
     fit_note = "" if not fit else (
         f" Rows `{FIT_PREFIX}{fit['model']}` are the analysis-by-synthesis fit of a {fit['model']} model "

@@ -293,6 +293,7 @@ def _settings(run: _Run, sc, gt_desc: str, quick: bool) -> dict:
 
     return {"scene": sc.name, "scene_file": sc.path.name, "scene_sha256": file_sha256(sc.path),
             "defines": dict(sorted(sc.defines.items())), "spp": sc.spp, "quick": quick, "render_seed": run.seed,
+            "estimator": run.ideal.manifest.get("render", {}).get("estimator", "monte_carlo"),
             "detection_seeds": list(run.seeds), "exposures_s": sorted({k["exposure_s"] for k, _ in run.configs}),
             "laser_powers_w": list(run.powers),
             "dark_count_rates_cps": sorted({k["dark_count_rate_cps"] for k, _ in run.configs}),

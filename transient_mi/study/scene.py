@@ -27,7 +27,7 @@ PAPER_DEFINES = {
     "array": ("array", int), "spots": ("spots", int), "scan_extent": ("scan_extent_m", float),
     "distance": ("distance_m", float), "pose": ("pose", str), "rotation": ("rotation_deg", float),
     "power_w": ("power_w", float), "spp": ("spp", int), "t0_ps": ("t0_ps", float), "n_bins": ("n_bins", int),
-    "bin_width_ps": ("bin_width_ps", float), "max_depth": ("max_depth", int),
+    "bin_width_ps": ("bin_width_ps", float), "max_depth": ("max_depth", int), "estimator": ("estimator", str),
 }
 #: Samples per pixel of ``--quick`` renders of scenes other than the paper's (unless ``-D spp=`` is given).
 QUICK_SPP = 64
@@ -41,7 +41,7 @@ def paper_base(quick: bool):
     from transient_mi.paper import PaperConfig
 
     return PaperConfig(spots=s.spots, power_w=s.power_w, spp=s.spp, t0_ps=s.t0_ps, n_bins=s.n_bins,
-                       bin_width_ps=s.bin_width_ps)
+                       bin_width_ps=s.bin_width_ps, estimator=s.estimator)
 
 
 def resolve_scene_file(scene) -> Path:
