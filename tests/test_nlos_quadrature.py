@@ -171,7 +171,7 @@ def _mc_vs_quadrature(scene_q, scene_mc, spp, spots, settings, n_windows=8, full
     total error."""
     q = _render(scene_q, spots=spots, **settings)
     integ = scene_mc.integrator()
-    integ.nlos_options["estimator"] = "monte_carlo"  # (the letter's default is the quadrature)
+    integ.nlos_options.update(estimator="monte_carlo")  # whatever the scene's default estimator
     integ.variance_replicates = 8
     mc = integ.render_transient(scene_mc, scene_mc.sensors()[0], seed=3, spp=spp, spots=spots)
     checks = []

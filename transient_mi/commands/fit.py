@@ -18,7 +18,8 @@ def fit_command(
     out: Path = typer.Option(..., "-o", "--out", help="Output directory: fit.json, fitted.ply, loss.png, fit.png, "
                                                       "checkpoint.json."),
     model: str = typer.Option("mannequin", "--model", help="mannequin (joint angles, position, rotation, height, "
-                                                          "reflectance) or patches (square patches)."),
+                                                          "reflectance), patches (square patches) or mesh (a free "
+                                                          "mesh: any shape)."),
     iterations: int = typer.Option(300, "--iterations", parser=whole_number("--iterations"), metavar="<int>",
                                    help="Adam iterations."),
     spp: int = typer.Option(0, "--spp", parser=whole_number("--spp"), metavar="<int>",
@@ -40,6 +41,16 @@ def fit_command(
                                   "where the scene allows it)."),
     element_size_m: float = typer.Option(0.03, "--element-size-m", help="--estimator quadrature: element size "
                                          "at the end (twice as large for the first half of the iterations), m."),
+    start: str = typer.Option("front", "--start", help="--model mesh: start from the backprojection's front surface "
+                              "(front) or a closed surface around its occupied voxels (closed)."),
+    start_mesh: Path = typer.Option(None, "--start-mesh", help="--model mesh: start from this mesh file instead "
+                                    "(e.g. a recon method's surface.ply)."),
+    cell_m: float = typer.Option(0.04, "--cell-m", help="--model mesh: the start mesh's resolution (halved at each "
+                                 "later stage), metres."),
+    stages: int = typer.Option(2, "--stages", parser=whole_number("--stages"), metavar="<int>",
+                               help="--model mesh: resolution stages (the mesh subdivided between them), 1 to 3."),
+    smoothing: float = typer.Option(10.0, "--smoothing", help="--model mesh: lambda of the large-steps "
+                                    "parametrisation (0: per-vertex steps)."),
     seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed."),
     resume: bool = typer.Option(False, "--resume", help="Continue the fit in OUT from its checkpoint."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier fit in OUT."),
@@ -51,9 +62,13 @@ def fit_command(
 
     settings = FitSettings(iterations=iterations, spp=spp, spp_residual=spp_residual, sigma_start_ps=sigma_start_ps,
                            sigma_end_ps=sigma_end_ps, seed=seed, estimator=estimator, element_size_m=element_size_m)
+    from transient_mi.fit.mesh_fit import MeshSettings
+
+    mesh = MeshSettings(start=start, start_mesh=None if start_mesh is None else str(start_mesh), cell_m=cell_m,
+                        stages=stages, smoothing=smoothing)
     result = fit_capture(capture, out, model=model, settings=settings, bin_width_ps=bin_width_ps, n_patches=patches,
                          patch_side_m=patch_side_m, resume=resume, overwrite=overwrite, progress=progress,
-                         log=typer.echo)
+                         log=typer.echo, mesh=mesh)
     m = result["metrics"]
     if "fit" in m:
         f, b = m["fit"], m["backprojection"]

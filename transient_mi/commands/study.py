@@ -187,7 +187,7 @@ def methods(
         None, "--complete", help="Also score each reconstruction closed behind its front under a stated prior "
                                  "(elliptical cross-sections; auto or an aspect in [0, 2]), as <method>+completion."),
     fit: Optional[str] = typer.Option(
-        None, "--fit", help="Also fit this model (mannequin or patches; `transient-mi fit`) to every array x "
+        None, "--fit", help="Also fit this model (mannequin, patches or mesh; `transient-mi fit`) to every array x "
                             "exposure's counts, as a row fit:<model> (minutes per fit)."),
     fit_iterations: Optional[int] = typer.Option(
         None, "--fit-iterations", parser=whole_number("--fit-iterations"), metavar="<int>", help="The fit's iterations (default the fit command's, 300)."),

@@ -67,6 +67,30 @@ def _check_settings(model: str, settings: FitSettings, n_patches: int, patch_sid
         raise UserInputError(f"patch_side_m={patch_side_m!r}: expected a side in metres, > 0 and <= 2")
 
 
+def claim_output(out: Path, config: dict, resume: bool, overwrite: bool) -> bool:
+    """Whether ``out`` already holds a fit, after checking that this run may write there (call under
+    :func:`~transient_core.lock.output_lock`): ``--resume`` needs the same ``config``, ``--overwrite`` replaces an
+    earlier fit only, anything else in a non-empty directory is refused in one line."""
+    existing = out.is_dir() and any(out.iterdir())
+    if existing:
+        if resume:
+            try:
+                old = json.loads((out / "config.json").read_text())
+            except (OSError, ValueError):
+                raise UserInputError(f"--resume: {out} holds no fit to resume (config.json missing)") from None
+            if old != config:
+                raise UserInputError(f"--resume: {out} holds a fit of other settings or another capture; "
+                                     "resume with the same options, or --overwrite")
+        elif overwrite:
+            if not (out / "config.json").is_file():
+                raise UserInputError(f"-o {out}: --overwrite replaces an earlier fit only; this directory holds "
+                                     "something else")
+        else:
+            raise UserInputError(f"-o {out}: directory exists and is not empty (pass --overwrite to replace an "
+                                 "earlier fit, or --resume to continue it)")
+    return existing
+
+
 def _bounds(manifest: dict) -> tuple:
     """Reconstruction bounds: the wall patch the pixels cover, depths from the detector's automatic gate
     (the hidden space the capture was gated for), else 0.1 to 1.5 m."""
@@ -181,7 +205,8 @@ def _fitted_mesh(model, theta):
 
 def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSettings | None = None,
                 bin_width_ps: float = 10.0, n_patches: int = 3, patch_side_m: float = 0.2, detail: int = 20,
-                resume: bool = False, overwrite: bool = False, progress: bool | None = None, log=print) -> dict:
+                resume: bool = False, overwrite: bool = False, progress: bool | None = None, log=print,
+                mesh=None) -> dict:
     """Fit a model of the hidden scene to a counts capture; returns the content of ``fit.json``.
 
     Parameters
@@ -191,7 +216,8 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
     out_dir : path
         Output directory (see the module docstring); one writer at a time.
     model : str
-        ``mannequin`` or ``patches`` (:mod:`transient_mi.fit.models`).
+        ``mannequin``, ``patches`` (:mod:`transient_mi.fit.models`) or ``mesh`` (a free mesh:
+        :mod:`transient_mi.fit.mesh_fit`).
     settings : FitSettings
         Iterations, samples per pixel, temporal blur, seed (default :class:`FitSettings`).
     bin_width_ps : float
@@ -204,6 +230,9 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
         Continue from ``out_dir/checkpoint.json`` (same capture and settings).
     overwrite : bool
         Replace an existing output directory.
+    mesh : MeshSettings, optional
+        ``mesh``: start, resolution, stages and regularisers (:class:`~transient_mi.fit.mesh_fit.MeshSettings`;
+        default its defaults); see :func:`~transient_mi.fit.mesh_fit.fit_mesh_capture`.
     """
     from transient_core.progress import progress_bar
     from transient_core.stack import read_manifest
@@ -213,6 +242,11 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
 
     settings = settings or FitSettings()
     _check_settings(model, settings, n_patches, patch_side_m)
+    if model == "mesh":
+        from .mesh_fit import fit_mesh_capture
+
+        return fit_mesh_capture(capture, out_dir, settings=settings, bin_width_ps=bin_width_ps, mesh=mesh,
+                                resume=resume, overwrite=overwrite, progress=progress, log=log)
     capture = Path(capture)
     if not (capture / "manifest.json").is_file():
         raise UserInputError(f"capture {str(capture)!r} is not a capture directory (no manifest.json)")
@@ -223,23 +257,7 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
               "bin_width_ps": float(bin_width_ps), "n_patches": int(n_patches), "patch_side_m": float(patch_side_m),
               "detail": int(detail)}
     with output_lock(out):
-        existing = out.is_dir() and any(out.iterdir())
-        if existing:
-            if resume:
-                try:
-                    old = json.loads((out / "config.json").read_text())
-                except (OSError, ValueError):
-                    raise UserInputError(f"--resume: {out} holds no fit to resume (config.json missing)") from None
-                if old != config:
-                    raise UserInputError(f"--resume: {out} holds a fit of other settings or another capture; "
-                                         "resume with the same options, or --overwrite")
-            elif overwrite:
-                if not (out / "config.json").is_file():
-                    raise UserInputError(f"-o {out}: --overwrite replaces an earlier fit only; this directory holds "
-                                         "something else")
-            else:
-                raise UserInputError(f"-o {out}: directory exists and is not empty (pass --overwrite to replace an "
-                                     "earlier fit, or --resume to continue it)")
+        existing = claim_output(out, config, resume, overwrite)
         t_start = time.perf_counter()
         manifest = read_manifest(capture)
         mdl = MannequinModel(detail) if model == "mannequin" else PatchesModel(n_patches, patch_side_m)

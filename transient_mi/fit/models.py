@@ -166,4 +166,4 @@ class PatchesModel:
         return trimesh.Trimesh(vertices=self.vertices(theta), faces=self.faces.astype(np.int64), process=False)
 
 
-MODELS = ("mannequin", "patches")
+MODELS = ("mannequin", "patches", "mesh")  # (mesh: transient_mi.fit.mesh_model)

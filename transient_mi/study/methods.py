@@ -72,7 +72,7 @@ COMPLETION_SUFFIX = "+completion"
 #: Prefix of the method name in rows of fits (``fit=...``): ``fit:mannequin``.
 FIT_PREFIX = "fit:"
 #: Models ``fit`` accepts (:mod:`transient_mi.fit.models`).
-FIT_MODELS = ("mannequin", "patches")
+FIT_MODELS = ("mannequin", "patches", "mesh")
 #: The fit's time bins reach at least this, ps (:func:`fit_bin_width_ps`).
 FIT_BIN_WIDTH_PS = 10.0
 ROW_COLUMNS = ("scene", "array", "exposure_s", "method", "counts_per_pixel_per_spot", "render_spp",

@@ -1,0 +1,307 @@
+r"""``fit_capture(..., model="mesh")``: 3-D reconstruction of any hidden shape by analysis by synthesis of a free
+triangle mesh (what ``transient-mi fit --model mesh`` runs).
+
+1. Start: a reconstruction's surface (:mod:`~transient_mi.fit.mesh_start`: the backprojection's front surface
+   by default, a closed surface around its occupied voxels, or any mesh file such as a ``recon`` method's
+   ``surface.ply``), at ``cell_m``; its reflectance is set so the model holds as many counts as the capture.
+2. Stages: Adam on the regularised objective (:mod:`~transient_mi.fit.mesh_optimize`), the mesh subdivided in
+   four between stages; the forward model is the capture's (:class:`~transient_mi.fit.capture_model.CaptureModel`:
+   its scene, detector, gate, dark counts, pile-up, dead time, jitter) with the deterministic three-bounce
+   estimator (``estimator="quadrature"``, always, whatever ``FitSettings.estimator`` or ``--estimator`` say),
+   whose vertex derivative holds the area change a free deformation makes (the Monte Carlo renderer's does not);
+   a capture the quadrature cannot render is refused in one line.
+3. Outputs in the output directory, each file written atomically, ``fit.json`` last:
+
+   ``fit.json``        settings, the start and the fit summarised (vertices, faces, bounding box, reflectance),
+                       the objective per iteration (data + regularisers), the Poisson NLL of the counts under
+                       the start and the fit, metrics of the fit, of the start (its mesh voxelised on the same
+                       grid) and of the backprojection against the scene's hidden shapes
+   ``fitted.ply``      the fitted mesh; ``start.ply`` the start mesh
+   ``loss.png``        the objective per iteration and the temporal blur
+   ``fit.png``         front views (depth maps): ground truth, backprojection, fit
+   ``views.png``       start, fit and ground truth from the front, the top and the side
+   ``checkpoint.json`` the optimiser's state; ``stage.json`` the current stage's start mesh (``--resume``)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from transient_core.errors import UserInputError
+from transient_core.lock import output_lock
+
+from .mesh_regularizers import RegularizerWeights
+from .optimize import FitState
+
+__all__ = ["MeshSettings", "fit_mesh_capture"]
+
+_OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "start.json", "loss.png", "fit.png", "views.png", "checkpoint.json",
+            "stage.json", "config.json")
+_STARTS = ("front", "closed")
+
+
+@dataclass(frozen=True)
+class MeshSettings:
+    """Settings of the free-mesh model (units: metres; weights dimensionless, see
+    :mod:`~transient_mi.fit.mesh_regularizers`)."""
+
+    start: str = "front"  # front | closed (from the backprojection); ignored with start_mesh
+    start_mesh: str | None = None  # a mesh file (e.g. a recon method's surface.ply)
+    cell_m: float = 0.04  # the start mesh's resolution (halved at every later stage)
+    stages: int = 2  # resolution stages (1: no subdivision)
+    smoothing: float = 10.0  # lambda of the large-steps parametrisation
+    laplacian: float = 1.0
+    edge: float = 0.05
+    normal: float = 0.1
+    step_m: float = 0.003  # Adam's step per iteration at the start
+    moments: str = "uniform"  # Adam's second moments of the vertices: uniform (one) or vertex (one per vertex)
+
+
+def _check(mesh: MeshSettings, settings) -> None:
+    if mesh.start not in _STARTS:
+        raise UserInputError(f"--start {mesh.start!r} is not known; allowed: {', '.join(_STARTS)}")
+    if not (isinstance(mesh.cell_m, (int, float)) and math.isfinite(mesh.cell_m) and 0.005 <= mesh.cell_m <= 0.5):
+        raise UserInputError(f"cell_m={mesh.cell_m!r}: expected a length in metres from 0.005 to 0.5")
+    if isinstance(mesh.stages, bool) or not isinstance(mesh.stages, (int, np.integer)) or not 1 <= mesh.stages <= 3:
+        raise UserInputError(f"stages={mesh.stages!r}: expected a whole number from 1 to 3")
+    for name in ("smoothing", "laplacian", "edge", "normal"):
+        v = getattr(mesh, name)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise UserInputError(f"{name}={v!r}: expected a finite number >= 0")
+    if not (isinstance(mesh.step_m, (int, float)) and math.isfinite(mesh.step_m) and 0 < mesh.step_m <= 0.05):
+        raise UserInputError(f"step_m={mesh.step_m!r}: expected a step in metres, > 0 and <= 0.05")
+    if mesh.moments not in ("uniform", "vertex"):
+        raise UserInputError(f"moments={mesh.moments!r}: expected uniform or vertex")
+    if settings.iterations < mesh.stages:
+        raise UserInputError(f"iterations={settings.iterations}: fewer than the {mesh.stages} stages")
+
+
+def stage_starts(n: int, stages: int) -> list[int]:
+    """First iteration of each stage: the last stage takes the second half, earlier ones split the first."""
+    if stages == 1:
+        return [0]
+    half = n // 2
+    return [round(half * k / (stages - 1)) for k in range(stages - 1)] + [half]
+
+
+def _capture_model(capture, v, f, settings, bin_width_ps):
+    from .capture_model import CaptureModel
+
+    try:  # (always the quadrature, whatever settings.estimator says: see the module docstring)
+        return CaptureModel(capture, np.asarray(f, dtype=np.uint32), len(v), bin_width_ps=bin_width_ps,
+                            estimator="quadrature", element_size_m=settings.element_size_m)
+    except UserInputError as e:
+        if not str(e).startswith("estimator=quadrature:"):
+            raise
+        why = str(e).split(": ", 2)[-1]
+        raise UserInputError(f"--model mesh needs the quadrature forward model (its vertex derivative holds a free "
+                             f"deformation's area change); this capture cannot use it: {why}") from None
+
+
+def _model(v, f, albedo, mesh: MeshSettings, reg_scale: float):
+    from .mesh_model import MeshModel
+
+    w = RegularizerWeights(laplacian=mesh.laplacian, edge=mesh.edge, normal=mesh.normal)
+    model = MeshModel(v, f, albedo, smoothing=mesh.smoothing, weights=w, step_m=mesh.step_m, reg_scale=reg_scale)
+    model.moments = mesh.moments
+    return model
+
+
+def _start_mesh(mesh: MeshSettings, rec_bp):
+    from .mesh_start import closed_surface, front_surface, load_mesh
+
+    if mesh.start_mesh:
+        return load_mesh(mesh.start_mesh, mesh.cell_m)
+    if mesh.start == "closed":
+        return closed_surface(rec_bp.volume, rec_bp.grid, mesh.cell_m)
+    return front_surface(rec_bp.volume, rec_bp.grid, mesh.cell_m)
+
+
+def _match_albedo(model, cap, settings) -> float:
+    """The reflectance that gives the start mesh as many counts as the capture holds."""
+    from .optimize import element_size
+
+    th = model.initial()
+    cap.set_mesh(model.vertices(th), model.albedo(th))
+    if hasattr(cap, "set_element_size"):
+        cap.set_element_size(element_size(0, settings.iterations, settings.element_size_m))
+    mu = cap.expected_counts(cap.ideal(0, 0, cap.jitter_sigma_ps))
+    total = float(mu.sum())
+    a = model.albedo(th) * cap.counts.sum() / total if total > 0 else model.albedo(th)
+    return float(np.clip(a, 0.01, 1.0))
+
+
+def _write_stage(path: Path, stage: int, v, f, albedo: float, reg_scale: float) -> None:
+    from .api import _write_text
+
+    _write_text(path, json.dumps({"stage": int(stage), "vertices": np.asarray(v).tolist(),
+                                  "faces": np.asarray(f, dtype=np.int64).tolist(), "albedo": float(albedo),
+                                  "reg_scale": float(reg_scale)}) + "\n")
+
+
+def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, mesh: MeshSettings | None = None,
+                     resume: bool = False, overwrite: bool = False, progress: bool | None = None, log=print) -> dict:
+    """Fit a free mesh to a counts capture (module docstring); returns the content of ``fit.json``. Arguments as
+    :func:`~transient_mi.fit.api.fit_capture`; ``mesh`` the model's settings (:class:`MeshSettings`)."""
+    from transient_core.progress import progress_bar
+    from transient_core.stack import read_manifest
+
+    from .api import _backprojection, _bounds, claim_output, _write_text
+    from .mesh_optimize import run_mesh_adam
+
+    mesh = mesh or MeshSettings()
+    _check(mesh, settings)
+    capture = Path(capture)
+    if not (capture / "manifest.json").is_file():
+        raise UserInputError(f"capture {str(capture)!r} is not a capture directory (no manifest.json)")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise UserInputError(f"-o {out}: exists and is not a directory")
+    config = {"capture": str(capture.resolve()), "model": "mesh", "settings": asdict(settings),
+              "bin_width_ps": float(bin_width_ps), "mesh": asdict(mesh)}
+    with output_lock(out):
+        existing = claim_output(out, config, resume, overwrite)
+        t_start = time.perf_counter()
+        manifest = read_manifest(capture)
+        bounds = _bounds(manifest)
+        rec_bp = _backprojection(capture, bounds)
+        ckpt, stage_file = out / "checkpoint.json", out / "stage.json"
+        resuming = resume and ckpt.is_file() and stage_file.is_file()
+        if not resuming:
+            v0, f0 = _start_mesh(mesh, rec_bp)
+        else:
+            st = json.loads(stage_file.read_text())
+            v0, f0 = np.asarray(st["vertices"]), np.asarray(st["faces"])
+        cap = _capture_model(capture, v0, f0, settings, bin_width_ps)
+        # (everything checked: only now is anything written)
+        if existing and overwrite and not resume:
+            for name in _OUTPUTS:
+                (out / name).unlink(missing_ok=True)
+        out.mkdir(parents=True, exist_ok=True)
+        end = max(settings.sigma_end_ps, cap.jitter_sigma_ps)
+        starts = stage_starts(settings.iterations, mesh.stages)
+        if resuming:
+            state = FitState.load(ckpt)
+            stage, reg_scale = int(st["stage"]), float(st["reg_scale"])
+            model = _model(v0, f0, float(st["albedo"]), replace(mesh, step_m=mesh.step_m / 2 ** stage), reg_scale)
+            if len(state.theta) != 3 * len(v0) + 1:  # (stopped between a stage's mesh and its first checkpoint)
+                k = starts[stage]
+                state = FitState(theta=model.initial().tolist(), iteration=k, history=state.history[:k],
+                                 elapsed_s=state.elapsed_s)
+            first = json.loads((out / "start.json").read_text())
+            start_v, start_f, start_albedo = np.asarray(first["vertices"]), np.asarray(first["faces"]), first["albedo"]
+        else:
+            reg_scale = cap.objective(np.zeros_like(cap.counts), end)[0]  # the signal energy (mesh_model)
+            model = _model(v0, f0, 0.5, mesh, reg_scale)
+            albedo = _match_albedo(model, cap, settings)
+            model = _model(v0, f0, albedo, mesh, reg_scale)
+            stage = 0
+            start_v, start_f, start_albedo = v0, f0, albedo
+            _write_text(out / "config.json", json.dumps(config, indent=1) + "\n")
+            _write_text(out / "start.json", json.dumps({"vertices": np.asarray(v0).tolist(), "faces": np.asarray(
+                f0, dtype=np.int64).tolist(), "albedo": albedo}) + "\n")
+            _write_stage(stage_file, 0, v0, f0, albedo, reg_scale)
+            state = FitState(theta=model.initial().tolist())
+        with progress_bar("fit mesh", settings.iterations,
+                          disable=None if progress is None else not progress) as advance:
+            if state.iteration:
+                advance(state.iteration)
+            while True:
+                stop = starts[stage + 1] if stage + 1 < len(starts) else settings.iterations
+                run_mesh_adam(model, cap, state, settings, stage_start=starts[stage], stop=stop,
+                              progress=lambda i, n, obj: advance(1), checkpoint=lambda s: s.save(ckpt))
+                if stage + 1 >= len(starts):
+                    break
+                from .mesh_start import subdivide
+
+                theta = np.asarray(state.theta)
+                v1, f1 = subdivide(model.vertices(theta), model.faces)
+                stage += 1
+                cap = _capture_model(capture, v1, f1, settings, bin_width_ps)
+                model = _model(v1, f1, model.albedo(theta), replace(mesh, step_m=mesh.step_m / 2 ** stage),
+                               reg_scale)
+                _write_stage(stage_file, stage, v1, f1, model.albedo(theta), reg_scale)
+                state = FitState(theta=model.initial().tolist(), iteration=state.iteration, history=state.history,
+                                 elapsed_s=state.elapsed_s)
+                state.save(ckpt)
+        fit_s = time.perf_counter() - t_start
+        result = _finish(out, model, cap, manifest, rec_bp, (start_v, start_f, start_albedo), state, settings,
+                         config, fit_s, capture, bin_width_ps)
+        log(f"fit mesh: {settings.iterations} iterations in {state.elapsed_s:.0f} s of optimisation "
+            f"({fit_s:.0f} s in all); wrote {out}/fit.json, fitted.ply, start.ply, loss.png, fit.png, views.png")
+        return result
+
+
+def _nll(cap, v, f, albedo) -> float:
+    cap.set_mesh(v, albedo)
+    return cap.poisson_nll(cap.expected_counts(cap.ideal(0, 0, cap.jitter_sigma_ps)))
+
+
+def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, fit_s, capture, bin_width_ps) -> dict:
+    import trimesh
+
+    from transient_mi.scenes._ply import write_ply
+
+    from .api import _front_figure, _ground_truth, _loss_figure, _surface_chamfer, _voxel_metrics, _write_text
+    from .mesh_figures import three_view_figure
+
+    theta = state.result()
+    fitted = model.mesh(theta)
+    sv, sf, salb = start
+    start_mesh = trimesh.Trimesh(vertices=np.asarray(sv), faces=np.asarray(sf, dtype=np.int64), process=False)
+    if hasattr(cap, "set_element_size"):
+        cap.set_element_size(settings.element_size_m)
+    nll = {"fit": _nll(cap, fitted.vertices, fitted.faces, model.albedo(theta))}
+    cap0 = _capture_model(capture, sv, sf, settings, bin_width_ps)
+    cap0.set_element_size(settings.element_size_m) if hasattr(cap0, "set_element_size") else None
+    nll["start"] = _nll(cap0, np.asarray(sv), sf, float(salb))
+    del cap0
+    write_ply(out / "fitted.ply", fitted.vertices, fitted.faces)
+    write_ply(out / "start.ply", start_mesh.vertices, start_mesh.faces)
+    gt_mesh, _ = _ground_truth(manifest)
+    metrics = {}
+    if gt_mesh is not None:
+        from recon.metrics import GroundTruth, compute_metrics
+
+        bp = compute_metrics(rec_bp, GroundTruth(mesh=gt_mesh, source="capture scene"))
+        keys = ("chamfer_m", "accuracy_m", "completeness_m", "iou", "depth_mae_m", "silhouette_iou",
+                "visible_chamfer_m")
+        metrics = {"fit": {**_voxel_metrics(fitted, rec_bp, gt_mesh), **_surface_chamfer(fitted, gt_mesh)},
+                   "start": {**_voxel_metrics(start_mesh, rec_bp, gt_mesh), **_surface_chamfer(start_mesh, gt_mesh)},
+                   "backprojection": {k: bp.get(k) for k in keys}}
+    _loss_figure(out / "loss.png", state)
+    _front_figure(out / "fit.png", rec_bp, gt_mesh, fitted, metrics)
+    three_view_figure(out / "views.png", [(sv, sf), (fitted.vertices, fitted.faces),
+                                          None if gt_mesh is None else (gt_mesh.vertices, gt_mesh.faces)],
+                      ["start", "fit", "ground truth"])
+    mcfg = config["mesh"]
+    result = {
+        "status": "complete", "format": "transient-mi-fit", "format_version": 1, "config": config,
+        "parameters": {"names": ["vertices (fitted.ply)", "albedo"],
+                       "start": {"albedo": float(salb), "n_vertices": int(len(sv)), "n_faces": int(len(sf)),
+                                 "source": mcfg["start_mesh"] or f"backprojection ({mcfg['start']})"},
+                       "fit": model.as_dict(theta), "truth": None, "error": None},
+        "regularizer": {"scale": model.reg_scale, "parts_at_fit": model.regularization(fitted.vertices)[2]},
+        "estimator": {"used": cap.estimator, "element_size_m": cap.element_size_m},
+        "poisson_nll": {**nll, "counts": float(cap.counts.sum())},
+        "metrics": metrics,
+        "history": {"objective": [h[0] for h in state.history], "sigma_ps": [h[1] for h in state.history],
+                    "seconds": [h[2] for h in state.history],
+                    "objective_end_blur": [h[3] for h in state.history]},
+        "time_s": {"optimisation": state.elapsed_s, "total": fit_s},
+        "bounds": list(_bounds_of(rec_bp)),
+    }
+    _write_text(out / "fit.json", json.dumps(result, indent=1) + "\n")
+    return result
+
+
+def _bounds_of(rec) -> tuple:
+    g = rec.grid
+    return (float(g.x_m[0]), float(g.x_m[-1]), float(g.y_m[0]), float(g.y_m[-1]), float(g.z_m[0]),
+            float(g.z_m[-1]))

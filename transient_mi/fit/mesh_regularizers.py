@@ -1,0 +1,145 @@
+r"""Regularisers of a free-mesh fit (``transient-mi fit --model mesh``): smoothness, edge length and normal
+consistency of a triangle mesh, each with its closed-form gradient with respect to the vertices.
+
+A mesh is ``vertices [V, 3]`` (float64, metres) and ``faces [F, 3]`` (vertex indices, counter-clockwise seen
+from the side the normal points to). Every energy is dimensionless (lengths divided by ``h0``, the start's
+mean edge length), so its weight does not depend on the mesh's size or resolution:
+
+* **Laplacian** ``E_lap = mean_i |x_i - mean_{j in N(i)} x_j|^2 / h0^2`` (the uniform "umbrella" Laplacian,
+  as pytorch3d's ``mesh_laplacian_smoothing`` with uniform weights). On an open mesh a boundary vertex's
+  neighbours are its two boundary neighbours only: the boundary curve is smoothed along itself and not
+  pulled inwards, so a flat patch with a straight or smoothly curved outline has no Laplacian energy and the
+  silhouette is not shrunk by the regulariser;
+* **edge length** ``E_edge = mean_e ((|e| - h0) / h0)^2`` (pytorch3d's ``mesh_edge_loss``): keeps triangles
+  from degenerating while the vertices move;
+* **normal consistency** ``E_normal = mean_{e interior} (1 - n_a . n_b)`` over the two faces of each interior
+  edge (pytorch3d's ``mesh_normal_consistency``): penalises folds.
+
+:func:`laplacian_matrix` is the same adjacency as a sparse symmetric matrix ``L = D - A`` (combinatorial,
+boundary-aware as above), used for the "large steps" parametrisation of :mod:`transient_mi.fit.mesh_model`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["MeshTopology", "RegularizerWeights", "regularizer", "laplacian_matrix"]
+
+
+@dataclass(frozen=True)
+class RegularizerWeights:
+    """Weights of the three energies (dimensionless; each is multiplied by the fit's objective scale)."""
+
+    laplacian: float = 1.0
+    edge: float = 0.05
+    normal: float = 0.1
+
+
+class MeshTopology:
+    """The fixed combinatorics of a mesh: edges, boundary, adjacency, interior edges' face pairs.
+
+    Parameters
+    ----------
+    faces : numpy.ndarray
+        ``[F, 3]`` vertex indices.
+    n_vertices : int
+        ``V``.
+    """
+
+    def __init__(self, faces: np.ndarray, n_vertices: int):
+        f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        self.faces, self.V = f, int(n_vertices)
+        he = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])  # half-edges, face-major per corner
+        face_of = np.tile(np.arange(len(f)), 3)
+        key = np.sort(he, axis=1)
+        uniq, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        inv = inv.ravel()
+        self.edges = uniq  # [E, 2]
+        boundary_edge = count == 1
+        self.boundary_edges = uniq[boundary_edge]
+        on_boundary = np.zeros(self.V, dtype=bool)
+        on_boundary[self.boundary_edges.ravel()] = True
+        self.on_boundary = on_boundary
+        # interior edges shared by exactly two faces: their face pairs
+        order = np.argsort(inv, kind="stable")
+        pairs = []
+        starts = np.concatenate([[0], np.cumsum(count)])
+        for k in np.flatnonzero(count == 2):
+            a, b = order[starts[k]: starts[k] + 2]
+            pairs.append((face_of[a], face_of[b]))
+        self.face_pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        # the smoothing adjacency: interior vertices take all their edges, boundary vertices their boundary edges
+        e = self.edges
+        keep_ij = ~on_boundary[e[:, 0]] | boundary_edge  # edge counts as a neighbour of its first vertex
+        keep_ji = ~on_boundary[e[:, 1]] | boundary_edge
+        rows = np.concatenate([e[keep_ij, 0], e[keep_ji, 1]])
+        cols = np.concatenate([e[keep_ij, 1], e[keep_ji, 0]])
+        A = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(self.V, self.V))
+        deg = np.asarray(A.sum(axis=1)).ravel()
+        self.degree = deg
+        inv_deg = np.where(deg > 0, 1.0 / np.maximum(deg, 1), 0.0)
+        #: uniform Laplacian ``x_i - mean of neighbours`` (rows without neighbours are zero)
+        self.uniform = (sp.diags((deg > 0).astype(np.float64)) - sp.diags(inv_deg) @ A).tocsr()
+        self.adjacency = A
+
+
+def laplacian_matrix(topo: MeshTopology) -> sp.csr_matrix:
+    """The symmetric combinatorial Laplacian ``D - A'`` of the smoothing adjacency (``A'`` symmetrised: an edge
+    is kept when either end keeps it), ``[V, V]``, positive semi-definite."""
+    A = topo.adjacency.maximum(topo.adjacency.T)
+    d = np.asarray(A.sum(axis=1)).ravel()
+    return (sp.diags(d) - A).tocsr()
+
+
+def _face_normals(x: np.ndarray, f: np.ndarray):
+    a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]
+    cr = np.cross(b - a, c - a)
+    ln = np.linalg.norm(cr, axis=1)
+    n = cr / np.maximum(ln, 1e-300)[:, None]
+    return a, b, c, cr, ln, n
+
+
+def regularizer(x: np.ndarray, topo: MeshTopology, h0: float, w: RegularizerWeights) -> tuple[float, np.ndarray,
+                                                                                             dict]:
+    """``(E, dE/dx [V, 3], parts)``: the weighted sum of the energies (module docstring) at vertices ``x``
+    (``[V, 3]``, m) and its gradient; ``parts`` the three unweighted energies."""
+    x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+    g = np.zeros_like(x)
+    parts = {}
+    V = len(x)
+    # Laplacian
+    Lx = topo.uniform @ x
+    parts["laplacian"] = float(np.sum(Lx * Lx) / (V * h0 * h0))
+    g += w.laplacian * (2.0 / (V * h0 * h0)) * (topo.uniform.T @ Lx)
+    # edge length
+    e = topo.edges
+    d = x[e[:, 1]] - x[e[:, 0]]
+    ln = np.linalg.norm(d, axis=1)
+    r = (ln - h0) / h0
+    parts["edge"] = float(np.mean(r * r)) if len(e) else 0.0
+    if len(e):
+        ge = (2.0 / len(e)) * (r / h0)[:, None] * d / np.maximum(ln, 1e-300)[:, None]
+        np.add.at(g, e[:, 1], w.edge * ge)
+        np.add.at(g, e[:, 0], -w.edge * ge)
+    # normal consistency
+    fp = topo.face_pairs
+    if len(fp):
+        f = topo.faces
+        a, b, c, cr, lc, n = _face_normals(x, f)
+        parts["normal"] = float(np.mean(1.0 - np.sum(n[fp[:, 0]] * n[fp[:, 1]], axis=1)))
+        gn = np.zeros_like(n)  # dE/dn per face
+        np.add.at(gn, fp[:, 0], -n[fp[:, 1]] / len(fp))
+        np.add.at(gn, fp[:, 1], -n[fp[:, 0]] / len(fp))
+        gc = (gn - np.sum(gn * n, axis=1, keepdims=True) * n) / np.maximum(lc, 1e-300)[:, None]  # dE/d(cross)
+        gb = np.cross(c - a, gc)
+        gcv = np.cross(gc, b - a)
+        np.add.at(g, f[:, 1], w.normal * gb)
+        np.add.at(g, f[:, 2], w.normal * gcv)
+        np.add.at(g, f[:, 0], -w.normal * (gb + gcv))
+    else:
+        parts["normal"] = 0.0
+    total = w.laplacian * parts["laplacian"] + w.edge * parts["edge"] + w.normal * parts["normal"]
+    return float(total), g, parts

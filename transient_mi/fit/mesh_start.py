@@ -1,0 +1,155 @@
+r"""Start meshes of ``transient-mi fit --model mesh`` and the resolution changes between its stages.
+
+Three starts, all wound so that the surface's front faces the relay wall (-z; a diffuse surface reflects on
+its front side only):
+
+* :func:`front_surface` (``--start front``, the default): the reconstruction's front surface as a height field.
+  The depth map of a reconstruction volume (:func:`recon.filters.depth_map`: per ``[y, x]`` column the depth of
+  its maximum) is sampled on a grid of ``cell_m`` (the median of the columns in each cell), and every grid
+  square whose four corners are occupied becomes two triangles. An open surface seen from the wall: no part of
+  it hides another from the wall, which is what the quadrature's interior derivatives assume;
+* :func:`closed_surface` (``--start closed``): a coarse closed surface around the occupied voxels (the surface
+  nets isosurface of :func:`recon.surface.isosurface` of the occupancy, at level 0.5), outward normals;
+* :func:`load_mesh` (``--start-mesh PATH``): any PLY or OBJ, e.g. a ``recon`` method's ``surface.ply``.
+
+Meshes finer than the fit's resolution are simplified by vertex clustering (:func:`cluster`: vertices snapped to
+a grid of ``cell_m``, merged, degenerate faces dropped; Rossignac and Borrel 1993). :func:`subdivide` splits
+every triangle in four (edge midpoints): the next, finer stage.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from transient_core.errors import UserInputError
+
+__all__ = ["front_surface", "closed_surface", "load_mesh", "cluster", "subdivide", "orient_to_wall"]
+
+
+def _clean(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Drop degenerate and duplicate faces and unreferenced vertices."""
+    f = np.asarray(f, dtype=np.int64).reshape(-1, 3)
+    ok = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+    f = f[ok]
+    if len(f):
+        _, keep = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+        f = f[np.sort(keep)]
+    used = np.unique(f)
+    remap = -np.ones(len(v), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return np.asarray(v, dtype=np.float64)[used], remap[f]
+
+
+def cluster(v: np.ndarray, f: np.ndarray, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex clustering on a grid of ``cell_m`` (m): each occupied cell's vertices merge at their mean."""
+    v = np.asarray(v, dtype=np.float64)
+    key = np.floor((v - v.min(axis=0)) / cell_m).astype(np.int64)
+    _, lab = np.unique(key, axis=0, return_inverse=True)
+    lab = lab.ravel()
+    n = lab.max() + 1
+    cnt = np.bincount(lab, minlength=n).astype(np.float64)
+    c = np.stack([np.bincount(lab, weights=v[:, k], minlength=n) / cnt for k in range(3)], axis=1)
+    return _clean(c, lab[np.asarray(f, dtype=np.int64)])
+
+
+def orient_to_wall(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Faces of a closed mesh wound outwards (positive volume), of an open one with their area-weighted mean
+    normal towards the wall (-z)."""
+    import trimesh
+
+    f = np.asarray(f, dtype=np.int64)
+    m = trimesh.Trimesh(vertices=v, faces=f, process=False)
+    trimesh.repair.fix_winding(m)
+    f = np.asarray(m.faces, dtype=np.int64)
+    if m.is_watertight:
+        return f if m.volume > 0 else f[:, ::-1].copy()
+    nz = float(np.sum(m.face_normals[:, 2] * m.area_faces))
+    return f if nz <= 0 else f[:, ::-1].copy()
+
+
+def front_surface(volume: np.ndarray, grid, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Height-field mesh of a reconstruction volume's front surface (module docstring).
+
+    ``volume [z, y, x]`` on ``grid`` (:class:`recon.grid.VoxelGrid`), thresholded (0 where empty); returns
+    ``(vertices [V, 3] m, faces [F, 3])``.
+    """
+    from recon.filters import depth_map
+
+    d = depth_map(volume, grid)  # [y, x], NaN where empty
+    dx = float(abs(grid.x_m[1] - grid.x_m[0])) if len(grid.x_m) > 1 else cell_m
+    s = max(1, int(round(cell_m / dx)))
+    ny, nx = d.shape
+    ys, xs = np.arange(0, ny, s), np.arange(0, nx, s)
+    if ys[-1] != ny - 1:
+        ys = np.append(ys, ny - 1)
+    if xs[-1] != nx - 1:
+        xs = np.append(xs, nx - 1)
+    h = max(1, s // 2)
+    node = np.full((len(ys), len(xs)), np.nan)
+    for a, j in enumerate(ys):
+        for b, i in enumerate(xs):
+            w = d[max(0, j - h): j + h + 1, max(0, i - h): i + h + 1]
+            if np.isfinite(w).any():
+                node[a, b] = float(np.nanmedian(w))
+    idx = -np.ones(node.shape, dtype=np.int64)
+    ok = np.isfinite(node)
+    if ok.sum() < 3:
+        raise UserInputError("the reconstruction holds too few occupied columns to start a mesh from "
+                             f"({int(ok.sum())} at {100 * cell_m:.1f} cm)")
+    idx[ok] = np.arange(int(ok.sum()))
+    X, Y = np.meshgrid(np.asarray(grid.x_m)[xs], np.asarray(grid.y_m)[ys])
+    v = np.stack([X[ok], Y[ok], node[ok]], axis=1)
+    faces = []
+    for a in range(len(ys) - 1):
+        for b in range(len(xs) - 1):
+            q = idx[a, b], idx[a, b + 1], idx[a + 1, b + 1], idx[a + 1, b]
+            if min(q) >= 0:  # (x right, y up: (q0, q2, q1) faces -z)
+                faces += [[q[0], q[2], q[1]], [q[0], q[3], q[2]]]
+    if not faces:
+        raise UserInputError("the reconstruction's occupied columns form no grid square to start a mesh from "
+                             f"at {100 * cell_m:.1f} cm; use a smaller --cell-m or --start closed")
+    return _clean(v, np.array(faces))
+
+
+def closed_surface(volume: np.ndarray, grid, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Closed surface around the occupied voxels of ``volume [z, y, x]`` (module docstring), clustered to
+    ``cell_m``."""
+    from scipy.ndimage import binary_dilation
+
+    from recon.surface import isosurface
+
+    occ = binary_dilation(volume > 0, iterations=1).astype(np.float64)
+    if not occ.any():
+        raise UserInputError("the reconstruction is empty: nothing to start a mesh from")
+    v, f = isosurface(occ, grid, 0.5, closed=True)
+    v, f = cluster(v, f, cell_m)
+    return v, orient_to_wall(v, f)
+
+
+def load_mesh(path, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh file (PLY, OBJ, ...), clustered to ``cell_m`` and oriented to the wall."""
+    import trimesh
+
+    p = Path(path)
+    if not p.is_file():
+        raise UserInputError(f"--start-mesh {str(p)!r}: no such file")
+    try:
+        m = trimesh.load(p, force="mesh", process=True)
+    except Exception as e:  # noqa: BLE001 (any parser error is the user's file)
+        raise UserInputError(f"--start-mesh {str(p)!r}: not a readable mesh ({type(e).__name__})") from None
+    if len(getattr(m, "faces", [])) == 0:
+        raise UserInputError(f"--start-mesh {str(p)!r}: holds no triangles")
+    v, f = cluster(np.asarray(m.vertices), np.asarray(m.faces), cell_m)
+    if len(f) == 0:
+        raise UserInputError(f"--start-mesh {str(p)!r}: nothing left at a {100 * cell_m:.1f} cm resolution")
+    return v, orient_to_wall(v, f)
+
+
+def subdivide(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every triangle split in four at its edges' midpoints (the winding kept)."""
+    import trimesh
+
+    v2, f2 = trimesh.remesh.subdivide(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64))
+    return np.asarray(v2, dtype=np.float64), np.asarray(f2, dtype=np.int64)
