@@ -131,7 +131,7 @@ def main(argv=None) -> int:
     if a.figure_only:
         with tempfile.TemporaryDirectory() as tmp:
             q, _ = _render(Path(tmp) / "q", dict(ACCURACY, estimator="quadrature"))
-            mc, _ = _render(Path(tmp) / "mc", dict(ACCURACY), a.spp)
+            mc, _ = _render(Path(tmp) / "mc", dict(ACCURACY, estimator="monte_carlo"), a.spp)
             _figure(q, mc, a.figure)
         return 0
 
@@ -143,7 +143,7 @@ def main(argv=None) -> int:
         ref, t_ref = _render(w / "ref", dict(ACCURACY, estimator="quadrature", element_size_m=str(a.ref_element_m),
                                              patch_cells=str(a.ref_cells)))
         q, t_q = _render(w / "q", dict(ACCURACY, estimator="quadrature"))
-        mc, t_mc = _render(w / "mc", dict(ACCURACY), a.spp)
+        mc, t_mc = _render(w / "mc", dict(ACCURACY, estimator="monte_carlo"), a.spp)
         result["accuracy"] = {
             "config": "8 x 8 pixels, 2 spots, wall return off",
             "reference": {"element_size_m": a.ref_element_m, "patch_cells": a.ref_cells, "time_s": t_ref},
@@ -153,7 +153,7 @@ def main(argv=None) -> int:
         print(json.dumps(result["accuracy"], indent=1), file=sys.stderr)
         # ---- the README's capture
         q2, t_q2 = _render(w / "q2", dict(README, estimator="quadrature"))
-        mc2, t_mc2 = _render(w / "mc2", dict(README), a.spp)
+        mc2, t_mc2 = _render(w / "mc2", dict(README, estimator="monte_carlo"), a.spp)
         mc_r = _ratios(mc2, w)
         result["readme_capture"] = {
             "config": "16 x 16 pixels, 4 x 4 spots, wall return on (the scene's defaults)",

@@ -17,7 +17,9 @@ Here it is integrated by quadrature instead of sampling:
   split uniformly until no edge is longer than ``element_size_m``; every pixel patch into
   ``patch_cells x patch_cells`` square cells (one point, the centre, with ``pixel_sampling="center"``).
 * **Weight of a pair (element, cell): the midpoint rule, with the cell's first moment.** The integrand at the
-  element's centroid and the cell's centre, times both areas; across the cell the weight is taken linear (its
+  element's centroid (its own surface interaction there, even where an occluder hides it from the cell; a
+  Lambertian BSDF evaluated once per (element, spot) and per wall cell, :mod:`~._nlos_surfaces`) and the
+  cell's centre, times both areas; across the cell the weight is taken linear (its
   geometric factors, sensor weight, the wall's cosine and ``cos(theta_X) / r^2``, differenced over the cell's
   edge midpoints), and that tilt moves light between the pair's bins exactly (it leaves the pair's total
   unchanged): the light arriving late in a cell is not weighted as the light arriving early.
@@ -29,7 +31,9 @@ Here it is integrated by quadrature instead of sampling:
   the centroid's deviation from the vertex mean (exact for a quadratic over a triangle) and by 1/3 of the
   cell's corner-mean deviation from its centre (exact for a quadratic over a square).
 * **Visibility.** ``V(p, X)`` and ``V(X, S)`` are tested by ray casts at the centroid and at three points
-  near the element's corners (each leg from the cell centre and from the spot). Elements whose samples
+  near the element's corners (each leg from the cell centre and from the spot; a sample is visible when no
+  surface lies before ``1 - 1e-4`` of its distance: :func:`~._nlos_surfaces.sample_visibility`; from a cell
+  only for pairs that can carry light, :func:`~._nlos_pair_kernels.pairs_lit`). Elements whose samples
   disagree for some pixel or spot (tested from the coarse level's cell centres) are split in four, up to
   ``refine_levels`` times; a pair still mixed
   then contributes the visible share of its samples (centroid 1/2, corners 1/6 each).

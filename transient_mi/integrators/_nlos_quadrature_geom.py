@@ -86,7 +86,8 @@ def _visible_share(vis_p, vis_s, i, e):
 @numba.njit(cache=True, fastmath=False)
 def _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins):
     """Pair ``i`` (element ``e``): its smallest knot (bins on the padded axis) and the other two relative to
-    it, ``(t_lo, a, b)``, ``0 <= a <= b`` (see :func:`spread_spot`)."""
+    it, ``(t_lo, a, b)``, ``0 <= a <= b``, from the lengths of :func:`pair_lengths` (the primal's knots,
+    :func:`~._nlos_pair_kernels._knots`, to rounding)."""
     l0 = opl_d[i] + r_pv[i, 0] + r_sv[e, 0] + spot_opl
     l1 = opl_d[i] + r_pv[i, 1] + r_sv[e, 1] + spot_opl
     l2 = opl_d[i] + r_pv[i, 2] + r_sv[e, 2] + spot_opl
