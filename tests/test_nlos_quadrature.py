@@ -139,6 +139,18 @@ def test_bin_masses_equal_the_plain_antiderivative_form():
         np.testing.assert_allclose(hist[0], np.diff(cdf), rtol=0, atol=1e-12)
 
 
+def test_rounding_residue_below_zero_is_cleared_and_nothing_else():
+    """A bin a few 1e-14 of its pixel's largest below zero (a difference of two equal CDF values, rounded) becomes
+    0, so the capture writer accepts it (the paper scene's 1 ps bins have such); a negative bin beyond
+    ``ROUNDING_RESIDUE`` of the largest is no rounding and is kept for the writer to refuse; the rest is
+    untouched."""
+    from transient_mi.integrators._nlos_quadrature import ROUNDING_RESIDUE, _clear_rounding_residue
+
+    h = np.array([[1.0, -6e-14, 0.5, 0.0], [2.0, -3.0 * ROUNDING_RESIDUE * 2.0, 1e-30, -1e-300]])
+    out = _clear_rounding_residue(h)
+    np.testing.assert_array_equal(out, [[1.0, 0.0, 0.5, 0.0], [2.0, h[1, 1], 1e-30, 0.0]])
+
+
 # ---------------------------------------------------------------- closed form
 
 X0 = np.array([0.05, -0.03, 0.35])

@@ -223,6 +223,21 @@ def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_p
     return out + ((prov,) if with_provenance else ())
 
 
+#: A bin below zero by at most this share of its pixel's largest bin is rounding (set to 0); larger ones are kept.
+ROUNDING_RESIDUE = 1e-9
+
+
+def _clear_rounding_residue(h: np.ndarray) -> np.ndarray:
+    """``h [P, T]`` with the rounding residue of the bin masses removed: a mass is a difference of two CDF values,
+    and where the CDF is flat (a pair's tails, 1 ps bins) their rounding can leave a bin a few 1e-14 of the pixel's
+    largest below zero, which the capture writer refuses. Such bins (down to ``ROUNDING_RESIDUE`` of the pixel's
+    largest) are set to 0; a larger negative value is left for the writer to refuse (it is no rounding)."""
+    h = np.array(h, dtype=np.float64)
+    tiny = (h < 0.0) & (h >= -ROUNDING_RESIDUE * np.abs(h).max(axis=-1, keepdims=True))
+    h[tiny] = 0.0
+    return h
+
+
 def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int]):
     """Render the three-bounce light of a group of spots by quadrature (see the module docstring).
 
@@ -283,7 +298,7 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
                 outside[gi, pix] += ph
     results = []
     for gi in range(G_out):
-        hk = apply_kernel(hist[gi], g.taps) if g.pad else hist[gi]
+        hk = _clear_rounding_residue(apply_kernel(hist[gi], g.taps) if g.pad else hist[gi])
         ek = apply_kernel(bound[gi], g.taps) if g.pad else bound[gi]
         in_hist = float(hk.sum())
         tot = float(steady[gi].sum())
