@@ -138,7 +138,7 @@ def _match_albedo(model, cap, settings) -> float:
 
 
 def _write_stage(path: Path, stage: int, v, f, albedo: float, reg_scale: float) -> None:
-    from .api import _write_text
+    from .outputs import _write_text
 
     _write_text(path, json.dumps({"stage": int(stage), "vertices": np.asarray(v).tolist(),
                                   "faces": np.asarray(f, dtype=np.int64).tolist(), "albedo": float(albedo),
@@ -152,7 +152,7 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
     from transient_core.progress import progress_bar
     from transient_core.stack import read_manifest
 
-    from .api import _backprojection, _bounds, claim_output, _write_text
+    from .outputs import _backprojection, _bounds, claim_output, _write_text
     from .mesh_optimize import run_mesh_adam
 
     mesh = mesh or MeshSettings()
@@ -248,7 +248,7 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
 
     from transient_mi.scenes._ply import write_ply
 
-    from .api import _front_figure, _ground_truth, _loss_figure, _surface_chamfer, _voxel_metrics, _write_text
+    from .outputs import _front_figure, _ground_truth, _loss_figure, _surface_chamfer, _voxel_metrics, _write_text
     from .mesh_figures import three_view_figure
 
     theta = state.result()
