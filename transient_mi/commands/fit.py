@@ -62,10 +62,11 @@ def fit_command(
 
     settings = FitSettings(iterations=iterations, spp=spp, spp_residual=spp_residual, sigma_start_ps=sigma_start_ps,
                            sigma_end_ps=sigma_end_ps, seed=seed, estimator=estimator, element_size_m=element_size_m)
-    from transient_mi.fit.mesh_fit import MeshSettings
+    from transient_mi.fit.mesh_fit import MeshSettings, check_mesh_options
 
     mesh = MeshSettings(start=start, start_mesh=None if start_mesh is None else str(start_mesh), cell_m=cell_m,
                         stages=stages, smoothing=smoothing)
+    check_mesh_options(mesh)  # whatever --model: a bad value is refused before any work
     result = fit_capture(capture, out, model=model, settings=settings, bin_width_ps=bin_width_ps, n_patches=patches,
                          patch_side_m=patch_side_m, resume=resume, overwrite=overwrite, progress=progress,
                          log=typer.echo, mesh=mesh)

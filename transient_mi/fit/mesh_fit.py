@@ -63,7 +63,8 @@ class MeshSettings:
     moments: str = "uniform"  # Adam's second moments of the vertices: uniform (one) or vertex (one per vertex)
 
 
-def _check(mesh: MeshSettings, settings) -> None:
+def check_mesh_options(mesh: MeshSettings) -> None:
+    """Refuse, in one line, a free-mesh setting out of range (the command line checks these whatever the model)."""
     if mesh.start not in _STARTS:
         raise UserInputError(f"--start {mesh.start!r} is not known; allowed: {', '.join(_STARTS)}")
     if not (isinstance(mesh.cell_m, (int, float)) and math.isfinite(mesh.cell_m) and 0.005 <= mesh.cell_m <= 0.5):
@@ -78,6 +79,10 @@ def _check(mesh: MeshSettings, settings) -> None:
         raise UserInputError(f"step_m={mesh.step_m!r}: expected a step in metres, > 0 and <= 0.05")
     if mesh.moments not in ("uniform", "vertex"):
         raise UserInputError(f"moments={mesh.moments!r}: expected uniform or vertex")
+
+
+def _check(mesh: MeshSettings, settings) -> None:
+    check_mesh_options(mesh)
     if settings.iterations < mesh.stages:
         raise UserInputError(f"iterations={settings.iterations}: fewer than the {mesh.stages} stages")
 
