@@ -36,8 +36,8 @@ from transient_core.errors import UserInputError
 from transient_core.lock import output_lock
 
 from .optimize import FitSettings, FitState, run_adam
-from .outputs import (_backprojection, _bounds, _front_figure, _ground_truth, _loss_figure, _surface_chamfer,
-                      _voxel_metrics, _write_text, claim_output)
+from .outputs import (_backprojection, _bounds, _front_figure, _ground_truth, _loss_figure, _write_text,
+                      backprojection_metrics, claim_output, mesh_metrics)
 
 __all__ = ["fit_capture", "FitSettings"]
 
@@ -231,13 +231,8 @@ def _finish(out, mdl, cap, manifest, rec_bp, theta0, theta, state, settings, con
     gt_mesh, truth = _ground_truth(manifest)
     metrics = {}
     if gt_mesh is not None:
-        from recon.metrics import GroundTruth, compute_metrics
-
-        bp = compute_metrics(rec_bp, GroundTruth(mesh=gt_mesh, source="capture scene"))
-        keys = ("chamfer_m", "accuracy_m", "completeness_m", "iou", "depth_mae_m", "silhouette_iou",
-                "visible_chamfer_m")
-        metrics = {"fit": {**_voxel_metrics(mesh, rec_bp, gt_mesh), **_surface_chamfer(mesh, gt_mesh)},
-                   "backprojection": {k: bp.get(k) for k in keys}}
+        metrics = {"fit": mesh_metrics(mesh, rec_bp, gt_mesh),
+                   "backprojection": backprojection_metrics(rec_bp, gt_mesh)}
     errors = None
     if truth is not None and mdl.name == "mannequin":
         fitted = mdl.as_dict(theta)

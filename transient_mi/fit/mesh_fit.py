@@ -253,7 +253,7 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
 
     from transient_mi.scenes._ply import write_ply
 
-    from .outputs import _front_figure, _ground_truth, _loss_figure, _surface_chamfer, _voxel_metrics, _write_text
+    from .outputs import _front_figure, _ground_truth, _loss_figure, _write_text, backprojection_metrics, mesh_metrics
     from .mesh_figures import three_view_figure
 
     theta = state.result()
@@ -272,14 +272,8 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
     gt_mesh, _ = _ground_truth(manifest)
     metrics = {}
     if gt_mesh is not None:
-        from recon.metrics import GroundTruth, compute_metrics
-
-        bp = compute_metrics(rec_bp, GroundTruth(mesh=gt_mesh, source="capture scene"))
-        keys = ("chamfer_m", "accuracy_m", "completeness_m", "iou", "depth_mae_m", "silhouette_iou",
-                "visible_chamfer_m")
-        metrics = {"fit": {**_voxel_metrics(fitted, rec_bp, gt_mesh), **_surface_chamfer(fitted, gt_mesh)},
-                   "start": {**_voxel_metrics(start_mesh, rec_bp, gt_mesh), **_surface_chamfer(start_mesh, gt_mesh)},
-                   "backprojection": {k: bp.get(k) for k in keys}}
+        metrics = {"fit": mesh_metrics(fitted, rec_bp, gt_mesh), "start": mesh_metrics(start_mesh, rec_bp, gt_mesh),
+                   "backprojection": backprojection_metrics(rec_bp, gt_mesh)}
     _loss_figure(out / "loss.png", state)
     _front_figure(out / "fit.png", rec_bp, gt_mesh, fitted, metrics)
     three_view_figure(out / "views.png", [(sv, sf), (fitted.vertices, fitted.faces),

@@ -163,3 +163,18 @@ def _front_figure(path: Path, rec_bp, gt_mesh, mesh, metrics) -> None:
     axes[0].set_ylabel("y (m)")
     fig.colorbar(im, ax=list(axes), shrink=0.8, label="depth z (m)")
     save_figure(fig, path, dpi=100)
+
+
+def mesh_metrics(mesh, rec_bp, gt_mesh) -> dict:
+    """A fitted (or start) mesh against the truth: voxel metrics on the backprojection's grid and the
+    surface-to-surface Chamfer (metres)."""
+    return {**_voxel_metrics(mesh, rec_bp, gt_mesh), **_surface_chamfer(mesh, gt_mesh)}
+
+
+def backprojection_metrics(rec_bp, gt_mesh) -> dict:
+    """The starting backprojection's metrics against the truth, on its own grid (metres; IoU)."""
+    from recon.metrics import GroundTruth, compute_metrics
+
+    bp = compute_metrics(rec_bp, GroundTruth(mesh=gt_mesh, source="capture scene"))
+    keys = ("chamfer_m", "accuracy_m", "completeness_m", "iou", "depth_mae_m", "silhouette_iou", "visible_chamfer_m")
+    return {k: bp.get(k) for k in keys}
