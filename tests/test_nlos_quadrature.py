@@ -151,6 +151,19 @@ def test_rounding_residue_below_zero_is_cleared_and_nothing_else():
     np.testing.assert_array_equal(out, [[1.0, 0.0, 0.5, 0.0], [2.0, h[1, 1], 1e-30, 0.0]])
 
 
+def test_rounding_residue_of_the_error_files_is_measured_against_the_light():
+    """The error files' mixed-visibility part is light spread by the same masses, so its rounding residue is
+    relative to the pixel's light, not to the error's own largest bin (the 32 x 32 paper scene at 1 ps bins had
+    error bins at -1e-20 where the error's largest was 1e-12 and the light's 1e-8, which the writer refused)."""
+    from transient_mi.integrators._nlos_quadrature import ROUNDING_RESIDUE, _clear_rounding_residue
+
+    light = np.array([[1e-8, 5e-9, 0.0]])
+    err = np.array([[1e-12, -1e-20, -3.0 * ROUNDING_RESIDUE * 1e-8]])
+    out = _clear_rounding_residue(err, light)
+    np.testing.assert_array_equal(out, [[1e-12, 0.0, err[0, 2]]])
+    assert _clear_rounding_residue(err)[0, 1] == -1e-20  # against its own largest (1e-12) it is no rounding
+
+
 # ---------------------------------------------------------------- closed form
 
 X0 = np.array([0.05, -0.03, 0.35])
@@ -356,3 +369,26 @@ def test_noise_target_refines_the_quadrature(tmp_path):
     assert m["variance"]["settings_per_spot"] == [{"element_size_m": spot["element_size_m"],
                                                    "patch_cells": spot["patch_cells"]}]
     assert "spp_per_spot" not in m["variance"]
+
+
+def test_noise_target_refinement_grows_the_elements_that_set_the_error():
+    """A refinement round grows the fine element count by ``1 / f^2`` (the error's second order), also where the
+    meshes' triangles are smaller than twice ``element_size_m`` (lowering ``h`` by ``f`` alone would split
+    nothing there), and refines the cells only where they are larger than the elements."""
+    from transient_mi.integrators._nlos_elements import effective_edge_m, fine_count
+    from transient_mi.noise_target import _next_quadrature_level
+
+    rng = np.random.default_rng(3)
+    # many small triangles (edges ~1 cm, as the mannequin's): h = 4 cm leaves them whole at the coarse level
+    base = rng.uniform(-0.2, 0.2, (400, 1, 3))
+    small = base + rng.uniform(-0.01, 0.01, (400, 3, 3))
+    f = 0.7
+    h, m = _next_quadrature_level(small, 0.004, 0.04, 2, f)
+    assert fine_count(small, h) >= fine_count(small, 0.04) / f ** 2
+    assert fine_count(small, 0.04 * f) == fine_count(small, 0.04)  # h f alone would have changed nothing
+    assert effective_edge_m(small, fine_count(small, h)) > 0.004 / 2 and m == 2  # 2 mm cells: smaller, kept
+    # one large square (2 triangles): h f suffices, and 7.5 mm cells are larger than its ~5 mm elements
+    sq = np.array([[[0, 0, 0.5], [0.2, 0, 0.5], [0.2, 0.2, 0.5]], [[0, 0, 0.5], [0.2, 0.2, 0.5], [0, 0.2, 0.5]]])
+    h, m = _next_quadrature_level(sq, 0.03, 0.01, 4, f)
+    assert 0.9 * 0.01 * f <= h <= 0.01 * f  # (the counts are whole: a step of 5 % below h f may be needed)
+    assert effective_edge_m(sq, fine_count(sq, h)) < 0.03 / 4 and m == 6
