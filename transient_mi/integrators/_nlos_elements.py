@@ -54,6 +54,23 @@ def _subdivision(tri: np.ndarray, max_edge_m: float):
         yield np.flatnonzero(n_div == n), np.asarray(local, dtype=np.float64) / n
 
 
+def fine_count(tri: np.ndarray, element_size_m: float) -> int:
+    """The number of fine elements the quadrature makes of the triangles ``tri [F, 3, 3]`` with
+    ``element_size_m`` before visibility refinement: each split into ``n^2`` at twice the size (the coarse level,
+    :func:`subdivide`), then in four (:func:`split4`). Cheap (no elements are built)."""
+    edges = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
+                      np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
+    n_div = np.maximum(1, np.ceil(edges / (2.0 * element_size_m) - 1e-9)).astype(np.int64)
+    return int(4 * (n_div * n_div).sum())
+
+
+def effective_edge_m(tri: np.ndarray, n_elements: int) -> float:
+    """The edge of an equilateral triangle of the mean element area (m): the elements' size where the meshes'
+    own triangles, not ``element_size_m``, set it."""
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    return float(np.sqrt(4.0 * area / (np.sqrt(3.0) * max(1, n_elements))))
+
+
 def subdivide(tri: np.ndarray, shape_index: np.ndarray, max_edge_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Split every triangle into ``n^2`` similar ones (``n = ceil(longest edge / max_edge_m)``); ``shape_index``
     (any per-triangle label, e.g. the source row) is repeated for the pieces."""
