@@ -392,3 +392,22 @@ def test_noise_target_refinement_grows_the_elements_that_set_the_error():
     h, m = _next_quadrature_level(sq, 0.03, 0.01, 4, f)
     assert 0.9 * 0.01 * f <= h <= 0.01 * f  # (the counts are whole: a step of 5 % below h f may be needed)
     assert effective_edge_m(sq, fine_count(sq, h)) < 0.03 / 4 and m == 6
+
+
+def test_quadrature_reports_progress_per_chunk():
+    """A long quadrature render moves the progress bar as its chunks of pairs are done (not 0 then 100 %): the
+    callback sees increasing values up to the total, more than once."""
+    from transient_mi.integrators import _nlos_pairs
+    from transient_mi.scene_io import load_scene
+
+    scene = load_scene("scenes/nlos_letter.xml", dict(LETTER, estimator="quadrature"))
+    seen = []
+    old = _nlos_pairs.PAIRS_PER_CHUNK
+    _nlos_pairs.PAIRS_PER_CHUNK = 2000  # several chunks on this small capture
+    try:
+        scene.integrator().render_transient(scene, scene.sensors()[0], seed=0, spp=1, spot=0,
+                                            progress=lambda d, t: seen.append((d, t)))
+    finally:
+        _nlos_pairs.PAIRS_PER_CHUNK = old
+    done = [d for d, _ in seen]
+    assert len(seen) > 3 and done == sorted(done) and seen[-1][0] == seen[-1][1] > 0

@@ -241,12 +241,15 @@ def _clear_rounding_residue(h: np.ndarray, light: np.ndarray | None = None) -> n
     return h
 
 
-def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int]):
+def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int], progress=None):
     """Render the three-bounce light of a group of spots by quadrature (see the module docstring).
 
     Two levels are integrated: the *fine* one (elements of at most ``element_size_m``, ``patch_cells``
     cells per patch side, visibility refinement) is the result; the *coarse* one (each fine element's
     parent, of twice the size, and half the cells per side, at least one) serves the error estimate.
+
+    ``progress(done, total)``, optional: called after every chunk of pairs, ``done / total`` the share of the
+    pairs integrated (both levels; ``total`` fixed for the call).
 
     Returns one :class:`~transient_mi.films.transient_film.TransientResult` per spot with ``error_bound``
     and ``total_error_bound`` set and no variance.
@@ -269,8 +272,16 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
         lv_c, lv_f, levels = level_elements(scene, setup, g, options, spot_ids, hidden_ptrs)
         g_c = g.with_cells(max(1, g.m // 2))
-        fine = _level(scene, setup, g, lv_f, spot_ids, confocal, G_out)
-        coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out)
+        n_f, n_c = len(g.cell_p) * lv_f.n, len(g_c.cell_p) * lv_c.n  # pairs of each level
+        tick_f = tick_c = None
+        if progress is not None:
+            def tick_f(done):
+                progress(done, n_f + n_c)
+
+            def tick_c(done):
+                progress(n_f + done, n_f + n_c)
+        fine = _level(scene, setup, g, lv_f, spot_ids, confocal, G_out, tick_f)
+        coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c)
         info.update(elements=lv_f.n, coarse_elements=lv_c.n, refine_levels=levels,
                     pairs=fine["pairs"] + coarse["pairs"])
     hist = fine["hist"]
@@ -322,8 +333,9 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int])
     return results
 
 
-def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_out) -> dict:
-    """Integrate one level (elements ``lv``, the cells of ``g``) for every spot of the group.
+def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_out, tick=None) -> dict:
+    """Integrate one level (elements ``lv``, the cells of ``g``) for every spot of the group (``tick(pairs done)``
+    after every chunk, optional).
 
     Returns ``hist``, ``bound`` (light of mixed visibility, per bin) ``[G, P, n_ext]``, ``steady``,
     ``vis_err``, ``outside`` ``[G, P]`` and ``pairs`` (pairs times the spots each was deposited for).
@@ -339,4 +351,6 @@ def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_
         ch.spread(out, lv, side, confocal, ch.fx_pairs(g, lv, side, confocal))
         out["pairs"] += ch.n * (1 if confocal else len(spot_ids))
         del ch
+        if tick is not None:
+            tick(len(g.cell_p) * e1)
     return out

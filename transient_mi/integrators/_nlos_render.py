@@ -167,15 +167,27 @@ def render_spots(setup: "NLOSSetup", scene, film, options: dict, *, seed: int, s
             raise PluginParameterError(f"{plugin}: estimator=quadrature cannot render through a medium (fog); use "
                                        "estimator=monte_carlo")
         check_supported(setup, options, plugin)
-        results = render_spots_quadrature(setup, scene, film, options, spots)
-        if not needs_remainder(options):
+        total = W * H * spp
+        remainder = needs_remainder(options)
+        share = 1.0 if not remainder else 0.5  # of the progress bar (then the Monte Carlo remainder's)
+
+        def tick(done, n):
+            if progress is not None and n > 0:
+                progress(int(total * share * done / n), total)
+
+        results = render_spots_quadrature(setup, scene, film, options, spots, progress=tick)
+        if not remainder:
             if progress is not None:
-                progress(W * H * spp, W * H * spp)
+                progress(total, total)
             return results
         # light beyond three bounces: the Monte Carlo estimator without the three-bounce connection and the
         # wall return (KernelConstants.skip_three_bounce); the sum is unbiased up to the quadrature's error
+        def rest_progress(done, n):  # the second half of the bar
+            if progress is not None and n > 0:
+                progress(int(total * (share + (1.0 - share) * done / n)), total)
+
         rest = _render_monte_carlo(setup, scene, film, dict(options, skip_three_bounce=True), seed=seed, spp=spp,
-                                   spots=spots, progress=progress, replicate_offset=replicate_offset,
+                                   spots=spots, progress=rest_progress, replicate_offset=replicate_offset,
                                    replicates=replicates)
         return [combine_remainder(q, r) for q, r in zip(results, rest)]
     return _render_monte_carlo(setup, scene, film, options, seed=seed, spp=spp, spots=spots, progress=progress,
