@@ -411,3 +411,34 @@ def test_quadrature_reports_progress_per_chunk():
         _nlos_pairs.PAIRS_PER_CHUNK = old
     done = [d for d, _ in seen]
     assert len(seen) > 3 and done == sorted(done) and seen[-1][0] == seen[-1][1] > 0
+
+
+def test_cell_tilt_keeps_the_weight_non_negative():
+    """Where the weight varies faster across a wall cell than its linear model can follow (an element 2 cm above
+    a 10 cm cell: the wall's cosine and ``1 / r^4`` change by orders of magnitude across it), the model
+    ``1 + t1 v1 + t2 v2`` would go negative at a corner and spread negative light: a 32 x 32 paper capture
+    (mannequin turned 17.7 deg) had bins at -3e-9 of their pixel's largest, which the writer refused in a
+    dataset run. The slopes are scaled to ``|t1| + |t2| <= MAX_TILT_SUM = 2`` (the weight 0 at one corner), and
+    the pair's masses are then >= 0; unscaled slopes of that size give negative masses."""
+    from transient_mi.integrators._nlos_pair_kernels import MAX_TILT_SUM, cell_terms, pair_geometry
+    from transient_mi.integrators._nlos_time_spread import _masses
+
+    D = np.array([-0.9, 0.05, 1.2])
+    cell_p = np.array([[0.0, 0.0, 0.0]])
+    ax, ay, wall_n = np.array([0.1, 0.0, 0.0]), np.array([0.0, 0.1, 0.0]), np.array([0.0, 0.0, 1.0])
+    ap_n = -D / np.linalg.norm(D)
+    # 2 cm above the cell, over its edge at +x, facing the wall
+    tri = np.array([[[0.05, 0.0, 0.02], [0.04, 0.01, 0.02], [0.03, -0.01, 0.02]]])
+    X0 = tri.mean(axis=1)
+    nrm = np.array([[0.0, 0.0, -1.0]])
+    bin_m = 0.3e-3  # 1 ps
+    geo, cos_p, A, w1, w2, tilt, side_x = pair_geometry(
+        cell_p, np.array([1.0]), *cell_terms(cell_p, D, ax, ay, 1.0, ap_n, wall_n), X0, tri, nrm, np.array([5e-5]),
+        nrm, np.array([[0.0, 0.0, 1.0]]), np.array([1], dtype=np.int8), 0, 1, ax, ay, 1.0, bin_m, 1.0, True, wall_n)
+    assert abs(tilt[0, 0]) + abs(tilt[0, 1]) == pytest.approx(MAX_TILT_SUM)  # it was scaled
+    t = np.sort(A[0])
+    buf = np.zeros(4096)
+    first, last, _ = _masses(buf, 100.0, t[1] - t[0], t[2] - t[0], w1[0], w2[0], tilt[0, 0], tilt[0, 1], 4096)
+    assert first <= last and buf[first:last + 1].min() >= -1e-15
+    _masses(buf, 100.0, t[1] - t[0], t[2] - t[0], w1[0], w2[0], 3.0 * tilt[0, 0], 3.0 * tilt[0, 1], 4096)
+    assert buf[first:last + 1].min() < -1e-6  # unscaled slopes of three times that: negative light

@@ -25,6 +25,11 @@ import numpy as np
 from transient_mi.integrators._nlos_time_spread import cell_widths, masses
 
 
+#: The largest ``|t1| + |t2|`` of a cell's amplitude slopes: the linear weight ``1 + t1 v1 + t2 v2`` over the cell
+#: (``|v_i| <= 1/2``) stays >= 0 (:func:`pair_geometry`).
+MAX_TILT_SUM = 2.0
+
+
 def _share(mask: int) -> float:
     """The visible share of a pair whose samples ``mask`` (bit ``j``: sample ``j``) see both the cell and the spot:
     centroid 1/2, corners 1/6 each (summed in sample order)."""
@@ -293,6 +298,13 @@ def pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, are
                          / (q_p * q_m * a0))
                     sj = s1 if j == 0 else s2
                     tilt[i, j] = d if sj >= 0.0 else -d
+                # the linear weight 1 + t1 v1 + t2 v2 (|v| <= 1/2) must not go below 0 at a corner: where the
+                # geometric factors vary that much across the cell (grazing), the slopes are scaled down to
+                # |t1| + |t2| = 2, the weight 0 at one corner (else bins could come out negative)
+                tsum = abs(tilt[i, 0]) + abs(tilt[i, 1])
+                if tsum > MAX_TILT_SUM:
+                    tilt[i, 0] *= MAX_TILT_SUM / tsum
+                    tilt[i, 1] *= MAX_TILT_SUM / tsum
             acc = corner_d[c]
             for cu in (-0.5, 0.5):
                 for cv in (-0.5, 0.5):
