@@ -73,12 +73,19 @@ class PaperSetup:
 #: The paper's setup.
 PAPER = PaperSetup()
 #: The paper scene's estimator of three-bounce light, for the scene file's default, :class:`PaperConfig`,
-#: :class:`DemoSettings` and so the demo, the studies on this scene and the NLOS dataset example. The mannequin is a
-#: mesh, so ``quadrature`` applies, but it is not the default yet: at the paper's budgets Monte Carlo reaches the
-#: noise standard with comparatively few samples, and the quadrature was slower to the same target at the demo's
-#: 10 ms (bench/bench_paper_estimators.py; docs/quadrature.md, "When Monte Carlo is still used"). One line to change
-#: when it is faster.
-PAPER_ESTIMATOR = "monte_carlo"
+#: :class:`DemoSettings` and so the demo, the studies on this scene and the NLOS dataset example: the deterministic
+#: quadrature (the mannequin is a mesh). At the paper's 1 ps bins and 10 ms per spot its first level
+#: (:data:`PAPER_ELEMENT_SIZE_M`, :data:`PAPER_PATCH_CELLS`) states a rendering-error ratio below 0.01, where Monte
+#: Carlo at the noise standard's 0.1 needed ~26k spp and reached 0.06-0.08 (bench/bench_paper_estimators.py;
+#: docs/quadrature.md, "When Monte Carlo is still used"); ``estimator=monte_carlo`` renders it by sampling.
+PAPER_ESTIMATOR = "quadrature"
+#: The quadrature's longest element edge on the paper scene (m). The mannequin's triangles are mostly smaller (median
+#: edge 9 mm), so the elements are its triangles split once (the coarse level of the error estimate is the triangles
+#: themselves); a smaller value splits the long limb triangles too.
+PAPER_ELEMENT_SIZE_M = 0.04
+#: The quadrature's cells per pixel patch side on the paper scene: its 1 cm^2 patches are small against the 50 cm to
+#: the mannequin, so cells beyond two per side change the capture by far less than the elements do.
+PAPER_PATCH_CELLS = 2
 #: Array sizes compared in the paper (Fig. 4 and Fig. 5).
 PAPER_ARRAY_SIZES = (4, 8, 16, 32)
 #: Reconstruction volume: the wall's extent in x and y, 25 cm to 75 cm in front of it.
@@ -180,8 +187,10 @@ class DemoSettings:
                            estimator=self.estimator)
 
 
-#: ``--quick``: coarser time bins and fewer samples (same physics), no noise target (the ratio is reported).
-QUICK = DemoSettings(spp=256, bin_width_ps=8.0, n_bins=1438, noise_target=None)
+#: ``--quick``: a first look, by Monte Carlo at 256 spp with 8 ps bins (same physics), no noise target (the ratio,
+#: far above 0.1, is reported). Not the quadrature: its cost does not fall with the samples, so a quick look (the
+#: array-size study's 64 x 64 array among them) would take minutes instead of seconds.
+QUICK = DemoSettings(spp=256, bin_width_ps=8.0, n_bins=1438, noise_target=None, estimator="monte_carlo")
 
 
 def paper_detector(**overrides):
@@ -213,8 +222,8 @@ def scene_defaults() -> list[tuple[str, str]]:
         ("power_w", repr(c.power_w)), ("spp", str(SCENE_SPP)), ("t0_ps", repr(c.t0_ps)),
         ("n_bins", str(c.n_bins)), ("bin_width_ps", repr(c.bin_width_ps)), ("max_depth", str(c.max_depth)),
         # the estimator of three-bounce light (docs/quadrature.md): PAPER_ESTIMATOR; the quadrature's element size
-        # (m) and cells per patch side as the plug-in's defaults
-        ("estimator", c.estimator), ("element_size_m", "0.01"), ("patch_cells", "4"),
+        # (m) and cells per patch side on this scene (PAPER_ELEMENT_SIZE_M, PAPER_PATCH_CELLS)
+        ("estimator", c.estimator), ("element_size_m", repr(PAPER_ELEMENT_SIZE_M)), ("patch_cells", str(PAPER_PATCH_CELLS)),
         ("capture", "array"), ("include_wall_return", "true"),
         ("wavelength_nm", repr(PAPER.wavelength_nm)), ("repetition_rate_hz", repr(PAPER.repetition_rate_hz)),
         ("laser_origin", _vec(PAPER.laser_origin_m)), ("detector_origin", _vec(PAPER.detector_origin_m)),

@@ -67,15 +67,16 @@ def quadrature_cost_inline(R) -> str:
             + f"{provenance(rec, short=True)})")
 
 
-#: bench/bench_paper_estimators.py's records quoted in quadrature.md ("When Monte Carlo is still used"): the demo's
-#: 10 ms (both estimators), then 1 s per spot (Monte Carlo alone: its samples reach the cap).
-PAPER_ESTIMATORS = ("paper_estimators_a4_e10ms", "paper_estimators_a4_e1000ms")
+#: bench/bench_paper_estimators.py's records quoted in quadrature.md ("When Monte Carlo is still used"): 16 x 16 pixels
+#: at the demo's 1 ps bins and 10 ms to a target of 0.01 (both estimators), then 4 x 4 pixels at 1 s per spot (Monte
+#: Carlo alone: its samples reach the cap).
+PAPER_ESTIMATORS = ("paper_estimators_a16_e10ms", "paper_estimators_a4_e1000ms")
 
 
 def paper_estimators_table(R) -> str:
     """The paper scene at a noise target by each estimator, side by side (one run each, the same load)."""
-    lines = ["  | exposure per spot | estimator | render (s) | ended with | ratio stated by detect (bins; pixel "
-             "totals) | target met |", "  |---|---|---:|---|---:|---|"]
+    lines = ["  | pixels, bins, target | exposure per spot | estimator | render (s) | ended with | ratio stated by "
+             "detect (bins; pixel totals) | target met |", "  |---|---|---|---:|---|---:|---|"]
     recs = [R(PAPER_ESTIMATORS[0])]
     try:
         recs.append(R(PAPER_ESTIMATORS[1]))
@@ -93,13 +94,30 @@ def paper_estimators_table(R) -> str:
                 lo, hi = min(s_["spp"] for s_ in sp), max(s_["spp"] for s_ in sp)
                 how = f"{lo} spp" if lo == hi else f"{lo}-{hi} spp"
             tot = x.get("render_noise_ratio_pixel_totals")
-            lines.append(f"  | {r['exposure_ms']:g} ms | {x['estimator']} | {x['render_wall_s']:.0f} | {how} | "
+            lines.append(f"  | {r['array']} x {r['array']}, {r['bin_width_ps']:g} ps, {r['target']:g} | "
+                         f"{r['exposure_ms']:g} ms | {x['estimator']} | {x['render_wall_s']:.0f} | {how} | "
                          f"{x['render_noise_ratio_detect']:.3g}; {'n/a' if tot is None else format(tot, '.3g')} | "
                          f"{'yes' if x['met'] else 'no'} |")
-    r = recs[0]["result"]
-    q = r["quadrature_start"]
-    lines += ["", f"  ({r['array']} x {r['array']} pixels, {r['spots']} spots, {r['bin_width_ps']:g} ps bins, target "
-              f"{r['target']:g}, the paper's detector; Monte Carlo from the demo's 1024-spp pilot, capped at 2^20 spp, "
-              f"the quadrature from {1000 * q['element_size_m']:g} mm elements and {q['patch_cells']} cells; render "
-              "times include the first render's JIT compilation.) " + " ".join(provenance(rec) for rec in recs)]
+    lines += ["", f"  ({recs[0]['result']['spots']} spots, the paper's detector; Monte Carlo from the demo's 1024-spp "
+              "pilot, capped at 2^20 spp; the quadrature from the paper scene's settings; render times include the "
+              "first render's JIT compilation.) " + " ".join(provenance(rec) for rec in recs)]
+    return "\n" + "\n".join(lines) + "\n"
+
+
+#: bench/bench_quadrature_settings.py's record quoted in quadrature.md (the paper scene's quadrature settings).
+QUADRATURE_SETTINGS = "quadrature_settings_a8_b8"
+
+
+def quadrature_settings_table(R) -> str:
+    """What refinement levels, cells and element sizes cost and buy on the paper scene."""
+    rec = R(QUADRATURE_SETTINGS)
+    r = rec["result"]
+    key = f"ratio_at_{r['exposure_ms']:g}ms"
+    lines = [f"  | refine_levels | element_size_m | patch_cells | elements | render (s) | error ratio at "
+             f"{r['exposure_ms']:g} ms |", "  |---:|---:|---:|---:|---:|---:|"]
+    for x in r["rows"]:
+        lines.append(f"  | {x['refine_levels']} | {x['element_size_m']:g} | {x['patch_cells']} | {x['elements']} | "
+                     f"{x['render_s']:.1f} | {x[key]:.3g} |")
+    lines += ["", f"  ({r['array']} x {r['array']} pixels, {r['spots']} spots, {r['bin_width_ps']:g} ps bins, the "
+              "paper's detector; the first row is the default; JIT compiled before.) " + provenance(rec)]
     return "\n" + "\n".join(lines) + "\n"
