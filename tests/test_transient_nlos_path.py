@@ -60,7 +60,7 @@ def test_bad_parameters_fail_with_one_line_naming_parameter_and_value(name, valu
 def test_defaults_and_good_values():
     i = _plugin()
     assert (i.max_depth_param, i.rr_depth, i.variance_replicates, i.replicates_for(True)) == (-1, 5, None, 1)
-    quad = {"estimator": "monte_carlo", "element_size_m": 0.01, "patch_cells": 4, "refine_levels": 3}
+    quad = {"estimator": "monte_carlo", "element_size_m": 0.01, "patch_cells": 4, "refine_levels": 1}
     assert i.nlos_options == {"rqmc": True, "hidden_geometry_prob": 0.8, **quad}
     i = _plugin(max_depth=4, rr_depth=3, variance_replicates=8, rqmc=False, hidden_geometry_prob=0.0)
     assert (i.max_depth_param, i.rr_depth, i.replicates_for(True)) == (4, 3, 8)
