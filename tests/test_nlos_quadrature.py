@@ -375,7 +375,7 @@ def test_noise_target_refinement_grows_the_elements_that_set_the_error():
     """A refinement round grows the fine element count by ``1 / f^2`` (the error's second order), also where the
     meshes' triangles are smaller than twice ``element_size_m`` (lowering ``h`` by ``f`` alone would split
     nothing there), and refines the cells only where they are larger than the elements."""
-    from transient_mi.integrators._nlos_elements import effective_edge_m, fine_count
+    from transient_mi.integrators._nlos_elements import effective_edge_m, fine_count, split4, subdivide
     from transient_mi.noise_target import _next_quadrature_level
 
     rng = np.random.default_rng(3)
@@ -383,6 +383,8 @@ def test_noise_target_refinement_grows_the_elements_that_set_the_error():
     base = rng.uniform(-0.2, 0.2, (400, 1, 3))
     small = base + rng.uniform(-0.01, 0.01, (400, 3, 3))
     f = 0.7
+    for h in (0.04, 0.005):  # the count without building the elements is the quadrature's own
+        assert fine_count(small, h) == len(split4(subdivide(small, np.arange(400), 2 * h)[0]))
     h, m = _next_quadrature_level(small, 0.004, 0.04, 2, f)
     assert fine_count(small, h) >= fine_count(small, 0.04) / f ** 2
     assert fine_count(small, 0.04 * f) == fine_count(small, 0.04)  # h f alone would have changed nothing

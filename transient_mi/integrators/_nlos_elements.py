@@ -38,12 +38,18 @@ def mesh_triangles(shapes) -> Faces:
     return Faces(np.concatenate(tris), np.concatenate(idx), np.concatenate(face))
 
 
+def _divisions(tri: np.ndarray, max_edge_m: float) -> np.ndarray:
+    """Per triangle ``[F, 3, 3]``, the divisions ``n`` of :func:`subdivide`: ``ceil(longest edge / max_edge_m)``,
+    at least 1 (int64 ``[F]``)."""
+    edges = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
+                      np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
+    return np.maximum(1, np.ceil(edges / max_edge_m - 1e-9)).astype(np.int64)
+
+
 def _subdivision(tri: np.ndarray, max_edge_m: float):
     """Per division count ``n`` (ascending): ``(sel, L)``, the triangles split into ``n^2`` and their children's
     local coordinates ``L [m, 3 vertices, (i, j)]`` (vertex ``a + L_i (b - a) + L_j (c - a)``)."""
-    edges = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
-                      np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
-    n_div = np.maximum(1, np.ceil(edges / max_edge_m - 1e-9)).astype(np.int64)
+    n_div = _divisions(tri, max_edge_m)
     for n in np.unique(n_div):
         local = []
         for i in range(n):
@@ -58,9 +64,7 @@ def fine_count(tri: np.ndarray, element_size_m: float) -> int:
     """The number of fine elements the quadrature makes of the triangles ``tri [F, 3, 3]`` with
     ``element_size_m`` before visibility refinement: each split into ``n^2`` at twice the size (the coarse level,
     :func:`subdivide`), then in four (:func:`split4`). Cheap (no elements are built)."""
-    edges = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
-                      np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
-    n_div = np.maximum(1, np.ceil(edges / (2.0 * element_size_m) - 1e-9)).astype(np.int64)
+    n_div = _divisions(tri, 2.0 * element_size_m)
     return int(4 * (n_div * n_div).sum())
 
 
