@@ -64,15 +64,20 @@ def main(argv=None) -> int:
     ap.add_argument("--exposure-ms", type=float, default=10.0)
     ap.add_argument("--target", type=float, default=0.1)
     ap.add_argument("--bin-width-ps", type=float, default=8.0)
-    ap.add_argument("--element-size-m", type=float, default=0.04)
-    ap.add_argument("--patch-cells", type=int, default=2)
+    ap.add_argument("--element-size-m", type=float, default=None,
+                    help="quadrature start (default: the paper scene's, transient_mi.paper.PAPER_ELEMENT_SIZE_M)")
+    ap.add_argument("--patch-cells", type=int, default=None,
+                    help="quadrature start (default: the paper scene's, transient_mi.paper.PAPER_PATCH_CELLS)")
     ap.add_argument("--only", choices=("monte_carlo", "quadrature"), default=None)
     _record.add_arguments(ap)
     a = ap.parse_args(argv)
     load_start = list(os.getloadavg())
     os.environ.setdefault("TRANSIENT_MI_PROGRESS", "0")
     import transient_mi  # noqa: F401
+    from transient_mi.paper import PAPER_ELEMENT_SIZE_M, PAPER_PATCH_CELLS
 
+    a.element_size_m = PAPER_ELEMENT_SIZE_M if a.element_size_m is None else a.element_size_m
+    a.patch_cells = PAPER_PATCH_CELLS if a.patch_cells is None else a.patch_cells
     with tempfile.TemporaryDirectory(prefix="bench-paper-est-") as td:
         runs = [one(e, a, Path(td)) for e in ("monte_carlo", "quadrature") if a.only in (None, e)]
     result = {"benchmark": "paper scene at a noise target, by estimator", "array": a.array, "spots": "2x2",

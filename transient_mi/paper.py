@@ -223,7 +223,8 @@ def scene_defaults() -> list[tuple[str, str]]:
         ("n_bins", str(c.n_bins)), ("bin_width_ps", repr(c.bin_width_ps)), ("max_depth", str(c.max_depth)),
         # the estimator of three-bounce light (docs/quadrature.md): PAPER_ESTIMATOR; the quadrature's element size
         # (m) and cells per patch side on this scene (PAPER_ELEMENT_SIZE_M, PAPER_PATCH_CELLS)
-        ("estimator", c.estimator), ("element_size_m", repr(PAPER_ELEMENT_SIZE_M)), ("patch_cells", str(PAPER_PATCH_CELLS)),
+        ("estimator", c.estimator), ("element_size_m", repr(PAPER_ELEMENT_SIZE_M)),
+        ("patch_cells", str(PAPER_PATCH_CELLS)),
         ("capture", "array"), ("include_wall_return", "true"),
         ("wavelength_nm", repr(PAPER.wavelength_nm)), ("repetition_rate_hz", repr(PAPER.repetition_rate_hz)),
         ("laser_origin", _vec(PAPER.laser_origin_m)), ("detector_origin", _vec(PAPER.detector_origin_m)),
