@@ -362,13 +362,17 @@ def test_transient_path_under_a_spad_array_gives_the_same_gradient():
     assert out[0] == out[1] and np.frombuffer(out[0], np.float32)[0] != 0
 
 
-def test_same_seed_same_bytes():
+def _two_gradients(threads: int):
+    """The reverse-mode gradients (a translation's and the target's reflectance) of the same seed, computed twice
+    with ``threads`` Dr.Jit threads: two ``(d theta, d reflectance)`` byte pairs."""
     scene = _scene("array")
     params = mi.traverse(scene)
     key = "target.to_world"
     T0 = mi.Transform4f(params[key])
     w = _weights(_render(scene, 3).shape)
     grads = []
+    before = dr.thread_count()
+    dr.set_thread_count(threads)
     try:
         for _ in range(2):
             th = mi.Float(0.0)
@@ -381,8 +385,25 @@ def test_same_seed_same_bytes():
                           dr.grad(params["target.bsdf.reflectance.value"]).numpy().tobytes()))
             detach_all(params)
     finally:
+        dr.set_thread_count(before)
         detach_all(params)
-    assert grads[0] == grads[1]
+    return grads
+
+
+def test_same_seed_same_bytes():
+    """Same seed, same gradient bytes on one Dr.Jit thread. Each parameter's gradient is a sum of Dr.Jit's atomic
+    adds: with several threads their order, and so the gradient's last bits, can change from run to run
+    (docs/differentiable.md, "Determinism"; this test failed that way in loaded full-suite runs while it asserted
+    bytes with the default threads), so with the default threads the two agree to float32 rounding of a
+    reordered sum (relative 1e-4), not bit for bit."""
+    one = _two_gradients(1)
+    assert one[0] == one[1]
+    many = _two_gradients(max(2, dr.thread_count()))
+    for a, b in zip(many[0], many[1]):
+        np.testing.assert_allclose(np.frombuffer(a, np.float32), np.frombuffer(b, np.float32), rtol=1e-4)
+    # and one thread computes the same gradient as several, to that rounding
+    for a, b in zip(one[0], many[0]):
+        np.testing.assert_allclose(np.frombuffer(a, np.float32), np.frombuffer(b, np.float32), rtol=1e-4)
 
 
 @pytest.mark.skipif(not hasattr(__import__("transient_mi.emitters.pulsed_laser", fromlist=["x"]).PulsedLaser,
