@@ -391,13 +391,14 @@ def _two_gradients(threads: int):
 
 
 def test_same_seed_same_bytes():
-    """Same seed, same gradient bytes on one Dr.Jit thread. Each parameter's gradient is a sum of Dr.Jit's atomic
+    """Same seed, same gradient bytes on one Dr.Jit thread (``llvm_*`` variants). Each parameter's gradient is a sum of Dr.Jit's atomic
     adds: with several threads their order, and so the gradient's last bits, can change from run to run
     (docs/differentiable.md, "Determinism"; this test failed that way in loaded full-suite runs while it asserted
     bytes with the default threads), so with the default threads the two agree to float32 rounding of a
     reordered sum (relative 1e-4), not bit for bit."""
     one = _two_gradients(1)
-    assert one[0] == one[1]
+    if not mi.variant().startswith("cuda_"):  # (a GPU's atomics have no thread count to pin: rounding only there)
+        assert one[0] == one[1]
     many = _two_gradients(max(2, dr.thread_count()))
     for a, b in zip(many[0], many[1]):
         np.testing.assert_allclose(np.frombuffer(a, np.float32), np.frombuffer(b, np.float32), rtol=1e-4)

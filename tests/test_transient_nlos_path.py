@@ -130,13 +130,15 @@ def test_one_lane_policy_gives_the_stream_counts_of_both_former_rules():
     """``_lanes.streams_for`` replaced two loops (cameras: ``choose_streams``; NLOS groups: ``group_layout``);
     the stream count K, and so every byte, must be what the former rules gave, in every case, the memory cap
     binding or not."""
-    from transient_mi.integrators._lanes import (CAMERA_TARGET_LANES_LLVM, MAX_SLOT_FLOATS,
-                                                 NLOS_GROUP_TARGET_LANES, choose_streams)
+    from transient_mi.integrators._lanes import (CAMERA_TARGET_LANES_CUDA, CAMERA_TARGET_LANES_LLVM, MAX_SLOT_FLOATS,
+                                                 NLOS_GROUP_TARGET_LANES, choose_streams, is_cuda)
     from transient_mi.integrators._nlos_render import group_layout
+
+    camera_target = CAMERA_TARGET_LANES_CUDA if is_cuda() else CAMERA_TARGET_LANES_LLVM  # (the variant's backend)
 
     def camera_before(P, spp, T):
         k = 1
-        while k * 2 <= spp and P * k * 2 <= CAMERA_TARGET_LANES_LLVM and P * k * 2 * T <= MAX_SLOT_FLOATS:
+        while k * 2 <= spp and P * k * 2 <= camera_target and P * k * 2 * T <= MAX_SLOT_FLOATS:
             k *= 2
         return k
 
