@@ -49,6 +49,18 @@ def group_layout(n_pixels: int, spp: int, n_bins_ext: int, n_spots: int) -> tupl
     return k, g
 
 
+def conflict_free_rounds(keys: np.ndarray) -> np.ndarray:
+    """The record each entry goes to so that no record holds a key twice: an entry's round is the number of
+    entries of its key before it (``keys`` int ``[n]``; returns int64 ``[n]``, the largest round + 1 records)."""
+    order = np.argsort(keys, kind="stable")
+    ks = keys[order]
+    first = np.r_[True, ks[1:] != ks[:-1]] if len(ks) else np.zeros(0, dtype=bool)
+    start = np.maximum.accumulate(np.where(first, np.arange(len(ks)), 0)) if len(ks) else np.zeros(0, np.int64)
+    rounds = np.empty(len(ks), dtype=np.int64)
+    rounds[order] = np.arange(len(ks)) - start
+    return rounds
+
+
 class GroupHistogram(LaneHistogram):
     """Lane histograms with one sub-slot per spot of the group (slot = ``lane * G + spot``)."""
 
@@ -327,12 +339,18 @@ def _render_replicate(setup: "NLOSSetup", scene, film, options: dict, *, seed: i
     sub = np.broadcast_to(sub.reshape((-1,) + (1,) * (pix.ndim - 1)), pix.shape).reshape(-1)
     pix = pix.reshape(-1)
     photons = wr["photons"][all_spots].reshape(-1)
-    sel = (pix >= 0) & (photons > 0)
-    if sel.any():
-        ph = photons[sel] / setup.photons_per_pulse  # N is applied below
-        lanes = mi.UInt32((pix[sel] * K).astype(np.uint32))
-        hist.record(lanes, mi.Float(wr["opl_m"][all_spots].reshape(-1)[sel]), mi.Float(ph * spp), mi.Bool(True),
-                    sub=mi.UInt32(sub[sel]))
+    opl = wr["opl_m"][all_spots].reshape(-1)
+    sel = np.flatnonzero((pix >= 0) & (photons > 0))
+    # The records add without atomics (ReduceMode.NoConflicts), so no record may hold two entries of one slot: a
+    # divergent beam's footprint samples of a spot (or, confocal, of neighbouring spots) often share a pixel and a
+    # bin, and on a GPU such entries in one record raced (lost or reordered additions). Entries of one slot go to
+    # successive records in their order (spot-major, then footprint sample): the additions' order stays fixed.
+    rounds = conflict_free_rounds(pix[sel].astype(np.int64) * G + sub[sel])
+    for r in range(int(rounds.max()) + 1 if len(sel) else 0):
+        e = sel[rounds == r]
+        ph = photons[e] / setup.photons_per_pulse  # N is applied below
+        hist.record(mi.UInt32((pix[e] * K).astype(np.uint32)), mi.Float(opl[e]), mi.Float(ph * spp), mi.Bool(True),
+                    sub=mi.UInt32(sub[e]))
         hist.evaluate()
 
     out = list(hist.collect_all(taps, scale=setup.photons_per_pulse))
