@@ -197,3 +197,18 @@ def test_cli_refusal_is_one_line(capture, tmp_path):
     lines = [ln for ln in r.stderr.strip().splitlines() if ln]
     assert r.returncode != 0 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
     assert "stages=0" in lines[0]
+
+
+def test_orient_to_wall_mends_an_inconsistent_winding():
+    """A start mesh with faces wound both ways (a box with one face flipped) comes out wound outwards: trimesh
+    repairs the winding with networkx, a declared dependency (a fresh install without it failed here)."""
+    import trimesh
+
+    from transient_mi.fit.mesh_start import orient_to_wall
+
+    box = trimesh.creation.box(extents=(0.2, 0.2, 0.2))
+    v, f = np.asarray(box.vertices), np.asarray(box.faces).copy()
+    f[0] = f[0, ::-1]
+    assert not trimesh.Trimesh(vertices=v, faces=f, process=False).is_winding_consistent
+    out = trimesh.Trimesh(vertices=v, faces=orient_to_wall(v, f), process=False)
+    assert out.is_winding_consistent and out.volume > 0
