@@ -70,14 +70,14 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
     ``[R, n_pixels]`` (total light, its mixed-visibility part, light arriving outside the padded axis).
 
     Per pair ``i`` (:func:`pair_geometry`): ``geo`` (photons per pulse before the two BSDFs and the spot leg),
-    ``f_p`` (wall BSDF), ``vis_p`` (uint8 mask of the samples seen from the cell, :func:`~._nlos_surfaces.visibility_masks`),
-    ``A[3]`` (detector parts of the knots, bins), ``w1, w2`` (the cell's uniform widths, bins), ``tilt[2]`` (the
-    cell's amplitude slopes), ``side_x`` (side of the element's shading normal the cell lies on),
-    ``fx_pair[r, i]`` (the element's BSDF towards the spot, for ``lambertian=False``). Per element ``e`` and spot
-    ``s``: ``vis_s[e, s]`` (mask of the samples seen from the spot), ``B[e, s, 3]`` (laser parts of the knots,
-    bins, with the axis origin), ``sw[e, s]`` (spot intensity over ``r_SX^2``), and for ``lambertian``:
-    ``fx_e[e, s]`` (the BSDF with ``wi = wo``) and ``side_s[e, s]`` (the spot's side), a pair's ``f_x`` being
-    ``fx_e`` when its cell lies on the spot's side and 0 otherwise.
+    ``f_p`` (wall BSDF), ``vis_p`` (uint8 mask of the samples seen from the cell,
+    :func:`~._nlos_surfaces.visibility_masks`), ``A[3]`` (detector parts of the knots, bins), ``w1, w2`` (the cell's
+    uniform widths, bins), ``tilt[2]`` (the cell's amplitude slopes), ``side_x`` (side of the element's shading
+    normal the cell lies on), ``fx_pair[r, i]`` (the element's BSDF towards the spot, for ``lambertian=False``). Per
+    element ``e`` and spot ``s``: ``vis_s[e, s]`` (mask of the samples seen from the spot), ``B[e, s, 3]`` (laser
+    parts of the knots, bins, with the axis origin), ``sw[e, s]`` (spot intensity over ``r_SX^2``), and for
+    ``lambertian``: ``fx_e[e, s]`` (the BSDF with ``wi = wo``) and ``side_s[e, s]`` (the spot's side), a pair's
+    ``f_x`` being ``fx_e`` when its cell lies on the spot's side and 0 otherwise.
 
     A pair's light is ``geo f_p f_x sw`` times the visible share of its samples, spread by
     :func:`~._nlos_time_spread.masses`; where the samples disagree, ``max(share, 1 - share)`` of it goes to

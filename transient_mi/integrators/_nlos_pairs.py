@@ -20,8 +20,7 @@ import numpy as np
 
 from transient_mi.integrators._nlos_elements import sample_points
 from transient_mi.integrators._nlos_pair_kernels import pair_geometry, pairs_lit, spot_knots, spread_group
-from transient_mi.integrators._nlos_surfaces import (ElementSurfaces, WallCells, sample_visibility,
-                                                     spot_intensities, visibility_masks)
+from transient_mi.integrators._nlos_surfaces import ElementSurfaces, WallCells, spot_intensities, visibility_masks
 
 if TYPE_CHECKING:
     import mitsuba as mi
@@ -45,11 +44,12 @@ def chunk_starts(n_cells: int, n: int):
     return [(e0, min(n, e0 + per)) for e0 in range(0, n, per)]
 
 
-def spot_visibility(scene, setup, spots, pts: np.ndarray) -> np.ndarray:
-    """Visibility of every element's four samples from the laser spots ``spots``: ``bool [n, G, 4]``."""
+def spot_masks(scene, setup, spots, pts: np.ndarray) -> np.ndarray:
+    """Visibility masks of every element's four samples from the laser spots ``spots``: ``uint8 [n, G]``
+    (:func:`~._nlos_surfaces.visibility_masks`, element-major)."""
     S = np.asarray(setup.spots, dtype=np.float64)[list(spots)]
-    v = sample_visibility(scene, S, setup.frame.normal, pts, 0, len(pts))
-    return np.ascontiguousarray(v.reshape(len(S), len(pts), 4).transpose(1, 0, 2))
+    return visibility_masks(scene, S, setup.frame.normal, pts, 0, len(pts), element_major=True).reshape(len(pts),
+                                                                                                       len(S))
 
 
 class LevelElements:
@@ -80,7 +80,7 @@ class SpotSide:
         beam = np.asarray(setup.spot_targets, dtype=np.float64)[self.spots] - self.Lo
         self.beam = beam / np.linalg.norm(beam, axis=1, keepdims=True)
         self.laser_leg = np.linalg.norm(self.S - self.Lo, axis=1)  # [G]
-        self.vis = visibility_masks(scene, self.S, setup.frame.normal, lv.pts, 0, n, element_major=True).reshape(n, G)
+        self.vis = spot_masks(scene, setup, self.spots, lv.pts)
         self.intensity = np.asarray(self.intensity_ad(scene, lv.X0), dtype=np.float64).reshape(n, G)
         self.B, self.r_sv, self.r_sx = spot_knots(lv.tri, lv.X0, self.S, g.fl * self.laser_leg, g.bin_m,
                                        g.t0_m / g.bin_m - g.pad)

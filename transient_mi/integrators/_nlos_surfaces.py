@@ -109,43 +109,20 @@ def spot_intensities(scene, laser_origin: np.ndarray, beam_dir: np.ndarray, spot
     return bsdf_value(si, w)
 
 
-def sample_visibility(scene, origins: np.ndarray, normal: np.ndarray, pts: np.ndarray, e0: int, e1: int,
-                      pairs: np.ndarray | None = None) -> np.ndarray:
+def visibility_masks(scene, origins: np.ndarray, normal: np.ndarray, pts: np.ndarray, e0: int, e1: int,
+                     pairs: np.ndarray | None = None, element_major: bool = False) -> np.ndarray:
     """Visibility of the elements ``e0:e1``'s four samples from every origin (on the relay wall: cell centres,
-    laser spots), ``bool [n_origins * (e1 - e0), 4]`` origin-major (pair ``o * (e1 - e0) + e - e0``); with
-    ``pairs`` (indices in that order) only those pairs, ``bool [len(pairs), 4]``.
+    laser spots) as masks, ``uint8 [n_pairs]``: bit ``j`` set when sample ``j`` (0 the centroid) is visible. Pairs
+    origin-major (pair ``o * (e1 - e0) + e - e0``; with ``pairs``, indices in that order, only those), or with
+    ``element_major`` every (element, origin) combination element-major (pair ``(e - e0) * n_origins + o``: the
+    laser side's ``[n, G]`` layout).
 
     A sample is visible when Mitsuba's shadow-ray test (``scene.ray_test``) finds no surface along the ray from
     the origin (offset ``WALL_OFFSET_M`` along the wall's ``normal``) before ``1 - VISIBILITY_REL_TOL`` of the
     distance to the sample (the sample lies on its own surface, so the ray is not tested there). The rays are
     built in float64 from ``pts`` (``[n, 4, 3]``, all elements' samples, centroid first) and cast to float32 in
-    the launch that traces them.
+    the launch that traces them; the four bits are combined there too.
     """
-    ne = e1 - e0
-    n_pairs = len(origins) * ne if pairs is None else len(pairs)
-    if n_pairs == 0:
-        return np.zeros((0, 4), dtype=bool)
-    org = _d3(np.asarray(origins, dtype=np.float64) + WALL_OFFSET_M * np.asarray(normal, dtype=np.float64))
-    tgt = _d3(pts[e0:e1].reshape(-1, 3))
-    j = dr.arange(mi.UInt32, n_pairs * 4)
-    k = j // 4
-    pair = k if pairs is None else dr.gather(mi.UInt32, _u(pairs), k)
-    ne_o = dr.opaque(mi.UInt32, ne)
-    o_i = pair // ne_o
-    o = _gather3(org, o_i)
-    t = _gather3(tgt, (pair - o_i * ne_o) * 4 + (j - k * 4))
-    d, r = _unit32([t[0] - o[0], t[1] - o[1], t[2] - o[2]])
-    ray = mi.Ray3f(mi.Point3f(mi.Float(o[0]), mi.Float(o[1]), mi.Float(o[2])), d,
-                   mi.Float(r) * (1.0 - VISIBILITY_REL_TOL), 0.0, [])
-    return np.asarray(~scene.ray_test(ray)).reshape(-1, 4)
-
-
-def visibility_masks(scene, origins: np.ndarray, normal: np.ndarray, pts: np.ndarray, e0: int, e1: int,
-                     pairs: np.ndarray | None = None, element_major: bool = False) -> np.ndarray:
-    """:func:`sample_visibility` as masks: ``uint8 [n_pairs]``, bit ``j`` set when sample ``j`` (0 the centroid) of
-    the pair's element is visible from its origin (the same rays, combined in the launch that traces them). Pairs origin-major as :func:`sample_visibility` (``pairs`` selects
-    some), or with ``element_major`` every (element, origin) combination element-major (pair ``(e - e0) *
-    n_origins + o``: the laser side's ``[n, G]`` layout)."""
     ne, no = e1 - e0, len(origins)
     n_pairs = no * ne if pairs is None else len(pairs)
     if n_pairs == 0:
