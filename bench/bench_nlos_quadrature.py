@@ -61,7 +61,8 @@ MC_REPLICATES = 16
 SETTINGS = {
     "confocal_32x32_400bins": dict(sweep=[0.16, 0.113, 0.08, 0.057, 0.04, 0.02], ref_m=0.01,
                                    mc_spp=262144, mt_spp=16384),
-    "confocal_64x64_2048bins": dict(sweep=[0.16, 0.113, 0.08, 0.057], ref_m=0.01, mc_spp=65536, mt_spp=65536),
+    "confocal_64x64_2048bins": dict(sweep=[0.16, 0.113, 0.08, 0.057, 0.04, 0.02], ref_m=0.01, mc_spp=65536,
+                                    mt_spp=65536),
     "array_32x32px_32x32spots_400bins": dict(sweep=[0.16, 0.113, 0.08, 0.057, 0.04, 0.02], ref_m=0.01,
                                              mc_spp=65536, mt_spp=1024, error_spots=ERROR_SPOTS),
     # --small (CI): seconds

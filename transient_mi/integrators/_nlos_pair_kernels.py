@@ -45,12 +45,6 @@ _SHARE = np.array([_share(m) for m in range(16)])
 _NVIS = np.array([bin(m).count("1") for m in range(16)], dtype=np.int64)
 
 
-def visibility_mask(vis: np.ndarray) -> np.ndarray:
-    """``bool [..., 4]`` sample visibility -> ``uint8 [...]`` masks (bit ``j``: sample ``j``, 0 the centroid)."""
-    v = vis.astype(np.uint8)
-    return v[..., 0] | (v[..., 1] << 1) | (v[..., 2] << 2) | (v[..., 3] << 3)
-
-
 @numba.njit(cache=True, fastmath=False)
 def _knots(A, B, i, e, s):
     """Pair ``i`` (element ``e``) with spot ``s``: its smallest knot (bins on the padded axis) and the other two
@@ -76,14 +70,14 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
     ``[R, n_pixels]`` (total light, its mixed-visibility part, light arriving outside the padded axis).
 
     Per pair ``i`` (:func:`pair_geometry`): ``geo`` (photons per pulse before the two BSDFs and the spot leg),
-    ``f_p`` (wall BSDF), ``vis_p`` (uint8 mask of the samples seen from the cell, :func:`visibility_mask`),
-    ``A[3]`` (detector parts of the knots, bins), ``w1, w2`` (the cell's uniform widths, bins), ``tilt[2]`` (the
-    cell's amplitude slopes), ``side_x`` (side of the element's shading normal the cell lies on),
-    ``fx_pair[r, i]`` (the element's BSDF towards the spot, for ``lambertian=False``). Per element ``e`` and spot
-    ``s``: ``vis_s[e, s]`` (mask of the samples seen from the spot), ``B[e, s, 3]`` (laser parts of the knots,
-    bins, with the axis origin), ``sw[e, s]`` (spot intensity over ``r_SX^2``), and for ``lambertian``:
-    ``fx_e[e, s]`` (the BSDF with ``wi = wo``) and ``side_s[e, s]`` (the spot's side), a pair's ``f_x`` being
-    ``fx_e`` when its cell lies on the spot's side and 0 otherwise.
+    ``f_p`` (wall BSDF), ``vis_p`` (uint8 mask of the samples seen from the cell,
+    :func:`~._nlos_surfaces.visibility_masks`), ``A[3]`` (detector parts of the knots, bins), ``w1, w2`` (the cell's
+    uniform widths, bins), ``tilt[2]`` (the cell's amplitude slopes), ``side_x`` (side of the element's shading
+    normal the cell lies on), ``fx_pair[r, i]`` (the element's BSDF towards the spot, for ``lambertian=False``). Per
+    element ``e`` and spot ``s``: ``vis_s[e, s]`` (mask of the samples seen from the spot), ``B[e, s, 3]`` (laser
+    parts of the knots, bins, with the axis origin), ``sw[e, s]`` (spot intensity over ``r_SX^2``), and for
+    ``lambertian``: ``fx_e[e, s]`` (the BSDF with ``wi = wo``) and ``side_s[e, s]`` (the spot's side), a pair's
+    ``f_x`` being ``fx_e`` when its cell lies on the spot's side and 0 otherwise.
 
     A pair's light is ``geo f_p f_x sw`` times the visible share of its samples, spread by
     :func:`~._nlos_time_spread.masses`; where the samples disagree, ``max(share, 1 - share)`` of it goes to
@@ -325,8 +319,35 @@ def spot_knots(tri: np.ndarray, X0: np.ndarray, S: np.ndarray, spot_opl: np.ndar
     """The laser parts of the knots ``B [n, G, 3]`` (bins, with the padded axis's origin ``t_origin_bins``
     subtracted: module docstring), ``r_SV [n, G, 3]`` and ``r_SX [n, G]`` (m) of every element (vertices
     ``tri [n, 3, 3]``, centroids ``X0``) for the spots ``S [G, 3]`` with laser legs ``spot_opl [G]`` (m, 0 without
-    ``include_first_last``)."""
-    r_sv = np.linalg.norm(tri[:, None, :, :] - S[None, :, None, :], axis=3)  # [n, G, 3]
-    r_sx = np.linalg.norm(X0[:, None, :] - S[None, :, :], axis=2)  # [n, G]
-    base = spot_opl[None, :] + 0.75 * (r_sx - (r_sv[:, :, 0] + r_sv[:, :, 1] + r_sv[:, :, 2]) / 3.0)
-    return np.ascontiguousarray((base[:, :, None] + r_sv) / bin_m - t_origin_bins), r_sv, r_sx
+    ``include_first_last``). One pass over the (element, spot) combinations (a confocal capture has one per element
+    and pixel), in the order and rounding of the numpy expressions in :func:`_spot_knots` (same bytes)."""
+    n, G = len(tri), len(S)
+    B, r_sv, r_sx = np.empty((n, G, 3)), np.empty((n, G, 3)), np.empty((n, G))
+    _spot_knots(np.ascontiguousarray(tri, dtype=np.float64), np.ascontiguousarray(X0, dtype=np.float64),
+                np.ascontiguousarray(S, dtype=np.float64), np.ascontiguousarray(spot_opl, dtype=np.float64),
+                float(bin_m), float(t_origin_bins), B, r_sv, r_sx)
+    return B, r_sv, r_sx
+
+
+@numba.njit(cache=True, fastmath=False)
+def _dist(a0, a1, a2, b0, b1, b2):
+    """``|a - b|`` summed as numpy's ``norm`` along a length-3 axis: ``sqrt((d0^2 + d1^2) + d2^2)``."""
+    d0, d1, d2 = a0 - b0, a1 - b1, a2 - b2
+    return np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _spot_knots(tri, X0, S, spot_opl, bin_m, t_origin_bins, B, r_sv, r_sx):
+    """:func:`spot_knots` into ``B``, ``r_sv``, ``r_sx``: ``r_sv = |V - S|``, ``r_sx = |X0 - S|``, ``base =
+    spot_opl + 0.75 (r_sx - (r_sv0 + r_sv1 + r_sv2) / 3)``, ``B = (base + r_sv) / bin_m - t_origin_bins``
+    (single-threaded: a few nanoseconds per combination, less than a parallel launch costs on a busy machine)."""
+    for e in range(tri.shape[0]):
+        for s in range(S.shape[0]):
+            s0, s1, s2 = S[s, 0], S[s, 1], S[s, 2]
+            for v in range(3):
+                r_sv[e, s, v] = _dist(tri[e, v, 0], tri[e, v, 1], tri[e, v, 2], s0, s1, s2)
+            rx = _dist(X0[e, 0], X0[e, 1], X0[e, 2], s0, s1, s2)
+            r_sx[e, s] = rx
+            base = spot_opl[s] + 0.75 * (rx - (r_sv[e, s, 0] + r_sv[e, s, 1] + r_sv[e, s, 2]) / 3.0)
+            for v in range(3):
+                B[e, s, v] = (base + r_sv[e, s, v]) / bin_m - t_origin_bins

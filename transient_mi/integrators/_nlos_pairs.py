@@ -19,10 +19,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from transient_mi.integrators._nlos_elements import sample_points
-from transient_mi.integrators._nlos_pair_kernels import (pair_geometry, pairs_lit, spot_knots, spread_group,
-                                                         visibility_mask)
-from transient_mi.integrators._nlos_surfaces import (ElementSurfaces, WallCells, sample_visibility,
-                                                     spot_intensity)
+from transient_mi.integrators._nlos_pair_kernels import pair_geometry, pairs_lit, spot_knots, spread_group
+from transient_mi.integrators._nlos_surfaces import ElementSurfaces, WallCells, spot_intensities, visibility_masks
 
 if TYPE_CHECKING:
     import mitsuba as mi
@@ -46,11 +44,12 @@ def chunk_starts(n_cells: int, n: int):
     return [(e0, min(n, e0 + per)) for e0 in range(0, n, per)]
 
 
-def spot_visibility(scene, setup, spots, pts: np.ndarray) -> np.ndarray:
-    """Visibility of every element's four samples from the laser spots ``spots``: ``bool [n, G, 4]``."""
+def spot_masks(scene, setup, spots, pts: np.ndarray) -> np.ndarray:
+    """Visibility masks of every element's four samples from the laser spots ``spots``: ``uint8 [n, G]``
+    (:func:`~._nlos_surfaces.visibility_masks`, element-major)."""
     S = np.asarray(setup.spots, dtype=np.float64)[list(spots)]
-    v = sample_visibility(scene, S, setup.frame.normal, pts, 0, len(pts))
-    return np.ascontiguousarray(v.reshape(len(S), len(pts), 4).transpose(1, 0, 2))
+    return visibility_masks(scene, S, setup.frame.normal, pts, 0, len(pts), element_major=True).reshape(len(pts),
+                                                                                                       len(S))
 
 
 class LevelElements:
@@ -68,7 +67,7 @@ class LevelElements:
 
 class SpotSide:
     """Per element and spot of the group ``spots`` (element-major ``[n, G]``): visibility ``vis [n, G]`` (uint8
-    masks of the samples seen from the spot, :func:`~._nlos_pair_kernels.visibility_mask`), the spot's intensity
+    masks of the samples seen from the spot, :func:`~._nlos_surfaces.visibility_masks`), the spot's intensity
     ``intensity`` (``f_S cos`` towards the centroid), ``r_sv [n, G, 3]`` and ``r_sx`` (m), ``sw`` =
     intensity / r_sx^2, the knots' laser parts ``B [n, G, 3]`` (bins); for Lambertian elements ``fx_e`` and
     ``side_s`` (:meth:`~._nlos_surfaces.ElementSurfaces.toward`), zeros otherwise."""
@@ -81,7 +80,7 @@ class SpotSide:
         beam = np.asarray(setup.spot_targets, dtype=np.float64)[self.spots] - self.Lo
         self.beam = beam / np.linalg.norm(beam, axis=1, keepdims=True)
         self.laser_leg = np.linalg.norm(self.S - self.Lo, axis=1)  # [G]
-        self.vis = visibility_mask(spot_visibility(scene, setup, self.spots, lv.pts))
+        self.vis = spot_masks(scene, setup, self.spots, lv.pts)
         self.intensity = np.asarray(self.intensity_ad(scene, lv.X0), dtype=np.float64).reshape(n, G)
         self.B, self.r_sv, self.r_sx = spot_knots(lv.tri, lv.X0, self.S, g.fl * self.laser_leg, g.bin_m,
                                        g.t0_m / g.bin_m - g.pad)
@@ -94,9 +93,7 @@ class SpotSide:
     def intensity_ad(self, scene, X0: np.ndarray) -> "mi.Float":
         """The spots' intensities towards every centroid ``X0``, element-major ``[n * G]`` (the laser ray to each
         spot, ``wi`` towards the laser; attached inside ``dr.resume_grad``)."""
-        G, n = len(self.S), len(X0)
-        s = np.tile(np.arange(G), n)
-        return spot_intensity(scene, self.Lo, self.beam[s], self.S[s], np.repeat(X0, G, axis=0))
+        return spot_intensities(scene, self.Lo, self.beam, self.S, X0)
 
 
 class Chunk:
@@ -124,11 +121,11 @@ class Chunk:
         lit = pairs_lit(self.geo, self.cos_p, self.side_x, e0, self.ne, self.per_pixel, side.vis, side.side_s,
                         wall.lambertian, lv.surf.lambertian, confocal)
         if lit.all():
-            self.vis_p = visibility_mask(sample_visibility(scene, g.cell_p, g.normal, lv.pts, e0, e1))
+            self.vis_p = visibility_masks(scene, g.cell_p, g.normal, lv.pts, e0, e1)
         else:
             self.vis_p = np.zeros(self.n, dtype=np.uint8)
             idx = np.flatnonzero(lit)
-            self.vis_p[idx] = visibility_mask(sample_visibility(scene, g.cell_p, g.normal, lv.pts, e0, e1, idx))
+            self.vis_p[idx] = visibility_masks(scene, g.cell_p, g.normal, lv.pts, e0, e1, idx)
 
     def spot_of_pair(self) -> np.ndarray:
         """Confocal captures: each pair's spot (its pixel's: spot ``k`` lies on pixel ``k``'s patch)."""

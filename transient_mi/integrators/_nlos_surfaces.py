@@ -93,46 +93,60 @@ def bsdf_value(si, wo) -> "mi.Float":
     return to_mono(si.bsdf().eval(mi.BSDFContext(), si, si.to_local(w)), si.wavelengths)
 
 
-def spot_intensity(scene, laser_origin: np.ndarray, beam_dir: np.ndarray, spot: np.ndarray,
-                   targets: np.ndarray) -> "mi.Float":
-    """``f_S cos(theta_SX)`` of the wall at the laser spot (hit along ``beam_dir`` from ``laser_origin``, ``wi``
-    towards the laser) towards each of ``targets`` ``[n, 3]`` seen from ``spot`` (radiant intensity per photon)."""
-    n = len(targets)
-    ray = mi.Ray3f(mi.Point3f(_v3(np.broadcast_to(laser_origin, (n, 3)))), _v3(np.broadcast_to(beam_dir, (n, 3))))
+def spot_intensities(scene, laser_origin: np.ndarray, beam_dir: np.ndarray, spots: np.ndarray,
+                     targets: np.ndarray) -> "mi.Float":
+    """``f_S cos(theta_SX)`` of the wall at each laser spot ``spots [G, 3]`` (hit along ``beam_dir [G, 3]`` from
+    ``laser_origin``, ``wi`` towards the laser) towards every target ``targets [n, 3]`` (radiant intensity per
+    photon), target-major ``[n * G]``. One laser ray per spot: the wall's interaction there is gathered for each
+    (target, spot), not traced again (a confocal capture has a spot per pixel: n x G rays before)."""
+    G, n = len(spots), len(targets)
+    ray = mi.Ray3f(mi.Point3f(_v3(np.broadcast_to(laser_origin, (G, 3)))), _v3(beam_dir))
     sig = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
-    to_x = targets - spot
-    return bsdf_value(sig, to_x / np.linalg.norm(to_x, axis=1, keepdims=True))
+    si = dr.gather(type(sig), sig, dr.arange(mi.UInt32, n * G) % dr.opaque(mi.UInt32, G))
+    i = dr.arange(mi.UInt32, n * G)
+    t = i // dr.opaque(mi.UInt32, G)
+    w, _ = _unit32([a - b for a, b in zip(_gather3(_d3(targets), t), _gather3(_d3(spots), i - t * G))])
+    return bsdf_value(si, w)
 
 
-def sample_visibility(scene, origins: np.ndarray, normal: np.ndarray, pts: np.ndarray, e0: int, e1: int,
-                      pairs: np.ndarray | None = None) -> np.ndarray:
+def visibility_masks(scene, origins: np.ndarray, normal: np.ndarray, pts: np.ndarray, e0: int, e1: int,
+                     pairs: np.ndarray | None = None, element_major: bool = False) -> np.ndarray:
     """Visibility of the elements ``e0:e1``'s four samples from every origin (on the relay wall: cell centres,
-    laser spots), ``bool [n_origins * (e1 - e0), 4]`` origin-major (pair ``o * (e1 - e0) + e - e0``); with
-    ``pairs`` (indices in that order) only those pairs, ``bool [len(pairs), 4]``.
+    laser spots) as masks, ``uint8 [n_pairs]``: bit ``j`` set when sample ``j`` (0 the centroid) is visible. Pairs
+    origin-major (pair ``o * (e1 - e0) + e - e0``; with ``pairs``, indices in that order, only those), or with
+    ``element_major`` every (element, origin) combination element-major (pair ``(e - e0) * n_origins + o``: the
+    laser side's ``[n, G]`` layout).
 
     A sample is visible when Mitsuba's shadow-ray test (``scene.ray_test``) finds no surface along the ray from
     the origin (offset ``WALL_OFFSET_M`` along the wall's ``normal``) before ``1 - VISIBILITY_REL_TOL`` of the
     distance to the sample (the sample lies on its own surface, so the ray is not tested there). The rays are
     built in float64 from ``pts`` (``[n, 4, 3]``, all elements' samples, centroid first) and cast to float32 in
-    the launch that traces them.
+    the launch that traces them; the four bits are combined there too.
     """
-    ne = e1 - e0
-    n_pairs = len(origins) * ne if pairs is None else len(pairs)
+    ne, no = e1 - e0, len(origins)
+    n_pairs = no * ne if pairs is None else len(pairs)
     if n_pairs == 0:
-        return np.zeros((0, 4), dtype=bool)
+        return np.zeros(0, dtype=np.uint8)
     org = _d3(np.asarray(origins, dtype=np.float64) + WALL_OFFSET_M * np.asarray(normal, dtype=np.float64))
     tgt = _d3(pts[e0:e1].reshape(-1, 3))
-    j = dr.arange(mi.UInt32, n_pairs * 4)
-    k = j // 4
-    pair = k if pairs is None else dr.gather(mi.UInt32, _u(pairs), k)
-    ne_o = dr.opaque(mi.UInt32, ne)
-    o_i = pair // ne_o
+    pair = dr.arange(mi.UInt32, n_pairs) if pairs is None else _u(pairs)
+    if element_major:
+        no_o = dr.opaque(mi.UInt32, no)
+        e_i = pair // no_o
+        o_i = pair - e_i * no_o
+    else:
+        ne_o = dr.opaque(mi.UInt32, ne)
+        o_i = pair // ne_o
+        e_i = pair - o_i * ne_o
     o = _gather3(org, o_i)
-    t = _gather3(tgt, (pair - o_i * ne_o) * 4 + (j - k * 4))
-    d, r = _unit32([t[0] - o[0], t[1] - o[1], t[2] - o[2]])
-    ray = mi.Ray3f(mi.Point3f(mi.Float(o[0]), mi.Float(o[1]), mi.Float(o[2])), d,
-                   mi.Float(r) * (1.0 - VISIBILITY_REL_TOL), 0.0, [])
-    return np.asarray(~scene.ray_test(ray)).reshape(-1, 4)
+    mask = mi.UInt32(0)
+    for j in range(4):
+        t = _gather3(tgt, e_i * 4 + j)
+        d, r = _unit32([t[0] - o[0], t[1] - o[1], t[2] - o[2]])
+        ray = mi.Ray3f(mi.Point3f(mi.Float(o[0]), mi.Float(o[1]), mi.Float(o[2])), d,
+                       mi.Float(r) * (1.0 - VISIBILITY_REL_TOL), 0.0, [])
+        mask |= dr.select(scene.ray_test(ray), 0, 1 << j)
+    return np.asarray(mask).astype(np.uint8)
 
 
 class ElementSurfaces:
@@ -184,10 +198,14 @@ class ElementSurfaces:
         return _eval_local(si, si.wi)
 
     def _towards(self, S: np.ndarray):
+        """The centroids' interactions with ``wi`` towards each spot ``S [G, 3]``, element-major ``[n * G]``
+        (gathered in Dr.Jit from one copy of the spots and the centroids)."""
         G = len(S)
-        e = np.repeat(np.arange(self.n), G)
-        si = dr.gather(type(self.si), self.si, _u(e))
-        w, _ = _unit32([a - b for a, b in zip(_d3(S[np.tile(np.arange(G), self.n)]), _d3(self.X0[e]))])
+        i = dr.arange(mi.UInt32, self.n * G)
+        g = dr.opaque(mi.UInt32, G)
+        e = i // g
+        si = dr.gather(type(self.si), self.si, e)
+        w, _ = _unit32([a - b for a, b in zip(_gather3(_d3(S), i - e * g), _gather3(_d3(self.X0), e))])
         si.wi = si.to_local(w)
         return si
 
