@@ -100,7 +100,7 @@ def _capture_model(capture, v, f, settings, bin_width_ps):
 
     try:  # (always the quadrature, whatever settings.estimator says: see the module docstring)
         return CaptureModel(capture, np.asarray(f, dtype=np.uint32), len(v), bin_width_ps=bin_width_ps,
-                            estimator="quadrature", element_size_m=settings.element_size_m)
+                            estimator="quadrature", element_size_m=settings.element_size_m, dead_time="renewal")
     except UserInputError as e:
         if not str(e).startswith("estimator=quadrature:"):
             raise
