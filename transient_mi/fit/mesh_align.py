@@ -18,7 +18,8 @@ Parameters and objective
 centroid; ``A = I``, ``t = 0`` at the start) and the reflectance ``rho = exp(log rho)`` (within 0.01 to 1).
 The objective is the fit's data term (:mod:`~transient_mi.fit.capture_model`) written as a sum of squares,
 ``0.5 |r|^2`` with ``r = sqrt(w) (blur(mu) - k)``; the regularisers are not part of it (an affine map keeps a
-flat mesh flat and a smooth one smooth). The Jacobian ``dr/dp`` is taken by forward differences of the
+flat mesh flat and a smooth one smooth). The Jacobian is held in memory, ``13`` numbers per (spot, pixel, bin):
+about 170 MB for 16 x 16 pixels, 16 spots and 400 bins. The Jacobian ``dr/dp`` is taken by forward differences of the
 deterministic forward model (13 renders, no derivative pass: a quadrature render costs a fraction of its
 reverse pass), the step is Levenberg-Marquardt's ``(J^T J + lambda diag(J^T J)) dp = -J^T r``, accepted when
 the objective falls (else ``lambda`` grows four times, the trust radius halves, and the step is tried again, at
@@ -42,8 +43,9 @@ __all__ = ["affine_vertices", "align_affine"]
 #: Forward-difference steps: the linear part's entries (dimensionless: about 0.2 mm at 20 cm from the
 #: centroid), the translation (m), the log reflectance.
 FD_STEPS = (1e-3, 5e-4, 1e-2)
-#: Trust region: a step moves no vertex by more than this (m), doubled after an accepted step (up to
-#: ``MAX_TRUST_M``), halved after a rejected one; the reflectance changes by at most a factor ``e^0.5`` a step.
+#: Trust region: a step moves no vertex by more than this (m), doubled after a step whose decrease is at least
+#: 3/4 of the Gauss-Newton model's (up to ``MAX_TRUST_M``), halved after a rejected one; the reflectance changes
+#: by at most a factor ``e^0.5`` a step.
 START_TRUST_M = 0.05
 MAX_TRUST_M = 0.15
 MAX_LOG_ALBEDO_STEP = 0.5
