@@ -25,6 +25,7 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
    ``fit.png``         front views (depth maps): ground truth, backprojection, fit
    ``views.png``       start, fit and ground truth from the front, the top and the side
    ``checkpoint.json`` the optimiser's state; ``stage.json`` the current stage's start mesh (``--resume``)
+   ``align.json``      the aligned vertices, reflectance, objective per iteration and time of the alignment
 """
 
 from __future__ import annotations
