@@ -98,6 +98,70 @@ class ExpectedCounts:
         return m.params.pde * m.gate_slots[None, :T] * g_lam[:, :T]
 
 
+class RenewalExpectedCounts(ExpectedCounts):
+    """:class:`ExpectedCounts` with the dead time that blinds whole cycles after a detection (the detector's
+    ``clean`` regime, :mod:`spad_detector.engines.analytic`), and its derivative.
+
+    After a recorded avalanche the detector (SPAD or TCSPC, whichever the analytic engine's
+    :func:`~spad_detector.engines.analytic.classify` finds) is blind for ``m`` whole cycles; in a ready cycle
+    it records with probability ``P = sum_j p_j`` (Coates). Over ``N`` cycles the renewal count has the mean
+    ``N P / (1 + m P)`` (to ``O(1)`` cycles at the start), shared among the bins as ``p_j / P``:
+
+    ``mean_j = N jitter(p)_j / (1 + m P)``.
+
+    This is the mean the analytic engine samples from, exactly where its regime is ``clean``; pixels of
+    another regime (``m = -1``: the dead time does not blind whole cycles) get the first-order factor
+    ``1 / (1 + P D)`` (``D`` the longer dead time in periods, beyond the first), held constant in the
+    derivative. The vector-Jacobian product adds the factor's own derivative,
+    ``d/dp_k [1 / (1 + m P)] = -m / (1 + m P)^2`` for every slot ``k``: at ``P`` near 1 (a bright pixel at
+    a long exposure) it is as large as the rest (the total count ``N P / (1 + m P)`` saturates at ``N / m``).
+    """
+
+    def blind(self, ideal: np.ndarray) -> np.ndarray:
+        """``[P]`` whole cycles blinded after a detection (-1 where the regime is not ``clean``)."""
+        from .engines.analytic import CLEAN, NONE, classify
+
+        c = classify(self.model, self.model.intensity(np.asarray(ideal, dtype=np.float64)), int(self.n_pulses))
+        return np.where(c["regime"] == NONE, 0, np.where(c["regime"] == CLEAN, c["blind"], -1))
+
+    def _factor(self, p: np.ndarray, m: np.ndarray) -> np.ndarray:
+        P = p.sum(axis=-1)
+        mod = self.model
+        D = max(mod.spad_dead_time_ps, mod.tcspc_dead_time_ps) / mod.grid.period_ps - 1.0
+        return np.where(m >= 0, 1.0 / (1.0 + np.maximum(m, 0) * P), 1.0 / (1.0 + max(D, 0.0) * P))
+
+    def __call__(self, ideal: np.ndarray) -> np.ndarray:
+        """Mean counts ``[P, T]`` (float64)."""
+        _, _, p = self._probabilities(ideal)
+        return super().__call__(ideal) * self._factor(p, self.blind(ideal))[:, None]
+
+    def vjp(self, ideal: np.ndarray, grad_mean: np.ndarray) -> np.ndarray:
+        """``d<grad_mean, mean(ideal)> / d ideal``, shape ``[P, T]`` (float64)."""
+        m = self.blind(ideal)
+        _, _, p = self._probabilities(ideal)
+        s = self._factor(p, m)
+        g = np.asarray(grad_mean, dtype=np.float64)
+        base = super().__call__(ideal)  # N jitter(p)
+        # d mean_j / d p_k = s (N jitter)_jk - N jitter(p)_j m s^2: the second term is the same for every
+        # slot k, i.e. a constant added to dL/dp; ExpectedCounts.vjp takes dL/d(N jitter(p)), so the constant
+        # enters as a per-slot gradient c, carried through the Coates chain by _vjp_p.
+        c = -np.where(m >= 0, np.maximum(m, 0), 0) * s * s * np.sum(g * base, axis=-1)
+        return self._vjp_p(ideal, s[:, None] * g, c)
+
+    def _vjp_p(self, ideal: np.ndarray, g: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """``d/d ideal`` of ``<g, N jitter(p)> + sum_k c p_k`` (``c [P]`` per pixel, over every slot)."""
+        mod = self.model
+        T = mod.grid.n_bins
+        g_p = np.zeros((g.shape[0], mod.grid.n_slots))
+        g_p[:, :T] = self.n_pulses * _jitter_adjoint(g, mod.kernel_first, mod.kernel)
+        g_p += c[:, None]
+        lam, survive, p = self._probabilities(ideal)
+        gp_p = g_p * p
+        later = np.cumsum(gp_p[:, ::-1], axis=-1)[:, ::-1] - gp_p
+        g_lam = g_p * survive * np.exp(-lam) - later
+        return mod.params.pde * mod.gate_slots[None, :T] * g_lam[:, :T]
+
+
 def poisson_nll(mean: np.ndarray, counts: np.ndarray) -> float:
     """``sum(mean - counts log mean + log counts!)``; bins with ``mean = 0`` and ``counts > 0`` give inf."""
     mu = np.asarray(mean, dtype=np.float64)
@@ -115,4 +179,4 @@ def poisson_nll_grad(mean: np.ndarray, counts: np.ndarray) -> np.ndarray:
         return np.where(k > 0, 1.0 - k / mu, 1.0)
 
 
-__all__ = ["ExpectedCounts", "poisson_nll", "poisson_nll_grad"]
+__all__ = ["ExpectedCounts", "RenewalExpectedCounts", "poisson_nll", "poisson_nll_grad"]

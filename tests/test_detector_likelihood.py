@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from spad_detector import DetectorParams, expected_counts_low_flux
-from spad_detector.likelihood import ExpectedCounts, poisson_nll, poisson_nll_grad
+from spad_detector.likelihood import ExpectedCounts, RenewalExpectedCounts, poisson_nll, poisson_nll_grad
 from spad_detector.model import build_model
 
 BW, T, T0 = 4.0, 96, 1000.0
@@ -83,3 +83,46 @@ def test_chain_gradient_of_the_likelihood_with_respect_to_the_ideal_capture():
     h = 1e-4
     fd = (poisson_nll(layer(x + h * v), k) - poisson_nll(layer(x - h * v), k)) / (2 * h)
     assert np.sum(grad * v) == pytest.approx(fd, rel=1e-5)
+
+
+def _renewal_layer(pulses=10_000):
+    """The paper's dead times (SPAD 10 ns, TCSPC 50 ns) at 50 MHz behind a 260 ps gate: the TCSPC blinds two
+    whole cycles after each detection (the analytic engine's ``clean`` regime)."""
+    p = DetectorParams(pde=0.7, jitter_ps=25.0, dark_count_rate_cps=25.0, gate_open_ps=T0 + 40.0,
+                       gate_close_ps=T0 + 300.0, gate_transition_ps=20.0, repetition_rate_hz=50e6).validate()
+    return RenewalExpectedCounts(build_model(p, bin_width_ps=BW, n_bins=T, t0_ps=T0), pulses)
+
+
+@pytest.mark.parametrize("scale", [1e-5, 2e-2])
+def test_renewal_vjp_matches_central_differences(scale):
+    """The whole-blind-cycles mean's derivative, its factor ``1 / (1 + m P)`` included (float64, step 1e-4
+    relative to the light: truncation ~1e-8, tolerance 1e-6)."""
+    layer = _renewal_layer()
+    x = _ideal(scale)
+    assert np.all(layer.blind(x) == 2)
+    rng = np.random.default_rng(1)
+    g, v = rng.standard_normal((3, T)), rng.standard_normal((3, T)) * scale
+    h = 1e-4
+    fd = (np.sum(g * layer(x + h * v)) - np.sum(g * layer(x - h * v))) / (2 * h)
+    assert np.sum(layer.vjp(x, g) * v) == pytest.approx(fd, rel=1e-6, abs=1e-12)
+
+
+def test_renewal_mean_is_the_analytic_engines_mean():
+    """The analytic engine's counts (exact renewal draws) of 64 saturated pixels (P 0.5 to 0.88 per cycle)
+    against the layer's mean: the total within 5 standard deviations (the renewal count's variance is below
+    its mean, so sqrt(total mean) bounds it; false-failure rate < 1e-6). The first-order factor of the
+    fit's capture model (``1 / (1 + 1.5 P)``) is 17 % (75 standard deviations) too high here."""
+    from spad_detector.engines.analytic import run_analytic
+
+    layer = _renewal_layer()
+    rng = np.random.default_rng(5)
+    x = np.zeros((64, T))
+    x[:, 30:40] = rng.uniform(0.1, 0.3, size=(64, 1))
+    mean = layer(x)
+    counts, info = run_analytic(layer.model, x, int(layer.n_pulses), np.random.default_rng(6), (8, 8))
+    assert info["pixels_by_regime"]["whole_blind_cycles"] == 64, info
+    total, sd = float(mean.sum()), float(np.sqrt(mean.sum()))
+    assert abs(counts.sum() - total) <= 5 * sd, (counts.sum(), total, sd)
+    first_order = float((ExpectedCounts(layer.model, layer.n_pulses)(x) / (1 + 1.5 * layer._probabilities(x)[2].sum(
+        -1, keepdims=True))).sum())
+    assert abs(first_order - total) > 50 * sd

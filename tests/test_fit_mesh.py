@@ -113,10 +113,10 @@ def test_regularized_objective_gradient_against_central_differences(capture):
     """d(data + S R)/dtheta (the quadrature's vertex and reflectance derivative through the detector layer, the
     temporal blur and the large-steps map, plus the regularisers) against central differences of the same
     deterministic objective along random directions: steps of 0.25 mm (as the quadrature's own geometry
-    tests; float32 histograms) and relative tolerance 2e-3; no occluder, so no visibility sample changes. The
-    capture model holds its dead-time factor ``1 / (1 + p D)`` constant in the gradient (docs/fit.md), a relative
-    error of order ``p D``: along the reflectance, which scales every bin, it shows (measured 0.4 %), hence 1e-2
-    there."""
+    tests; float32 histograms) and relative tolerance 2e-3; no occluder, so no visibility sample changes. Along
+    the reflectance too: the free-mesh fit's detector layer differentiates its dead time (the whole blind
+    cycles' factor ``1 / (1 + m P)``, RenewalExpectedCounts; measured 8e-5 from central differences of step
+    0.01, their truncation). """
     v, f = _grid(3, 0.4)
     v = v + np.array([0.01, -0.01, 0.02]) + 0.005 * np.random.default_rng(2).normal(size=v.shape)
     cap = _capture_model(capture, v, f, SETTINGS, 16.0)
@@ -140,12 +140,12 @@ def test_regularized_objective_gradient_against_central_differences(capture):
     d = np.zeros_like(th)
     d[-1] = 1.0
     fd = (j(th + 0.01 * d) - j(th - 0.01 * d)) / 0.02
-    assert abs(g[-1] - fd) <= 1e-2 * abs(fd), (g[-1], fd)
+    assert abs(g[-1] - fd) <= 2e-3 * abs(fd), (g[-1], fd)
 
 
 def test_fit_recovers_a_displaced_plane(capture, tmp_path):
     """Started from the true square's 4 x 4-vertex grid pushed 4 cm away from the wall (a ``--start-mesh``
-    file), 24 iterations bring it back: the surface-to-surface Chamfer distance falls below a third of the
+    file), 24 iterations of the vertex stage alone (no alignment) bring it back: the surface-to-surface Chamfer distance falls below a third of the
     start's and the counts' Poisson NLL drops; every output is written."""
     from transient_mi.scenes._ply import write_ply
 
@@ -154,7 +154,7 @@ def test_fit_recovers_a_displaced_plane(capture, tmp_path):
     res = fit_capture(capture, tmp_path / "fit", model="mesh", bin_width_ps=16.0, progress=False, log=lambda *a: None,
                       settings=FitSettings(iterations=24, sigma_start_ps=120.0, element_size_m=0.05),
                       mesh=MeshSettings(start_mesh=str(tmp_path / "start.ply"), stages=1, cell_m=0.02,
-                                        step_m=0.004))
+                                        step_m=0.004, align=0))
     m = res["metrics"]
     assert m["fit"]["chamfer_mesh_m"] < m["start"]["chamfer_mesh_m"] / 3, m
     assert res["poisson_nll"]["fit"] < res["poisson_nll"]["start"]
@@ -164,21 +164,70 @@ def test_fit_recovers_a_displaced_plane(capture, tmp_path):
 
 
 def test_resume_after_a_subdivision_stage(capture, tmp_path):
-    """Two iterations in two stages (the mesh subdivided after the first); resuming the finished fit does
-    nothing more; other settings are refused."""
+    """Two alignment iterations, then two iterations in two stages (the mesh subdivided after the first);
+    resuming the finished fit does nothing more; other settings are refused."""
     out = tmp_path / "fit"
-    kw = dict(model="mesh", bin_width_ps=16.0, progress=False, log=lambda *a: None, settings=SETTINGS)
+    kw = dict(model="mesh", bin_width_ps=16.0, progress=False, log=lambda *a: None, settings=SETTINGS,
+              mesh=MeshSettings(align=2))
     r1 = fit_capture(capture, out, **kw)
     assert r1["parameters"]["fit"]["n_faces"] == 4 * r1["parameters"]["start"]["n_faces"]
+    assert len(r1["align"]["objective"]) == 2 and (out / "aligned.ply").is_file()
     r2 = fit_capture(capture, out, resume=True, **kw)
     assert len(r2["history"]["objective"]) == 2
     with pytest.raises(UserInputError, match="other settings"):
-        fit_capture(capture, out, resume=True, **{**kw, "mesh": MeshSettings(stages=1)})
+        fit_capture(capture, out, resume=True, **{**kw, "mesh": MeshSettings(stages=1, align=2)})
+
+
+@pytest.fixture(scope="module")
+def capture_8x8(tmp_path_factory):
+    """The tilted plane on 8 x 8 pixels of 4 cm, one laser spot, 250 bins of 32 ps, the paper's detector for
+    10 ms (about 2 s to render)."""
+    from spad_detector import detect_stack
+    from transient_mi.paper import paper_detector
+    from transient_mi.render_capture import render
+    from transient_mi.scenes import scene_path
+
+    d = tmp_path_factory.mktemp("meshcap8")
+    ideal = render(scene_path("nlos_tilted_plane"), d / "ideal", progress=False,
+                   defines={"width": "8", "height": "8", "spots_x": "1", "spots_y": "1", "pixel_footprint_m": "0.04",
+                            "aperture_diameter_m": "0.005", "n_bins": "250", "bin_width_ps": "32", "t0_ps": "10500",
+                            "estimator": "quadrature", "element_size_m": "0.04", "patch_cells": "2"})
+    return detect_stack(ideal, d / "counts", paper_detector(), exposure_s=0.01, seed=0, progress=False)
+
+
+def _tilt_deg_and_depth(v):
+    """Tilt about the vertical (degrees) and depth at x = y = 0 (m) of the least-squares plane through ``v``."""
+    c = np.linalg.lstsq(np.c_[v[:, 0], v[:, 1], np.ones(len(v))], v[:, 2], rcond=None)[0]
+    return math.degrees(math.atan(-c[0])), float(c[2])
+
+
+def test_alignment_recovers_a_planes_tilt(capture_8x8):
+    """The square turned 30 degrees about the vertical, started at half its tilt (15 degrees, same centre,
+    same size, the reflectance matched to the counts as the fit does): 6 Levenberg-Marquardt iterations of the
+    affine alignment (mesh_align, with the detector's whole-blind-cycles dead time) bring its tilt to within 4
+    degrees and its centre's depth within 1.5 cm (measured: 26.9 degrees, 0.489 m, reflectance 0.63, in about
+    20 s). The vertex stage (Adam) does not: from the same start 20 iterations (about 15 s) leave the tilt at 15.1
+    degrees, move the plane 3 cm nearer and dim it (reflectance 0.52 -> 0.41; docs/fit.md). Deterministic
+    (quadrature renders, a fixed detection seed)."""
+    from transient_mi.fit.mesh_align import align_affine
+    from transient_mi.fit.mesh_fit import _match_albedo, _model
+
+    v, f = _grid(4, 0.4, tilt_deg=15.0)
+    st = FitSettings(iterations=10, element_size_m=0.06)
+    cap = _capture_model(capture_8x8, v, f, st, 32.0)
+    cap.set_element_size(0.06)
+    a0 = _match_albedo(_model(v, f, 0.5, MeshSettings(), 1.0), cap, st)
+    cap.set_element_size(0.06)
+    x, albedo, hist = align_affine(cap, v, a0, iterations=6, sigma_start_ps=120.0, sigma_end_ps=30.0)
+    tilt, depth = _tilt_deg_and_depth(x)
+    assert abs(tilt - 30.0) <= 4.0 and abs(depth - 0.5) <= 0.015, (tilt, depth, albedo)
+    assert hist[-1][0] < hist[0][0]
 
 
 @pytest.mark.parametrize("mesh,words", [
     (MeshSettings(start="middle"), ["--start", "middle", "front, closed"]),
     (MeshSettings(stages=5), ["stages=5", "1 to 3"]),
+    (MeshSettings(align=-1), ["align=-1", "0 to 100"]),
     (MeshSettings(cell_m=0.0), ["cell_m=0.0", "0.005 to 0.5"]),
     (MeshSettings(start_mesh="/nonexistent/surface.ply"), ["--start-mesh", "no such file"]),
 ])

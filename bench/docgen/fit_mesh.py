@@ -23,37 +23,49 @@ def fit_mesh_plane_table(R) -> str:
     return _table(R("fit_mesh_tilted_plane"))
 
 
-def fit_mesh_plane_vertex_table(R) -> str:
-    """The tilted plane with one Adam second moment per vertex (``moments="vertex"``)."""
-    return _table(R("fit_mesh_tilted_plane_vertex"))
-
-
 def _table(rec) -> str:
     r = rec["result"]
     m = r["metrics"]
     t = r["targets"]
-    rows = ["| | fit | start (backprojection's front surface) | backprojection "
-            "| target (full-size capture) |",
-            "|---|---|---|---|---|",
-            f"| Chamfer, surface to surface | {_cm(m['fit']['chamfer_mesh_m'])} | {_cm(m['start']['chamfer_mesh_m'])} "
-            f"| | <= {_cm(t['chamfer_mesh_m_max'])}: {'met' if t['met']['chamfer'] else 'not met'} |",
-            f"| Chamfer (voxels) | {_cm(m['fit']['chamfer_m'])} | {_cm(m['start']['chamfer_m'])} "
-            f"| {_cm(m['backprojection']['chamfer_m'])} | |",
-            f"| silhouette IoU | {_f(m['fit']['silhouette_iou'])} | {_f(m['start']['silhouette_iou'])} "
-            f"| {_f(m['backprojection']['silhouette_iou'])} | >= {t['silhouette_iou_min']:g}: "
-            f"{'met' if t['met']['silhouette_iou'] else 'not met'} |",
-            f"| occupancy IoU | {_f(m['fit']['iou'])} | {_f(m['start']['iou'])} | {_f(m['backprojection']['iou'])} | |",
-            f"| depth MAE | {_cm(m['fit']['depth_mae_m'])} | {_cm(m['start']['depth_mae_m'])} "
-            f"| {_cm(m['backprojection']['depth_mae_m'])} | |"]
+    cols = ["fit"] + (["aligned"] if "aligned" in m else []) + ["start"]
+    names = {"fit": "fit", "aligned": "aligned (affine map and reflectance)",
+             "start": "start (backprojection's front surface)"}
+
+    def row(label, key, fmt, bp=True, target=""):
+        cells = " | ".join(fmt(m[c][key]) for c in cols)
+        return f"| {label} | {cells} | {fmt(m['backprojection'][key]) if bp else ''} | {target} |"
+
+    rows = ["| | " + " | ".join(names[c] for c in cols) + " | backprojection | target (full-size capture) |",
+            "|---" * (len(cols) + 3) + "|",
+            row("Chamfer, surface to surface", "chamfer_mesh_m", _cm, bp=False,
+                target=f"<= {_cm(t['chamfer_mesh_m_max'])}: {'met' if t['met']['chamfer'] else 'not met'}"),
+            row("Chamfer (voxels)", "chamfer_m", _cm),
+            row("silhouette IoU", "silhouette_iou", _f,
+                target=f">= {t['silhouette_iou_min']:g}: {'met' if t['met']['silhouette_iou'] else 'not met'}"),
+            row("occupancy IoU", "iou", _f),
+            row("depth MAE", "depth_mae_m", _cm)]
     nll = r["poisson_nll"]
     scene = r["scene"].removeprefix("nlos_").replace("_", " ")
     variant = (f", one second moment per vertex, {1000 * r['step_m']:g} mm steps"
                if r.get("moments") == "vertex" else "")
+    align = (f"{r['align']} alignment iterations ({r['time_s']['align']:.0f} s), then "
+             if r.get("align") else "")
     head = (f"The {scene} at a small configuration ({r['width']} x {r['width']} pixels of {32 / r['width']:g} cm, "
             f"{r['spots']} x {r['spots']} laser spots, the paper's detector for {r['exposure_ms']:g} ms per spot, the "
-            f"capture rendered by the quadrature); {r['iterations']} iterations in {r['stages']} stages from "
+            f"capture rendered by the quadrature); {align}{r['iterations']} iterations in {r['stages']} stages from "
             f"{r['cell_m'] * 100:g} cm cells ({r['n_faces']['start']} -> {r['n_faces']['fit']} triangles){variant}, "
             f"{r['time_s']['fit_wall']:.0f} s (fit, wall):")
+    alb = (f"reflectance {r['align_albedo']:.2f} aligned, {r['fit_albedo']:.2f} fitted" if r.get("align")
+           else f"fitted reflectance {r['fit_albedo']:.2f}")
+    dt = r.get("dead_time_check")
+    dead = ""
+    if dt:
+        def off(x):
+            return f"{100 * (x / dt['counts'] - 1):+.1f} %"
+        dead = (f"Dead time at the true shape (the capture's own rendered light through the detector layer): "
+                f"{dt['counts']:.4g} counts detected; the whole-blind-cycles mean (this fit's) predicts "
+                f"{dt['renewal']:.4g} ({off(dt['renewal'])}), the first-order factor (the models' fits') "
+                f"{dt['first_order']:.4g} ({off(dt['first_order'])}). ")
     return (head + "\n\n" + "\n".join(rows) + "\n\n"
-            f"Poisson NLL of the counts: {nll['start']:.6g} at the start, {nll['fit']:.6g} fitted; fitted reflectance "
-            f"{r['fit_albedo']:.2f}. " + provenance(rec))
+            f"Poisson NLL of the counts: {nll['start']:.6g} at the start, {nll['fit']:.6g} fitted; {alb}. " + dead
+            + provenance(rec))

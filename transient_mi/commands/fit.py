@@ -51,6 +51,9 @@ def fit_command(
                                help="--model mesh: resolution stages (the mesh subdivided between them), 1 to 3."),
     smoothing: float = typer.Option(10.0, "--smoothing", help="--model mesh: lambda of the large-steps "
                                     "parametrisation (0: per-vertex steps)."),
+    align: int = typer.Option(8, "--align", parser=whole_number("--align"), metavar="<int>",
+                              help="--model mesh: Levenberg-Marquardt iterations of the start's affine map and "
+                                   "reflectance before the vertices move, 0 to 100 (0: none)."),
     seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed."),
     resume: bool = typer.Option(False, "--resume", help="Continue the fit in OUT from its checkpoint."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier fit in OUT."),
@@ -65,7 +68,7 @@ def fit_command(
     from transient_mi.fit.mesh_fit import MeshSettings, check_mesh_options
 
     mesh = MeshSettings(start=start, start_mesh=None if start_mesh is None else str(start_mesh), cell_m=cell_m,
-                        stages=stages, smoothing=smoothing)
+                        stages=stages, smoothing=smoothing, align=align)
     check_mesh_options(mesh)  # whatever --model: a bad value is refused before any work
     result = fit_capture(capture, out, model=model, settings=settings, bin_width_ps=bin_width_ps, n_patches=patches,
                          patch_side_m=patch_side_m, resume=resume, overwrite=overwrite, progress=progress,

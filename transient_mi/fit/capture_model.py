@@ -79,8 +79,15 @@ class CaptureModel:
     """
 
     def __init__(self, capture_dir, faces: np.ndarray, n_vertices: int, *, bin_width_ps: float = 10.0,
-                 albedo: float = 0.5, estimator: str = "auto", element_size_m: float = 0.03):
+                 albedo: float = 0.5, estimator: str = "auto", element_size_m: float = 0.03,
+                 dead_time: str = "first_order"):
         self.capture_dir = Path(capture_dir)
+        if dead_time not in ("first_order", "renewal"):
+            raise ValueError(f"dead_time={dead_time!r}: expected first_order or renewal")
+        #: ``first_order``: the factor of :meth:`dead_time_factor`, held constant in the gradient (the model fits);
+        #: ``renewal``: the detector's whole-blind-cycles mean and its full derivative
+        #: (:class:`~spad_detector.likelihood.RenewalExpectedCounts`; the free-mesh fit).
+        self.dead_time = dead_time
         m = read_manifest(self.capture_dir)
         if m.get("kind") != "counts":
             raise UserInputError(f"capture {str(self.capture_dir)!r} holds {m.get('kind')!r} data; fit needs a "
@@ -125,7 +132,7 @@ class CaptureModel:
     # --- detector ---------------------------------------------------------------------------------------
 
     def _detector_setup(self, m: dict) -> None:
-        from spad_detector.likelihood import ExpectedCounts
+        from spad_detector.likelihood import ExpectedCounts, RenewalExpectedCounts
         from spad_detector.model import build_model
         from spad_detector.params import DetectorParams
 
@@ -145,7 +152,8 @@ class CaptureModel:
                                irf_tail_fraction=0.0)
             model = build_model(p, bin_width_ps=self.bin_width_ps, n_bins=self.n_bins, t0_ps=self.t0_ps,
                                 repetition_rate_hz=resolved.get("repetition_rate_hz"))
-            self.layers.append(ExpectedCounts(model, int(pulses)))
+            layer = RenewalExpectedCounts if self.dead_time == "renewal" else ExpectedCounts
+            self.layers.append(layer(model, int(pulses)))
         self.detector = params
 
     def dead_time_factor(self, ideal: np.ndarray) -> np.ndarray:
@@ -157,7 +165,13 @@ class CaptureModel:
         start; the paper's TCSPC dead time (50 ns at a 20 ns laser period) spans 2.5 periods, ``D = 1.5`` beyond
         the cycle of the event, which removes about ``D p`` of the counts (without the factor the model
         overestimates the demo's counts by 3.7 %, with it by 0.9 %). The fit treats the factor as a constant in the gradient (its own derivative
-        changes the gradient by a relative ``p D``, a few per cent)."""
+        changes the gradient by a relative ``p D``, a few per cent).
+
+        With ``dead_time="renewal"`` the layers hold the dead time themselves (the detector's whole blind cycles,
+        ``m = 2`` for the paper's TCSPC behind a gate under 10 ns wide, where ``D = 1.5`` would overestimate a
+        saturated pixel's counts by up to 20 %), and this factor is 1."""
+        if self.dead_time == "renewal":
+            return np.ones((ideal.shape[0], ideal.shape[1], 1))
         m = self.layers[0].model
         D = max(m.spad_dead_time_ps, m.tcspc_dead_time_ps) / m.grid.period_ps - 1.0
         if D <= 0:

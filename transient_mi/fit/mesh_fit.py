@@ -4,23 +4,28 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
 1. Start: a reconstruction's surface (:mod:`~transient_mi.fit.mesh_start`: the backprojection's front surface
    by default, a closed surface around its occupied voxels, or any mesh file such as a ``recon`` method's
    ``surface.ply``), at ``cell_m``; its reflectance is set so the model holds as many counts as the capture.
-2. Stages: Adam on the regularised objective (:mod:`~transient_mi.fit.mesh_optimize`), the mesh subdivided in
+2. Alignment (``align`` iterations, 8 by default; :mod:`~transient_mi.fit.mesh_align`): the start mesh's global
+   affine map and its reflectance by Levenberg-Marquardt, from the start blur to the end blur: depth, tilt,
+   extent and reflectance are coupled in the data, which a per-vertex first-order method follows slowly.
+3. Stages: Adam on the regularised objective (:mod:`~transient_mi.fit.mesh_optimize`), the mesh subdivided in
    four between stages; the forward model is the capture's (:class:`~transient_mi.fit.capture_model.CaptureModel`:
    its scene, detector, gate, dark counts, pile-up, dead time, jitter) with the deterministic three-bounce
    estimator (``estimator="quadrature"``, always, whatever ``FitSettings.estimator`` or ``--estimator`` say),
    whose vertex derivative holds the area change a free deformation makes (the Monte Carlo renderer's does not);
    a capture the quadrature cannot render is refused in one line.
-3. Outputs in the output directory, each file written atomically, ``fit.json`` last:
+4. Outputs in the output directory, each file written atomically, ``fit.json`` last:
 
    ``fit.json``        settings, the start and the fit summarised (vertices, faces, bounding box, reflectance),
                        the objective per iteration (data + regularisers), the Poisson NLL of the counts under
                        the start and the fit, metrics of the fit, of the start (its mesh voxelised on the same
                        grid) and of the backprojection against the scene's hidden shapes
-   ``fitted.ply``      the fitted mesh; ``start.ply`` the start mesh
+   ``fitted.ply``      the fitted mesh; ``start.ply`` the start mesh; ``aligned.ply`` the start after the
+                       alignment
    ``loss.png``        the objective per iteration and the temporal blur
    ``fit.png``         front views (depth maps): ground truth, backprojection, fit
    ``views.png``       start, fit and ground truth from the front, the top and the side
    ``checkpoint.json`` the optimiser's state; ``stage.json`` the current stage's start mesh (``--resume``)
+   ``align.json``      the aligned vertices, reflectance, objective per iteration and time of the alignment
 """
 
 from __future__ import annotations
@@ -41,8 +46,8 @@ from .optimize import FitState
 
 __all__ = ["MeshSettings", "fit_mesh_capture"]
 
-_OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "start.json", "loss.png", "fit.png", "views.png", "checkpoint.json",
-            "stage.json", "config.json")
+_OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "aligned.ply", "start.json", "align.json", "loss.png", "fit.png",
+            "views.png", "checkpoint.json", "stage.json", "config.json")
 _STARTS = ("front", "closed")
 
 
@@ -61,6 +66,7 @@ class MeshSettings:
     normal: float = 0.1
     step_m: float = 0.003  # Adam's step per iteration at the start
     moments: str = "uniform"  # Adam's second moments of the vertices: uniform (one) or vertex (one per vertex)
+    align: int = 8  # Levenberg-Marquardt iterations of the global affine map and reflectance first (0: none)
 
 
 def check_mesh_options(mesh: MeshSettings) -> None:
@@ -79,6 +85,8 @@ def check_mesh_options(mesh: MeshSettings) -> None:
         raise UserInputError(f"step_m={mesh.step_m!r}: expected a step in metres, > 0 and <= 0.05")
     if mesh.moments not in ("uniform", "vertex"):
         raise UserInputError(f"moments={mesh.moments!r}: expected uniform or vertex")
+    if isinstance(mesh.align, bool) or not isinstance(mesh.align, (int, np.integer)) or not 0 <= mesh.align <= 100:
+        raise UserInputError(f"align={mesh.align!r}: expected a whole number of iterations from 0 to 100")
 
 
 def _check(mesh: MeshSettings, settings) -> None:
@@ -100,7 +108,7 @@ def _capture_model(capture, v, f, settings, bin_width_ps):
 
     try:  # (always the quadrature, whatever settings.estimator says: see the module docstring)
         return CaptureModel(capture, np.asarray(f, dtype=np.uint32), len(v), bin_width_ps=bin_width_ps,
-                            estimator="quadrature", element_size_m=settings.element_size_m)
+                            estimator="quadrature", element_size_m=settings.element_size_m, dead_time="renewal")
     except UserInputError as e:
         if not str(e).startswith("estimator=quadrature:"):
             raise
@@ -205,12 +213,26 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
             reg_scale = cap.objective(np.zeros_like(cap.counts), end)[0]  # the signal energy (mesh_model)
             model = _model(v0, f0, 0.5, mesh, reg_scale)
             albedo = _match_albedo(model, cap, settings)
-            model = _model(v0, f0, albedo, mesh, reg_scale)
-            stage = 0
             start_v, start_f, start_albedo = v0, f0, albedo
             _write_text(out / "config.json", json.dumps(config, indent=1) + "\n")
             _write_text(out / "start.json", json.dumps({"vertices": np.asarray(v0).tolist(), "faces": np.asarray(
                 f0, dtype=np.int64).tolist(), "albedo": albedo}) + "\n")
+            align_history, align_s = [], 0.0
+            if mesh.align:
+                from .mesh_align import align_affine
+                from .optimize import element_size
+
+                cap.set_element_size(element_size(0, settings.iterations, settings.element_size_m))
+                cap.keep_blur(end)
+                t_align = time.perf_counter()
+                v0, albedo, align_history = align_affine(cap, v0, albedo, iterations=mesh.align,
+                                                         sigma_start_ps=settings.sigma_start_ps, sigma_end_ps=end)
+                align_s = time.perf_counter() - t_align
+                log(f"fit mesh: aligned (affine map and reflectance, {mesh.align} iterations) in {align_s:.0f} s")
+            model = _model(v0, f0, albedo, mesh, reg_scale)
+            stage = 0
+            _write_text(out / "align.json", json.dumps({"vertices": np.asarray(v0).tolist(), "albedo": albedo,
+                                                        "history": align_history, "seconds": align_s}) + "\n")
             _write_stage(stage_file, 0, v0, f0, albedo, reg_scale)
             state = FitState(theta=model.initial().tolist())
         with progress_bar("fit mesh", settings.iterations,
@@ -269,10 +291,15 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
     del cap0
     write_ply(out / "fitted.ply", fitted.vertices, fitted.faces)
     write_ply(out / "start.ply", start_mesh.vertices, start_mesh.faces)
+    align = json.loads((out / "align.json").read_text())
+    aligned = trimesh.Trimesh(vertices=np.asarray(align["vertices"]), faces=np.asarray(sf, dtype=np.int64),
+                              process=False)
+    write_ply(out / "aligned.ply", aligned.vertices, aligned.faces)
     gt_mesh, _ = _ground_truth(manifest)
     metrics = {}
     if gt_mesh is not None:
         metrics = {"fit": mesh_metrics(fitted, rec_bp, gt_mesh), "start": mesh_metrics(start_mesh, rec_bp, gt_mesh),
+                   "aligned": mesh_metrics(aligned, rec_bp, gt_mesh),
                    "backprojection": backprojection_metrics(rec_bp, gt_mesh)}
     _loss_figure(out / "loss.png", state)
     _front_figure(out / "fit.png", rec_bp, gt_mesh, fitted, metrics)
@@ -293,7 +320,9 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
         "history": {"objective": [h[0] for h in state.history], "sigma_ps": [h[1] for h in state.history],
                     "seconds": [h[2] for h in state.history],
                     "objective_end_blur": [h[3] for h in state.history]},
-        "time_s": {"optimisation": state.elapsed_s, "total": fit_s},
+        "align": {"iterations": len(align["history"]), "albedo": align["albedo"],
+                  "objective": [h[0] for h in align["history"]], "sigma_ps": [h[1] for h in align["history"]]},
+        "time_s": {"align": align["seconds"], "optimisation": state.elapsed_s, "total": fit_s},
         "bounds": list(_bounds_of(rec_bp)),
     }
     _write_text(out / "fit.json", json.dumps(result, indent=1) + "\n")
