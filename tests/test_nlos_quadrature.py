@@ -381,7 +381,7 @@ def test_noise_target_refines_the_quadrature(tmp_path):
     from transient_mi.render_capture import render
     from spad_detector import DetectorParams
 
-    d = dict(LETTER, estimator="quadrature", width="3", height="3", spots_x="1")
+    d = dict(LETTER, estimator="quadrature", width="3", height="3", spots_x="1", element_size_m="0.01", patch_cells="4")
     # (at the first round, 1 cm and 4 cells, it states about 0.05: the target asks for a second)
     spec = NoiseTargetSpec(target=0.01, params=DetectorParams(auto_gate=True), exposure_s=1e-2)
     out = render("scenes/nlos_letter.xml", tmp_path / "nt", defines=d, noise_target=spec, progress=False)
@@ -426,7 +426,9 @@ def test_quadrature_reports_progress_per_chunk():
     from transient_mi.integrators import _nlos_pairs
     from transient_mi.scene_io import load_scene
 
-    scene = load_scene("scenes/nlos_letter.xml", dict(LETTER, estimator="quadrature"))
+    # (2 cm elements: a few hundred chunks, not the default's thousands; what is asserted does not depend on them)
+    scene = load_scene("scenes/nlos_letter.xml", dict(LETTER, estimator="quadrature", element_size_m="0.02",
+                                                      patch_cells="4"))
     seen = []
     old = _nlos_pairs.PAIRS_PER_CHUNK
     _nlos_pairs.PAIRS_PER_CHUNK = 2000  # several chunks on this small capture
