@@ -34,10 +34,11 @@ ROOT = Path(__file__).resolve().parents[1]
 #: tilted plane's defaults, in their scene files, were chosen from these rows: docs/quadrature.md marks them).
 SETTINGS = {
     "paper": ((1, 0.04, 2), (0, 0.04, 2), (2, 0.04, 2), (3, 0.04, 2), (1, 0.04, 4), (1, 0.02, 2), (1, 0.01, 2)),
-    "letter": ((1, 0.01, 6), (1, 0.01, 4), (1, 0.01, 8), (1, 0.0125, 6), (1, 0.0125, 8), (1, 0.007, 4),
-               (1, 0.02, 8), (1, 0.005, 4)),
+    "letter": ((1, 0.009, 6), (1, 0.01, 6), (1, 0.01, 4), (1, 0.01, 8), (1, 0.0125, 6), (1, 0.008, 6), (1, 0.007, 4),
+               (1, 0.005, 4), (1, 0.02, 8)),
+    "tilted_plane": ((1, 0.01, 6), (1, 0.01, 4), (1, 0.01, 8), (1, 0.0125, 6), (1, 0.0125, 8), (1, 0.007, 4),
+                     (1, 0.02, 8), (1, 0.005, 4)),
 }
-SETTINGS["tilted_plane"] = SETTINGS["letter"]
 SCENE_FILES = {"letter": "scenes/nlos_letter.xml", "tilted_plane": "scenes/nlos_tilted_plane.xml"}
 
 
