@@ -119,7 +119,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--spp", type=int, default=4096, help="Monte Carlo samples per pixel (default 4096)")
     ap.add_argument("--ref-element-m", type=float, default=0.004, help="reference quadrature element (m)")
-    ap.add_argument("--ref-cells", type=int, default=6, help="reference quadrature cells per patch side")
+    ap.add_argument("--ref-cells", type=int, default=12,
+                    help="reference quadrature cells per patch side (default 12: twice the letter's 6, so the "
+                         "capture's own cell error shows)")
     ap.add_argument("--figure", type=Path, default=ROOT / "docs" / "img" / "quadrature.png")
     ap.add_argument("--figure-only", action="store_true",
                     help="only render the accuracy capture by both estimators and draw the figure (no record)")

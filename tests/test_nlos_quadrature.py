@@ -284,17 +284,20 @@ def test_general_bsdf_path_equals_the_lambertian_one(capture, monkeypatch):
 # ---------------------------------------------------------------- self-convergence
 
 
-def test_error_estimate_covers_the_actual_error():
+@pytest.mark.parametrize("scene", ["nlos_letter", "nlos_tilted_plane"])
+def test_error_estimate_covers_the_actual_error(scene):
     """Self-convergence: the quadrature at 2 cm elements and 2 cells per patch side against a fine level (5 mm, 6
-    cells) on the letter. The stated error (mixed visibility plus |I_h - I_2h| / 3) is an estimate: it must cover
-    every pixel total, every pixel's summed squares (what ``detect`` reports is a sum of squares over bins), and
-    the summed squares of every lit window of 8 bins; a single bin may fall short (the estimate's max-filter
-    reaches 2 bins). Deterministic (no seeds)."""
+    cells) on the letter and on the tilted plane (30 degrees: each element spreads over several bins). The stated
+    error (mixed visibility plus the local root mean square of I_h - I_2h over +-2 bins, / 3) is an estimate: it
+    must cover every pixel total, every pixel's summed squares (what ``detect`` reports is a sum of squares over
+    bins), and the summed squares of every lit window of 8 bins; a single bin may fall short. Deterministic (no
+    seeds)."""
     from transient_mi.scene_io import load_scene
 
     d = dict(LETTER, spots_x="1", width="3", height="3")
-    coarse = _render(load_scene("scenes/nlos_letter.xml", d), element_size_m=0.02, patch_cells=2)
-    fine = _render(load_scene("scenes/nlos_letter.xml", d), element_size_m=0.005, patch_cells=6)
+    path = f"scenes/{scene}.xml"
+    coarse = _render(load_scene(path, d), element_size_m=0.02, patch_cells=2)
+    fine = _render(load_scene(path, d), element_size_m=0.005, patch_cells=6)
     ref = fine.histogram.astype(np.float64)
     err = np.abs(coarse.histogram.astype(np.float64) - ref)
     est = coarse.error_bound.astype(np.float64)
@@ -306,8 +309,28 @@ def test_error_estimate_covers_the_actual_error():
     tot_err = np.abs(coarse.histogram.astype(np.float64).sum(-1) - ref.sum(-1))
     assert (tot_err <= coarse.total_error_bound.astype(np.float64) * (1 + 1e-6)).all()
     # the estimate falls with the element size and the cells (second order: 4x per halving, at least 2x asked)
-    mid = _render(load_scene("scenes/nlos_letter.xml", d), element_size_m=0.01, patch_cells=4)
+    mid = _render(load_scene(path, d), element_size_m=0.01, patch_cells=4)
     assert float((mid.error_bound.astype(np.float64) ** 2).sum()) < 0.25 * float((est ** 2).sum())
+
+
+def test_error_estimate_keeps_each_pixels_sum_of_squares():
+    """The discretisation estimate is the local root mean square of the two-level difference over +-2 bins, divided
+    by 3: it fills a zero crossing of the difference (a bin where it vanishes between two of opposite sign gets
+    their root mean square) and keeps each pixel's sum of squares (over 3^2), where a maximum filter would add to
+    it."""
+    from transient_mi.integrators._nlos_error_estimate import ESTIMATE_DIVISOR, discretisation_error
+
+    rng = np.random.default_rng(5)
+    fine = rng.normal(size=(2, 3, 40))
+    coarse = rng.normal(size=(2, 3, 40))
+    est = discretisation_error(fine, coarse)
+    np.testing.assert_allclose((est ** 2).sum(-1), ((fine - coarse) ** 2).sum(-1) / ESTIMATE_DIVISOR ** 2,
+                               rtol=1e-12)
+    d = np.zeros(12)
+    d[5], d[7] = 3.0, -4.0  # d[6] = 0: a zero crossing
+    e = discretisation_error(d, np.zeros(12))
+    assert e[6] == pytest.approx(np.sqrt((9.0 + 16.0) / 5.0) / ESTIMATE_DIVISOR)
+    assert e[0] == 0.0 and e[-1] == 0.0 and (e >= 0).all()
 
 
 # ---------------------------------------------------------------- pipeline
@@ -358,13 +381,14 @@ def test_noise_target_refines_the_quadrature(tmp_path):
     from transient_mi.render_capture import render
     from spad_detector import DetectorParams
 
-    d = dict(LETTER, estimator="quadrature", width="3", height="3", spots_x="1")
-    spec = NoiseTargetSpec(target=0.05, params=DetectorParams(auto_gate=True), exposure_s=1e-2)
+    d = dict(LETTER, estimator="quadrature", width="3", height="3", spots_x="1", element_size_m="0.01", patch_cells="4")
+    # (at the first round, 1 cm and 4 cells, it states about 0.05: the target asks for a second)
+    spec = NoiseTargetSpec(target=0.01, params=DetectorParams(auto_gate=True), exposure_s=1e-2)
     out = render("scenes/nlos_letter.xml", tmp_path / "nt", defines=d, noise_target=spec, progress=False)
     m = stack.read_manifest(out)
     nt = m["render"]["noise_target"]
     (spot,) = nt["spots"]
-    assert spot["met"] and nt["met"] and spot["ratio"] <= 0.05
+    assert spot["met"] and nt["met"] and spot["ratio"] <= 0.01
     assert spot["rounds"] >= 2 and spot["element_size_m"] < 0.01 and spot["patch_cells"] > 4  # it refined
     assert m["variance"]["settings_per_spot"] == [{"element_size_m": spot["element_size_m"],
                                                    "patch_cells": spot["patch_cells"]}]
@@ -402,7 +426,9 @@ def test_quadrature_reports_progress_per_chunk():
     from transient_mi.integrators import _nlos_pairs
     from transient_mi.scene_io import load_scene
 
-    scene = load_scene("scenes/nlos_letter.xml", dict(LETTER, estimator="quadrature"))
+    # (2 cm elements: a few hundred chunks, not the default's thousands; what is asserted does not depend on them)
+    scene = load_scene("scenes/nlos_letter.xml", dict(LETTER, estimator="quadrature", element_size_m="0.02",
+                                                      patch_cells="4"))
     seen = []
     old = _nlos_pairs.PAIRS_PER_CHUNK
     _nlos_pairs.PAIRS_PER_CHUNK = 2000  # several chunks on this small capture

@@ -121,3 +121,46 @@ def quadrature_settings_table(R) -> str:
     lines += ["", f"  ({r['array']} x {r['array']} pixels, {r['spots']} spots, {r['bin_width_ps']:g} ps bins, the "
               "paper's detector; the first row is the default; JIT compiled before.) " + provenance(rec)]
     return "\n" + "\n".join(lines) + "\n"
+
+
+#: bench/bench_quadrature_settings.py's records for the letter and the tilted plane (their scene files' settings).
+SCENE_SETTINGS = ("quadrature_settings_letter_a8", "quadrature_settings_tilted_plane_a8")
+
+
+def _scene_default(scene: str, name: str) -> float:
+    """A ``<default name=... value=...>`` of an embedded scene file (the settings' one source)."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / scene).read_text()
+    return float(re.search(rf'<default name="{name}" value="([^"]+)"/>', text).group(1))
+
+
+def scene_settings_table(R) -> str:
+    """The letter's and the tilted plane's settings side by side: what cells and element sizes cost and buy (each
+    scene file's own default in bold)."""
+    lines = ["| scene | element_size_m | patch_cells | elements | render (s) | error ratio at 10 ms |",
+             "|---|---:|---:|---:|---:|---:|"]
+    recs = []
+    for name in SCENE_SETTINGS:
+        try:
+            recs.append(R(name))
+        except Missing:
+            continue
+    if not recs:
+        raise Missing(SCENE_SETTINGS[0])
+    for rec in recs:
+        r = rec["result"]
+        key = f"ratio_at_{r['exposure_ms']:g}ms"
+        default = (_scene_default(r["scene"], "element_size_m"), int(_scene_default(r["scene"], "patch_cells")))
+        for x in r["rows"]:
+            cells = [f"`{r['scene'].split('/')[-1]}`", f"{x['element_size_m']:g}", f"{x['patch_cells']}",
+                     f"{x['elements']}", f"{x['render_s']:.1f}", f"{x[key]:.3g}"]
+            if (x["element_size_m"], x["patch_cells"]) == default:
+                cells = cells[:1] + [f"**{c}**" for c in cells[1:]]
+            lines.append("| " + " | ".join(cells) + " |")
+    r = recs[0]["result"]
+    lines += ["", f"({r['array']} x {r['array']} pixels, {r['spots']} spots, {r['bin_width_ps']:g} ps bins, wall "
+              f"return on, {r['detector']}; refine_levels 1; in bold each scene file's default; JIT compiled "
+              "before.) " + " ".join(provenance(rec) for rec in recs)]
+    return "\n".join(lines) + "\n"

@@ -44,14 +44,15 @@ Error (stored like the Monte Carlo variance, ``kind: "error_bound"``), per bin, 
 
 1. **mixed visibility** (a bound): the whole unoccluded light of every pair whose samples disagree, times
    ``max(share, 1 - share)``, spread like its light;
-2. **discretisation** (an a-posteriori estimate): ``|I_h - I_2h| / ESTIMATE_DIVISOR``, from the difference
-   between the result and a coarse level with each element's parent (twice the size) and half the cells per
-   side, each bin taking the largest difference within ``ESTIMATE_REACH_BINS`` bins (the difference crosses
-   zero where the errors do not). Both levels converge at least at second order (midpoint rule for the
-   weight, second-order path length), so ``I_2h - I_h`` is about ``2^2 - 1 = 3`` times the fine level's error
-   (Richardson); on the letter the per-bin error falls faster (~10x per halving), so it is conservative there.
-   Pixel totals keep the whole difference. An estimate, not a guarantee: tested by self-convergence (against a
-   much finer level it covers pixel totals, each pixel's and each time window's squares).
+2. **discretisation** (an a-posteriori estimate, :mod:`~._nlos_error_estimate`): the difference between the result
+   and a coarse level with each element's parent (twice the size) and half the cells per side, ``I_h - I_2h``,
+   as its root mean square over ``ESTIMATE_REACH_BINS`` bins either side (the difference crosses zero where the
+   error need not; a local mean of squares keeps each pixel's sum of squares), divided by ``ESTIMATE_DIVISOR``:
+   both levels converge at least at second order (midpoint rule for the weight, second-order path length), so
+   ``I_2h - I_h`` is about ``2^2 - 1 = 3`` times the fine level's error (Richardson).
+   Pixel totals keep the whole difference. An estimate, not a guarantee: tested by self-convergence on the letter
+   and the tilted plane (against a much finer level it covers pixel totals, each pixel's and each lit time
+   window's squares).
 
 What it does not do (refused in one line; use ``estimator="monte_carlo"``): windows and media on the device
 legs or in hidden space, a divergent laser beam, a non-planar relay wall, shapes that are not meshes
@@ -69,20 +70,16 @@ import math
 import mitsuba as mi
 import numba
 import numpy as np
-from scipy.ndimage import maximum_filter1d
 
 from transient_core.units import C_M_PER_PS
 from transient_mi.integrators._nlos_elements import fine_provenance, mesh_triangles, sample_points, split4, subdivide
+from transient_mi.integrators._nlos_error_estimate import discretisation_error
 from transient_mi.integrators._nlos_pair_kernels import cell_terms
 from transient_mi.integrators._nlos_pairs import Chunk, LevelElements, SpotSide, chunk_starts, spot_masks
 from transient_mi.integrators._nlos_surfaces import WallCells, visibility_masks
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
 
-#: The discretisation estimate of a bin is the largest two-level difference within this many bins of it.
-ESTIMATE_REACH_BINS = 2
-#: The two-level difference over the fine level's error for a second-order method (Richardson: ``2^2 - 1``).
-ESTIMATE_DIVISOR = 3.0
 #: Default longest element edge, m.
 DEFAULT_ELEMENT_SIZE_M = 0.01
 #: Default cells per patch side.
@@ -308,13 +305,10 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     hist = fine["hist"]
     steady = fine["steady"]
     outside = fine["outside"]
-    # error: the light of mixed visibility, plus the discretisation estimated by the coarse level
-    # (the difference of two levels crosses zero where their errors do not: each bin takes the largest
-    # difference within ESTIMATE_REACH_BINS bins of it)
+    # error: the light of mixed visibility, plus the discretisation estimated from the coarse level
     bound = fine["bound"]
     if coarse is not None:
-        bound = bound + maximum_filter1d(np.abs(fine["hist"] - coarse["hist"]), 2 * ESTIMATE_REACH_BINS + 1,
-                                         axis=-1, mode="constant") / ESTIMATE_DIVISOR
+        bound = bound + discretisation_error(fine["hist"], coarse["hist"])
     tot_bound = fine["vis_err"] + (np.abs(fine["steady"] - coarse["steady"]) if coarse is not None else 0.0)
     # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)
     wr = setup.wall_return
