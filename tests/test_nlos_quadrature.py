@@ -13,8 +13,10 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import math
+import unittest.mock as mock
 
 import numpy as np
 import pytest
@@ -284,18 +286,22 @@ def test_general_bsdf_path_equals_the_lambertian_one(capture, monkeypatch):
 # ---------------------------------------------------------------- self-convergence
 
 
-def test_error_estimate_covers_the_actual_error():
-    """Self-convergence: the quadrature at 2 cm elements and 2 cells per patch side against a fine level (5 mm, 6
-    cells) on the letter. The stated error (mixed visibility plus |I_h - I_2h| / 3) is an estimate: it must cover
-    every pixel total, every pixel's summed squares (what ``detect`` reports is a sum of squares over bins), and
-    the summed squares of every lit window of 8 bins; a single bin may fall short (the estimate's max-filter
-    reaches 2 bins). Deterministic (no seeds)."""
+#: The self-convergence capture: the letter, 3 x 3 pixels of 3 cm, one spot.
+SELF_CONVERGENCE = dict(LETTER, spots_x="1", width="3", height="3")
+
+
+@functools.lru_cache(maxsize=1)
+def _self_convergence_reference() -> np.ndarray:
+    """The fine level the self-convergence tests measure against (5 mm elements, 6 cells per side), float64."""
     from transient_mi.scene_io import load_scene
 
-    d = dict(LETTER, spots_x="1", width="3", height="3")
-    coarse = _render(load_scene("scenes/nlos_letter.xml", d), element_size_m=0.02, patch_cells=2)
-    fine = _render(load_scene("scenes/nlos_letter.xml", d), element_size_m=0.005, patch_cells=6)
-    ref = fine.histogram.astype(np.float64)
+    fine = _render(load_scene("scenes/nlos_letter.xml", SELF_CONVERGENCE), element_size_m=0.005, patch_cells=6)
+    return fine.histogram.astype(np.float64)
+
+
+def _assert_estimate_covers(coarse, ref: np.ndarray) -> np.ndarray:
+    """The stated error of ``coarse`` covers its actual error against ``ref``: every pixel's summed squares, the
+    summed squares of every lit window of 8 bins, every pixel total. Returns the stated error (float64)."""
     err = np.abs(coarse.histogram.astype(np.float64) - ref)
     est = coarse.error_bound.astype(np.float64)
     assert ((err ** 2).sum(-1) <= (est ** 2).sum(-1)).all()
@@ -305,9 +311,44 @@ def test_error_estimate_covers_the_actual_error():
     assert (win(err ** 2)[lit] <= win(est ** 2)[lit]).all()
     tot_err = np.abs(coarse.histogram.astype(np.float64).sum(-1) - ref.sum(-1))
     assert (tot_err <= coarse.total_error_bound.astype(np.float64) * (1 + 1e-6)).all()
+    return est
+
+
+def test_error_estimate_covers_the_actual_error():
+    """Self-convergence: the quadrature at 2 cm elements and 2 cells per patch side against a fine level (5 mm, 6
+    cells) on the letter. The stated error (mixed visibility plus |I_h - I_2h| / 3) is an estimate: it must cover
+    every pixel total, every pixel's summed squares (what ``detect`` reports is a sum of squares over bins), and
+    the summed squares of every lit window of 8 bins; a single bin may fall short (the estimate's max-filter
+    reaches 2 bins). Deterministic (no seeds)."""
+    from transient_mi.scene_io import load_scene
+
+    d = SELF_CONVERGENCE
+    coarse = _render(load_scene("scenes/nlos_letter.xml", d), element_size_m=0.02, patch_cells=2)
+    ref = _self_convergence_reference()
+    est = _assert_estimate_covers(coarse, ref)
     # the estimate falls with the element size and the cells (second order: 4x per halving, at least 2x asked)
     mid = _render(load_scene("scenes/nlos_letter.xml", d), element_size_m=0.01, patch_cells=4)
     assert float((mid.error_bound.astype(np.float64) ** 2).sum()) < 0.25 * float((est ** 2).sum())
+
+
+def test_one_cell_error_estimate_covers_the_actual_error():
+    """Self-convergence with one cell per patch side (the coarse level cannot halve it: the cells' part is
+    estimated on the coarse elements, one cell against two): 2 cm elements, one 3 cm cell per pixel, against the
+    fine level of :func:`test_error_estimate_covers_the_actual_error`, by the same aggregates. The estimate must
+    hold the cells' part: without it (the elements' difference alone) it falls short of the actual error
+    somewhere. Deterministic (no seeds)."""
+    from transient_mi.integrators import _nlos_quadrature as q
+    from transient_mi.scene_io import load_scene
+
+    scene = load_scene("scenes/nlos_letter.xml", SELF_CONVERGENCE)
+    one = _render(scene, element_size_m=0.02, patch_cells=1)
+    assert one.estimator_info["patch_cells"] == 1
+    _assert_estimate_covers(one, _self_convergence_reference())
+    # the cells' part is needed: the two-level difference alone (no cell estimate) does not cover the error
+    with mock.patch.object(q, "cell_estimate_level", lambda g: None):
+        alone = _render(scene, element_size_m=0.02, patch_cells=1)
+    with pytest.raises(AssertionError):
+        _assert_estimate_covers(alone, _self_convergence_reference())
 
 
 # ---------------------------------------------------------------- pipeline

@@ -300,9 +300,11 @@ class TransientNLOSPath(mi.CppADIntegrator):
            rises as its inverse square.
        * - ``patch_cells``
          - integer
-         - ``quadrature``: cells per side of a pixel's wall patch, in [2, 64]
-           (default 4; the error estimate compares with half as many; one
-           point, the centre, with ``pixel_sampling="center"``).
+         - ``quadrature``: cells per side of a pixel's wall patch, in [1, 64]
+           (default 4; the error estimate compares with half as many; with
+           one, the cells' part of the error is estimated on the coarse
+           elements, one cell against two; one point, the centre, with
+           ``pixel_sampling="center"``).
        * - ``refine_levels``
          - integer
          - ``quadrature``: times an element of mixed visibility is split in
