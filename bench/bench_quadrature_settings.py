@@ -23,7 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _record  # noqa: E402
 
 #: (refine_levels, element_size_m, patch_cells) per row; the first is the paper scene's default.
-SETTINGS = ((1, 0.04, 2), (0, 0.04, 2), (2, 0.04, 2), (3, 0.04, 2), (1, 0.04, 4), (1, 0.02, 2), (1, 0.01, 2))
+SETTINGS = ((1, 0.04, 1), (0, 0.04, 1), (2, 0.04, 1), (3, 0.04, 1), (1, 0.04, 2), (1, 0.04, 4), (1, 0.02, 1),
+            (1, 0.01, 1))
 
 
 def main(argv=None) -> int:
@@ -47,7 +48,7 @@ def main(argv=None) -> int:
     scene, integ, sensor = job.scene, job.integrator, job.sensor
     run = TargetRun(spec, job.manifest)
     rows = []
-    for k, (rl, h, m) in enumerate(((1, 0.04, 2),) + SETTINGS):
+    for k, (rl, h, m) in enumerate(SETTINGS[:1] + SETTINGS):
         integ.nlos_options.update(refine_levels=rl, element_size_m=h, patch_cells=m)
         t = time.perf_counter()
         res = integ.render_transient(scene, sensor, seed=0, spp=1, spots=[0, 1, 2, 3])

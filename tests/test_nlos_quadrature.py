@@ -373,6 +373,9 @@ def test_render_stores_the_bound_and_detect_states_the_ratio(tmp_path):
         assert (a / "error_bound" / name).read_bytes() == (b / "error_bound" / name).read_bytes()
         bnd, tot = stack.read_variance(a, j, m)
         assert bnd.shape == (3, 3, 512) and (bnd >= 0).all() and (tot > 0).any()
+    from transient_mi.capture_error import variance_summary
+
+    assert m["variance"]["summary"] == variance_summary(a, m)  # made in memory, the files' read back
     out = detect_stack(a, tmp_path / "counts", exposure_s=1e-3, seed=1)
     rn = json.loads((out / "manifest.json").read_text())["detector"]["resolved"]["render_noise"]
     assert rn["available"] and rn["estimator"] == "quadrature" and "spp" not in rn
