@@ -440,13 +440,17 @@ def test_noise_target_refinement_grows_the_elements_that_set_the_error():
     assert effective_edge_m(sq, fine_count(sq, h)) < 0.03 / 4 and m == 6
 
 
-def test_quadrature_reports_progress_per_chunk():
+@pytest.mark.parametrize("cells", [None, 1])
+def test_quadrature_reports_progress_per_chunk(cells):
     """A long quadrature render moves the progress bar as its chunks of pairs are done (not 0 then 100 %): the
-    callback sees increasing values up to the total, more than once."""
+    callback sees increasing values up to the total, more than once; with one cell per patch side too (three
+    levels: the cells' estimate last)."""
     from transient_mi.integrators import _nlos_pairs
     from transient_mi.scene_io import load_scene
 
     scene = load_scene("scenes/nlos_letter.xml", dict(LETTER, estimator="quadrature"))
+    if cells is not None:
+        scene.integrator().nlos_options.update(patch_cells=cells)
     seen = []
     old = _nlos_pairs.PAIRS_PER_CHUNK
     _nlos_pairs.PAIRS_PER_CHUNK = 2000  # several chunks on this small capture
