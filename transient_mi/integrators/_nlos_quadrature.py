@@ -306,9 +306,10 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
             def tick_cc(done):
                 progress(n_f + n_c + done, n_f + n_c + n_cc)
         fine = _level(scene, setup, g, lv_f, spot_ids, confocal, G_out, tick_f)
-        coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c)
+        # (the estimate's levels keep no per-bin light of mixed visibility: 2 [G, P, n_ext] arrays less)
+        coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c, with_bound=False)
         if g_cc is not None:
-            cells = _level(scene, setup, g_cc, lv_c, spot_ids, confocal, G_out, tick_cc)
+            cells = _level(scene, setup, g_cc, lv_c, spot_ids, confocal, G_out, tick_cc, with_bound=False)
         info.update(elements=lv_f.n, coarse_elements=lv_c.n, refine_levels=levels,
                     pairs=fine["pairs"] + coarse["pairs"] + (0 if cells is None else cells["pairs"]))
     hist = fine["hist"]
@@ -366,15 +367,17 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     return results
 
 
-def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_out, tick=None) -> dict:
+def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_out, tick=None,
+           with_bound: bool = True) -> dict:
     """Integrate one level (elements ``lv``, the cells of ``g``) for every spot of the group (``tick(pairs done)``
     after every chunk, optional).
 
-    Returns ``hist``, ``bound`` (light of mixed visibility, per bin) ``[G, P, n_ext]``, ``steady``,
-    ``vis_err``, ``outside`` ``[G, P]`` and ``pairs`` (pairs times the spots each was deposited for).
+    Returns ``hist``, ``bound`` (light of mixed visibility, per bin; no bins without ``with_bound``)
+    ``[G, P, n_ext]``, ``steady``, ``vis_err``, ``outside`` ``[G, P]`` and ``pairs`` (pairs times the spots each
+    was deposited for).
     """
     P = g.W * g.H
-    out = {"hist": np.zeros((G_out, P, g.n_ext)), "bound": np.zeros((G_out, P, g.n_ext)),
+    out = {"hist": np.zeros((G_out, P, g.n_ext)), "bound": np.zeros((G_out, P, g.n_ext if with_bound else 0)),
            "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)), "outside": np.zeros((G_out, P)),
            "pairs": 0}
     side = SpotSide(scene, setup, g, spot_ids, lv)
