@@ -351,6 +351,31 @@ def test_one_cell_error_estimate_covers_the_actual_error():
         _assert_estimate_covers(alone, _self_convergence_reference())
 
 
+
+def test_estimate_levels_without_bound_bins_give_the_same_capture():
+    """The coarse and cells levels deposit no per-bin light of mixed visibility (only the fine level's is used):
+    the capture and its error are the same bytes as with every level keeping it (the paper's mannequin, 2 x 2
+    pixels, one cell: its limbs leave pairs of mixed visibility in every level)."""
+    from transient_mi.integrators import _nlos_quadrature as q
+    from transient_mi.scene_io import load_scene
+
+    scene = load_scene("scenes/paper_mannequin.xml", dict(include_wall_return="false", array="2", spots="1",
+                                                          n_bins="1152", bin_width_ps="10"))
+    level, mixed = q._level, []
+
+    def keeping(*a, with_bound=True, **k):
+        out = level(*a, with_bound=True, **k)
+        mixed.append(float(out["vis_err"].sum()))
+        return out
+
+    lean = _render(scene, patch_cells=1)
+    with mock.patch.object(q, "_level", keeping):
+        full = _render(scene, patch_cells=1)
+    assert len(mixed) == 3 and min(mixed) > 0  # fine, coarse and cells levels, each with mixed pairs
+    for name in ("histogram", "error_bound", "total_error_bound", "steady"):
+        assert getattr(lean, name).tobytes() == getattr(full, name).tobytes(), name
+
+
 # ---------------------------------------------------------------- pipeline
 
 
