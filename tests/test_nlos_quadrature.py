@@ -376,6 +376,19 @@ def test_estimate_levels_without_bound_bins_give_the_same_capture():
         assert getattr(lean, name).tobytes() == getattr(full, name).tobytes(), name
 
 
+
+def test_below_three_bounces_only_the_wall_return_is_rendered():
+    """``max_depth`` 3 has no three-bounce light: the quadrature integrates no level and the capture is the wall's
+    closed-form return alone (every spot's photons in its pixel), with no error."""
+    from transient_mi.scene_io import load_scene
+
+    scene = load_scene("scenes/nlos_letter.xml", dict(SELF_CONVERGENCE, max_depth="3", include_wall_return="true"))
+    res = _render(scene)
+    assert res.estimator_info["pairs"] == 0 and res.estimator_info["elements"] == 0
+    assert float(res.histogram.sum()) > 0 and np.count_nonzero(res.histogram.sum(-1)) == 1
+    assert not res.error_bound.any() and not res.total_error_bound.any()
+
+
 # ---------------------------------------------------------------- pipeline
 
 

@@ -283,10 +283,7 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     max_depth = options.get("max_depth", 4)
     spot_ids = list(range(setup.n_spots)) if confocal else list(spots)
     G_out = 1 if confocal else len(spots)
-    zeros = np.zeros((G_out, P, g.n_ext))
-    fine = {"hist": zeros, "bound": zeros.copy(), "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)),
-            "outside": np.zeros((G_out, P)), "pairs": 0}
-    coarse = cells = None
+    fine = coarse = cells = None
     info = {"elements": 0, "coarse_elements": 0, "refine_levels": 0, "pairs": 0, "patch_cells": m}
     if setup.hidden_shapes and (max_depth >= 4 or max_depth == -1):
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
@@ -312,6 +309,10 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
             cells = _level(scene, setup, g_cc, lv_c, spot_ids, confocal, G_out, tick_cc, with_bound=False)
         info.update(elements=lv_f.n, coarse_elements=lv_c.n, refine_levels=levels,
                     pairs=fine["pairs"] + coarse["pairs"] + (0 if cells is None else cells["pairs"]))
+    if fine is None:  # no three-bounce light (no hidden shapes, or max_depth below 4): an empty level
+        zeros = np.zeros((G_out, P, g.n_ext))
+        fine = {"hist": zeros, "bound": zeros.copy(), "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)),
+                "outside": np.zeros((G_out, P)), "pairs": 0}
     hist = fine["hist"]
     steady = fine["steady"]
     outside = fine["outside"]
