@@ -310,7 +310,7 @@ class TransientNLOSPath(mi.CppADIntegrator):
          - ``quadrature``: times an element of mixed visibility is split in
            four, in [0, 8] (default 1: on the paper scene, 8 x 8 pixels, 8 ps bins,
            one cell per patch, levels 0, 1, 2, 3 stated error ratios 0.13,
-           0.10, 0.095, 0.093 at 10 ms in 2.8, 4.3, 8.0 and 13.4 s under load,
+           0.10, 0.095, 0.093 at 10 ms in 1.5, 2.2, 3.8 and 4.4 s,
            bench/results/quadrature_settings_a8_b8.json; the light still
            mixed is bounded).
 
