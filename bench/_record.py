@@ -132,6 +132,8 @@ def maybe_save(args, name: str, result: dict, *, load_start, peers: dict | None 
     """Write the record if ``--save`` or ``--save-as`` was given; prints where to stderr."""
     if not (args.save or args.save_as):
         return None
+    if args.save_as:  # a record's name is its file's stem (tests/test_quoted_numbers.py)
+        name = Path(args.save_as).stem
     path = save(record(name, result, load_start=load_start, note=args.note, peers=peers), args.save_as)
     print(f"[bench] wrote {path}", file=sys.stderr)
     return path

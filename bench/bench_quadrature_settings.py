@@ -33,7 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 #: (refine_levels, element_size_m, patch_cells) per row (paper: the first is the scene's default; the letter's and the
 #: tilted plane's defaults, in their scene files, were chosen from these rows: docs/quadrature.md marks them).
 SETTINGS = {
-    "paper": ((1, 0.04, 2), (0, 0.04, 2), (2, 0.04, 2), (3, 0.04, 2), (1, 0.04, 4), (1, 0.02, 2), (1, 0.01, 2)),
+    "paper": ((1, 0.04, 1), (0, 0.04, 1), (2, 0.04, 1), (3, 0.04, 1), (1, 0.04, 2), (1, 0.04, 4), (1, 0.02, 1),
+              (1, 0.01, 1)),
     "letter": ((1, 0.009, 6), (1, 0.01, 6), (1, 0.01, 4), (1, 0.01, 8), (1, 0.0125, 6), (1, 0.008, 6), (1, 0.007, 4),
                (1, 0.005, 4), (1, 0.02, 8)),
     "tilted_plane": ((1, 0.01, 6), (1, 0.01, 4), (1, 0.01, 8), (1, 0.0125, 6), (1, 0.0125, 8), (1, 0.007, 4),
@@ -81,7 +82,7 @@ def main(argv=None) -> int:
     spots = list(range(job.manifest["n_files"])) if "n_files" in job.manifest else [0, 1, 2, 3]
     settings = SETTINGS[a.scene]
     rows = []
-    for k, (rl, h, m) in enumerate(((1, 0.04, 2),) + settings):
+    for k, (rl, h, m) in enumerate(settings[:1] + settings):
         integ.nlos_options.update(refine_levels=rl, element_size_m=h, patch_cells=m)
         t = time.perf_counter()
         res = integ.render_transient(scene, sensor, seed=0, spp=1, spots=spots)

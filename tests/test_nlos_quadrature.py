@@ -13,8 +13,10 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import math
+import unittest.mock as mock
 
 import numpy as np
 import pytest
@@ -284,6 +286,34 @@ def test_general_bsdf_path_equals_the_lambertian_one(capture, monkeypatch):
 # ---------------------------------------------------------------- self-convergence
 
 
+#: The self-convergence capture: 3 x 3 pixels of 3 cm, one spot.
+SELF_CONVERGENCE = dict(LETTER, spots_x="1", width="3", height="3")
+
+
+@functools.lru_cache(maxsize=2)
+def _self_convergence_reference(scene: str = "nlos_letter") -> np.ndarray:
+    """The fine level the self-convergence tests measure against (5 mm elements, 6 cells per side), float64."""
+    from transient_mi.scene_io import load_scene
+
+    fine = _render(load_scene(f"scenes/{scene}.xml", SELF_CONVERGENCE), element_size_m=0.005, patch_cells=6)
+    return fine.histogram.astype(np.float64)
+
+
+def _assert_estimate_covers(coarse, ref: np.ndarray) -> np.ndarray:
+    """The stated error of ``coarse`` covers its actual error against ``ref``: every pixel's summed squares, the
+    summed squares of every lit window of 8 bins, every pixel total. Returns the stated error (float64)."""
+    err = np.abs(coarse.histogram.astype(np.float64) - ref)
+    est = coarse.error_bound.astype(np.float64)
+    assert ((err ** 2).sum(-1) <= (est ** 2).sum(-1)).all()
+    win = lambda x: x.reshape(*x.shape[:-1], -1, 8).sum(-1)  # noqa: E731
+    lit = win(ref) > 1e-3 * ref.max()
+    assert lit.sum() > 20
+    assert (win(err ** 2)[lit] <= win(est ** 2)[lit]).all()
+    tot_err = np.abs(coarse.histogram.astype(np.float64).sum(-1) - ref.sum(-1))
+    assert (tot_err <= coarse.total_error_bound.astype(np.float64) * (1 + 1e-6)).all()
+    return est
+
+
 @pytest.mark.parametrize("scene", ["nlos_letter", "nlos_tilted_plane"])
 def test_error_estimate_covers_the_actual_error(scene):
     """Self-convergence: the quadrature at 2 cm elements and 2 cells per patch side against a fine level (5 mm, 6
@@ -294,22 +324,11 @@ def test_error_estimate_covers_the_actual_error(scene):
     seeds)."""
     from transient_mi.scene_io import load_scene
 
-    d = dict(LETTER, spots_x="1", width="3", height="3")
     path = f"scenes/{scene}.xml"
-    coarse = _render(load_scene(path, d), element_size_m=0.02, patch_cells=2)
-    fine = _render(load_scene(path, d), element_size_m=0.005, patch_cells=6)
-    ref = fine.histogram.astype(np.float64)
-    err = np.abs(coarse.histogram.astype(np.float64) - ref)
-    est = coarse.error_bound.astype(np.float64)
-    assert ((err ** 2).sum(-1) <= (est ** 2).sum(-1)).all()
-    win = lambda x: x.reshape(*x.shape[:-1], -1, 8).sum(-1)  # noqa: E731
-    lit = win(ref) > 1e-3 * ref.max()
-    assert lit.sum() > 20
-    assert (win(err ** 2)[lit] <= win(est ** 2)[lit]).all()
-    tot_err = np.abs(coarse.histogram.astype(np.float64).sum(-1) - ref.sum(-1))
-    assert (tot_err <= coarse.total_error_bound.astype(np.float64) * (1 + 1e-6)).all()
+    coarse = _render(load_scene(path, SELF_CONVERGENCE), element_size_m=0.02, patch_cells=2)
+    est = _assert_estimate_covers(coarse, _self_convergence_reference(scene))
     # the estimate falls with the element size and the cells (second order: 4x per halving, at least 2x asked)
-    mid = _render(load_scene(path, d), element_size_m=0.01, patch_cells=4)
+    mid = _render(load_scene(path, SELF_CONVERGENCE), element_size_m=0.01, patch_cells=4)
     assert float((mid.error_bound.astype(np.float64) ** 2).sum()) < 0.25 * float((est ** 2).sum())
 
 
@@ -331,6 +350,64 @@ def test_error_estimate_keeps_each_pixels_sum_of_squares():
     e = discretisation_error(d, np.zeros(12))
     assert e[6] == pytest.approx(np.sqrt((9.0 + 16.0) / 5.0) / ESTIMATE_DIVISOR)
     assert e[0] == 0.0 and e[-1] == 0.0 and (e >= 0).all()
+
+
+def test_one_cell_error_estimate_covers_the_actual_error():
+    """Self-convergence with one cell per patch side (the coarse level cannot halve it: the cells' part is
+    estimated on the coarse elements, one cell against two): 2 cm elements, one 3 cm cell per pixel, against the
+    fine level of :func:`test_error_estimate_covers_the_actual_error`, by the same aggregates. The estimate must
+    hold the cells' part: without it (the elements' difference alone) it falls short of the actual error
+    somewhere. Deterministic (no seeds)."""
+    from transient_mi.integrators import _nlos_quadrature as q
+    from transient_mi.scene_io import load_scene
+
+    scene = load_scene("scenes/nlos_letter.xml", SELF_CONVERGENCE)
+    one = _render(scene, element_size_m=0.02, patch_cells=1)
+    assert one.estimator_info["patch_cells"] == 1
+    _assert_estimate_covers(one, _self_convergence_reference())
+    # the cells' part is needed: the two-level difference alone (no cell estimate) does not cover the error
+    with mock.patch.object(q, "cell_estimate_level", lambda g: None):
+        alone = _render(scene, element_size_m=0.02, patch_cells=1)
+    with pytest.raises(AssertionError):
+        _assert_estimate_covers(alone, _self_convergence_reference())
+
+
+
+def test_estimate_levels_without_bound_bins_give_the_same_capture():
+    """The coarse and cells levels deposit no per-bin light of mixed visibility (only the fine level's is used):
+    the capture and its error are the same bytes as with every level keeping it (the paper's mannequin, 2 x 2
+    pixels, one cell: its limbs leave pairs of mixed visibility in every level)."""
+    from transient_mi.integrators import _nlos_quadrature as q
+    from transient_mi.scene_io import load_scene
+
+    scene = load_scene("scenes/paper_mannequin.xml", dict(include_wall_return="false", array="2", spots="1",
+                                                          n_bins="1152", bin_width_ps="10"))
+    level, mixed = q._level, []
+
+    def keeping(*a, with_bound=True, **k):
+        out = level(*a, with_bound=True, **k)
+        mixed.append(float(out["vis_err"].sum()))
+        return out
+
+    lean = _render(scene, patch_cells=1)
+    with mock.patch.object(q, "_level", keeping):
+        full = _render(scene, patch_cells=1)
+    assert len(mixed) == 3 and min(mixed) > 0  # fine, coarse and cells levels, each with mixed pairs
+    for name in ("histogram", "error_bound", "total_error_bound", "steady"):
+        assert getattr(lean, name).tobytes() == getattr(full, name).tobytes(), name
+
+
+
+def test_below_three_bounces_only_the_wall_return_is_rendered():
+    """``max_depth`` 3 has no three-bounce light: the quadrature integrates no level and the capture is the wall's
+    closed-form return alone (every spot's photons in its pixel), with no error."""
+    from transient_mi.scene_io import load_scene
+
+    scene = load_scene("scenes/nlos_letter.xml", dict(SELF_CONVERGENCE, max_depth="3", include_wall_return="true"))
+    res = _render(scene)
+    assert res.estimator_info["pairs"] == 0 and res.estimator_info["elements"] == 0
+    assert float(res.histogram.sum()) > 0 and np.count_nonzero(res.histogram.sum(-1)) == 1
+    assert not res.error_bound.any() and not res.total_error_bound.any()
 
 
 # ---------------------------------------------------------------- pipeline
@@ -355,6 +432,9 @@ def test_render_stores_the_bound_and_detect_states_the_ratio(tmp_path):
         assert (a / "error_bound" / name).read_bytes() == (b / "error_bound" / name).read_bytes()
         bnd, tot = stack.read_variance(a, j, m)
         assert bnd.shape == (3, 3, 512) and (bnd >= 0).all() and (tot > 0).any()
+    from transient_mi.capture_error import variance_summary
+
+    assert m["variance"]["summary"] == variance_summary(a, m)  # made in memory, the files' read back
     out = detect_stack(a, tmp_path / "counts", exposure_s=1e-3, seed=1)
     rn = json.loads((out / "manifest.json").read_text())["detector"]["resolved"]["render_noise"]
     assert rn["available"] and rn["estimator"] == "quadrature" and "spp" not in rn
@@ -420,15 +500,19 @@ def test_noise_target_refinement_grows_the_elements_that_set_the_error():
     assert effective_edge_m(sq, fine_count(sq, h)) < 0.03 / 4 and m == 6
 
 
-def test_quadrature_reports_progress_per_chunk():
+@pytest.mark.parametrize("cells", [None, 1])
+def test_quadrature_reports_progress_per_chunk(cells):
     """A long quadrature render moves the progress bar as its chunks of pairs are done (not 0 then 100 %): the
-    callback sees increasing values up to the total, more than once."""
+    callback sees increasing values up to the total, more than once; with one cell per patch side too (three
+    levels: the cells' estimate last)."""
     from transient_mi.integrators import _nlos_pairs
     from transient_mi.scene_io import load_scene
 
     # (2 cm elements: a few hundred chunks, not the default's thousands; what is asserted does not depend on them)
     scene = load_scene("scenes/nlos_letter.xml", dict(LETTER, estimator="quadrature", element_size_m="0.02",
                                                       patch_cells="4"))
+    if cells is not None:
+        scene.integrator().nlos_options.update(patch_cells=cells)
     seen = []
     old = _nlos_pairs.PAIRS_PER_CHUNK
     _nlos_pairs.PAIRS_PER_CHUNK = 2000  # several chunks on this small capture

@@ -177,6 +177,12 @@ def test_pipeline_states_both_errors_and_resumes(tmp_path):
     assert stack.spot_is_complete(a, 1, m) and not stack.variance_is_complete(a, 1, m)
     render("scenes/nlos_letter.xml", tmp_path / "a", defines=d, progress=False, resume=True)
     assert {p: (a / p / name).read_bytes() for p in before} == before
+    # both summaries, from the arrays in memory (spot 1) and read back (spot 0), equal those of the files
+    from transient_mi.capture_error import variance_summary
+
+    m2 = stack.read_manifest(a)
+    assert m2["variance"]["summary"] == variance_summary(a, m2) == v["summary"]
+    assert m2["error_bound"]["summary"] == variance_summary(a, stack.error_bound_view(m2)) == b["summary"]
 
 
 def test_max_depth_beyond_four_is_rendered_and_other_refusals_stay():

@@ -15,6 +15,7 @@ from __future__ import annotations
 import transient_mi  # noqa: F401  (LLVM + variant + plug-ins)
 from stats_helpers import t_bound
 from test_nlos_quadrature import ALPHA, _mc_vs_quadrature, _render
+from transient_mi.paper import PAPER_PATCH_CELLS
 from transient_mi.scene_io import load_scene
 
 TILTED = dict(include_wall_return="false", width="4", height="4", spots_x="2", spots_y="1")
@@ -31,11 +32,12 @@ def test_tilted_plane_agrees_with_monte_carlo():
 
 
 def test_paper_mannequin_agrees_with_monte_carlo():
-    """The paper's mannequin, 4 x 4 pixels, one spot, 2 cm elements: limbs shadow the torso for some cells, so
-    elements are refined and mixed pairs bounded."""
-    q = _render(load_scene("scenes/paper_mannequin.xml", MANNEQUIN), element_size_m=0.02, patch_cells=2)
+    """The paper's mannequin, 4 x 4 pixels, one spot, 2 cm elements and the paper scene's cells (one per patch:
+    the cells' error estimated on the coarse elements): limbs shadow the torso for some cells, so elements are
+    refined and mixed pairs bounded."""
+    q = _render(load_scene("scenes/paper_mannequin.xml", MANNEQUIN), element_size_m=0.02, patch_cells=PAPER_PATCH_CELLS)
     assert q.estimator_info["refine_levels"] >= 1  # self-occlusion was refined
     tq, tm_, se, bound = _mc_vs_quadrature(load_scene("scenes/paper_mannequin.xml", MANNEQUIN),
                                            load_scene("scenes/paper_mannequin.xml", MANNEQUIN), 2048, [0],
-                                           dict(element_size_m=0.02, patch_cells=2), full=True)
+                                           dict(element_size_m=0.02, patch_cells=PAPER_PATCH_CELLS), full=True)
     assert abs(tq - tm_) <= t_bound(8, ALPHA) * se + bound, (tq, tm_, se, bound)

@@ -87,6 +87,10 @@ def test_capture_stores_variance_files_and_summary(small_capture):
     v = m["variance"]
     assert v["directory"] == "variance" and v["replicates"] == 8 and v["degrees_of_freedom"] == 7
     assert v["summary"]["pixel_total_rel_std"]["median"] > 0
+    # the summary, made from the arrays in memory, is the files' read back
+    from transient_mi.capture_error import variance_summary
+
+    assert v["summary"] == variance_summary(small_capture, m)
     for j in range(m["n_files"]):
         var, tvar = stack.read_variance(small_capture, j, m)
         assert var.shape == (4, 4, 96) and tvar.shape == (4, 4)

@@ -42,7 +42,7 @@ def _plugin(**params):
     ("rqmc", "yes", "transient_nlos_path: rqmc="),
     ("estimator", "simpson", "transient_nlos_path: estimator='simpson'; allowed: monte_carlo, quadrature"),
     ("element_size_m", 0.0, "transient_nlos_path: element_size_m=0 must be"),
-    ("patch_cells", 1, "transient_nlos_path: patch_cells=1 must be"),
+    ("patch_cells", 0, "transient_nlos_path: patch_cells=0 must be"),
     ("refine_levels", 9, "transient_nlos_path: refine_levels=9 must be"),
 ])
 def test_bad_parameters_fail_with_one_line_naming_parameter_and_value(name, value, text):

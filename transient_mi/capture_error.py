@@ -106,29 +106,44 @@ def error_blocks(integrator, spp: int, quantity: str) -> dict:
     return out
 
 
-def variance_summary(directory: Path, manifest: dict) -> dict | None:
+def spot_error_summary(x: np.ndarray, var: np.ndarray, tvar: np.ndarray, bound: bool
+                       ) -> tuple[list[float], float, float]:
+    """One spot's part of :func:`variance_summary`: ``(sqrt(Var(total)) / total of its lit pixels, sum of
+    sqrt(Var(x_b)), sum of x_b)``, from the values as the capture stores them (cast to float32, as the writers do,
+    so the part is the same from the arrays in memory as from the files read back). ``x`` ``[H, W, T[, C]]``,
+    ``var`` its variance (or error, ``bound``: not squared), ``tvar`` ``[H, W[, C]]`` the totals'."""
+    x = np.asarray(x, dtype=np.float32).astype(np.float64)
+    var = np.asarray(var, dtype=np.float32).astype(np.float64)
+    tvar = np.asarray(tvar, dtype=np.float32).astype(np.float64)
+    if bound:  # a bound is already an error (not squared)
+        var, tvar = np.square(var), np.square(tvar)
+    tot = x.sum(axis=2)  # over time: [H, W] (or [H, W, C] per channel)
+    ok = tot > 1e-6 * max(float(tot.max()), 1e-300)
+    return (np.sqrt(tvar[ok]) / tot[ok]).tolist(), float(np.sqrt(var).sum()), float(x.sum())
+
+
+def variance_summary(directory: Path, manifest: dict, parts: dict | None = None) -> dict | None:
     """Relative Monte Carlo error of a complete capture (read back spot by spot).
 
     ``pixel_total_rel_std``: median, 90th percentile and maximum over
     (spot, pixel) of ``sqrt(Var(total)) / total`` for pixels whose total is
     above 1e-6 of the largest; ``bin_rel_std_weighted``: the value-weighted
     mean of ``sqrt(Var(x_b)) / x_b`` over all bins, i.e.
-    ``sum sqrt(Var(x_b)) / sum x_b``.
+    ``sum sqrt(Var(x_b)) / sum x_b``. ``parts``, optional: :func:`spot_error_summary` of spots rendered in this
+    run, by spot index (the others are read back: a resumed capture's summary is the same).
     """
     if not stack.has_variance(manifest):
         return None
     rel, sd_sum, x_sum = [], 0.0, 0.0
     bound = stack.is_error_bound(manifest)
     for j in range(manifest["n_files"]):
-        x = stack.read_spot(directory, j, manifest).astype(np.float64)
-        var, tvar = stack.read_variance(directory, j, manifest)
-        if bound:  # a bound is already an error (not squared)
-            var, tvar = np.square(var.astype(np.float64)), np.square(tvar.astype(np.float64))
-        tot = x.sum(axis=2)  # over time: [H, W] (or [H, W, C] per channel)
-        ok = tot > 1e-6 * max(float(tot.max()), 1e-300)
-        rel.extend((np.sqrt(tvar[ok].astype(np.float64)) / tot[ok]).tolist())
-        sd_sum += float(np.sqrt(var.astype(np.float64)).sum())
-        x_sum += float(x.sum())
+        part = (parts or {}).get(j)
+        if part is None:
+            part = spot_error_summary(stack.read_spot(directory, j, manifest), *stack.read_variance(directory, j,
+                                                                                                    manifest), bound)
+        rel.extend(part[0])
+        sd_sum += part[1]
+        x_sum += part[2]
     if not rel:
         return {"pixel_total_rel_std": None, "bin_rel_std_weighted": None}
     r = np.asarray(rel)

@@ -336,7 +336,8 @@ def metrics_table_markdown(rows: list[dict]) -> str:
         if r.get("estimator", "monte_carlo") != "quadrature":
             return f"{r.get('spp', 'n/a')} spp"
         h, c = r.get("quadrature_element_size_m"), r.get("quadrature_patch_cells")
-        return "quadrature" + (f", {1000 * h:.3g} mm, {c} cells" if h is not None and c is not None else "")
+        return "quadrature" + (f", {1000 * h:.3g} mm, {c} cell{'' if c == 1 else 's'}" if h is not None and c is not None
+                               else "")
 
     lines = ["| array | Chamfer (cm) | accuracy (cm) | completeness (cm) | depth MAE (cm) | depth coverage | IoU | "
              "counts / pixel / spot | rendered with | rendering / photon noise (bins; pixel totals) |",

@@ -39,7 +39,7 @@ from transient_core.errors import UserInputError
 from transient_core import stack
 
 from . import __version__
-from .capture_error import _replicates, error_blocks, estimator_of, variance_summary
+from .capture_error import _replicates, error_blocks, estimator_of, spot_error_summary, variance_summary
 from .noise_target import PARTIAL_DIR  # per-spot facts and noise-target checkpoints, removed at the end
 from .render_resume import read_spot_facts, remove_stale_temporaries, write_spot_facts
 from .scene_io import file_sha256, load_scene
@@ -326,6 +326,7 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
     paths_per_spot = W * H * job.spp
     t_start = time.perf_counter()
     preview_data = None
+    summary_parts, bound_parts = {}, {}  # spot -> capture_error.spot_error_summary of the spots rendered here
     # Spots are rendered in fixed groups (NLOS array captures share sub-paths within a group); a group
     # with any spot missing is rendered again as a whole, so resumed captures keep the same bytes.
     if hasattr(job.sensor, "spot_groups"):
@@ -386,6 +387,13 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
                     else:
                         stack.write_variance(d, j, res.variance, res.total_variance, m)
                 stack.write_spot(d, j, res.histogram, m)
+                # the summaries' parts from the arrays in memory (the files are not read back)
+                if stack.has_variance(m):
+                    v, tv = ((res.error_bound, res.total_error_bound) if stack.is_error_bound(m)
+                             else (res.variance, res.total_variance))
+                    summary_parts[j] = spot_error_summary(res.histogram, v, tv, stack.is_error_bound(m))
+                if stack.has_error_bound(m) and not stack.is_error_bound(m):
+                    bound_parts[j] = spot_error_summary(res.histogram, res.error_bound, res.total_error_bound, True)
                 if j == 0:
                     preview_data = (j, np.array(res.histogram))  # a copy: frees the group buffer
                 if on_spot is not None:
@@ -414,9 +422,9 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
     colour = preview_data[1] if m.get("channels") == ["R", "G", "B"] else None
     write_preview(d / "preview.png", stack.intensity(preview_data[1], m), m, spot=preview_data[0], rgb=colour)
     if stack.has_variance(m):
-        m["variance"] = dict(m["variance"], summary=variance_summary(d, m))
+        m["variance"] = dict(m["variance"], summary=variance_summary(d, m, summary_parts))
     if stack.has_error_bound(m) and not stack.is_error_bound(m):
-        m["error_bound"] = dict(m["error_bound"], summary=variance_summary(d, stack.error_bound_view(m)))
+        m["error_bound"] = dict(m["error_bound"], summary=variance_summary(d, stack.error_bound_view(m), bound_parts))
     if job.noise_target is not None:
         spots_nt = [f["noise_target"] for f in facts]
         m["render"]["noise_target"]["spots"] = spots_nt

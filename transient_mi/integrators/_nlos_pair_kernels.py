@@ -66,8 +66,9 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
     """Every pair of a chunk with every spot of the group: weights, visibility, arrival knots, deposits.
 
     Outputs (added to), row ``r`` per spot (one row, the pixel's own spot, for ``confocal``): ``hist``, ``bound``
-    ``[R, n_pixels, n_ext]`` (light, and light of mixed visibility), ``steady``, ``vis_err``, ``outside``
-    ``[R, n_pixels]`` (total light, its mixed-visibility part, light arriving outside the padded axis).
+    ``[R, n_pixels, n_ext]`` (light, and light of mixed visibility; ``bound`` may have no bins, ``[R, n_pixels,
+    0]``: not deposited), ``steady``, ``vis_err``, ``outside`` ``[R, n_pixels]`` (total light, its
+    mixed-visibility part, light arriving outside the padded axis).
 
     Per pair ``i`` (:func:`pair_geometry`): ``geo`` (photons per pulse before the two BSDFs and the spot leg),
     ``f_p`` (wall BSDF), ``vis_p`` (uint8 mask of the samples seen from the cell,
@@ -86,6 +87,7 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
     n_pix = hist.shape[1]
     n_ext = hist.shape[2]
     G = sw.shape[1]
+    keep_bound = bound.shape[2] > 0  # a level that only feeds the error estimate passes no bins for it
     for k in numba.prange(n_pix):
         buf = np.empty(n_ext)
         s_lo = k if confocal else 0
@@ -115,9 +117,13 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
                 first, last, inside = masses(buf, tlo, a, b, cell, n_ext)
                 if _NVIS[m] < 4:
                     fe = full * max(frac, 1.0 - frac)
-                    for bin_ in range(first, last + 1):
-                        hist[row, k, bin_] += f * buf[bin_]
-                        bound[row, k, bin_] += fe * buf[bin_]
+                    if keep_bound:
+                        for bin_ in range(first, last + 1):
+                            hist[row, k, bin_] += f * buf[bin_]
+                            bound[row, k, bin_] += fe * buf[bin_]
+                    else:
+                        for bin_ in range(first, last + 1):
+                            hist[row, k, bin_] += f * buf[bin_]
                     vis_err[row, k] += fe
                 else:
                     for bin_ in range(first, last + 1):

@@ -53,6 +53,11 @@ Error (stored like the Monte Carlo variance, ``kind: "error_bound"``), per bin, 
    Pixel totals keep the whole difference. An estimate, not a guarantee: tested by self-convergence on the letter
    and the tilted plane (against a much finer level it covers pixel totals, each pixel's and each lit time
    window's squares).
+3. **the cells' part with one cell per patch side** (an a-posteriori estimate): the coarse level cannot halve one
+   cell, so its difference holds the elements' part only; the coarse elements are integrated once more with
+   :data:`CELL_ESTIMATE_CELLS` cells per side, and ``local_rms(I_1 - I_2) * CELL_ESTIMATE_FACTOR`` (the same
+   root mean square over ``ESTIMATE_REACH_BINS`` bins; halving the cells removes 3/4 of the one cell's error at
+   second order) is added (:func:`cell_estimate_level`).
 
 What it does not do (refused in one line; use ``estimator="monte_carlo"``): windows and media on the device
 legs or in hidden space, a divergent laser beam, a non-planar relay wall, shapes that are not meshes
@@ -73,13 +78,19 @@ import numpy as np
 
 from transient_core.units import C_M_PER_PS
 from transient_mi.integrators._nlos_elements import fine_provenance, mesh_triangles, sample_points, split4, subdivide
-from transient_mi.integrators._nlos_error_estimate import discretisation_error
+from transient_mi.integrators._nlos_error_estimate import discretisation_error, local_rms
 from transient_mi.integrators._nlos_pair_kernels import cell_terms
 from transient_mi.integrators._nlos_pairs import Chunk, LevelElements, SpotSide, chunk_starts, spot_masks
 from transient_mi.integrators._nlos_surfaces import WallCells, visibility_masks
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
 
+#: With one cell per patch side, the cells' part of the error is estimated on the coarse elements from one cell
+#: against this many per side (the coarse level cannot halve one cell).
+CELL_ESTIMATE_CELLS = 2
+#: A level's error over its difference with the level of cells half as large, for a second-order method:
+#: ``2^2 / (2^2 - 1)`` (``I_c - I_c/2 = (1 - 1/4) (I_c - I)``).
+CELL_ESTIMATE_FACTOR = 4.0 / 3.0
 #: Default longest element edge, m.
 DEFAULT_ELEMENT_SIZE_M = 0.01
 #: Default cells per patch side.
@@ -203,6 +214,14 @@ def patch_cells(setup, options: dict) -> int:
     return 1 if setup.pixel_sampling == "center" else int(options.get("patch_cells", DEFAULT_PATCH_CELLS))
 
 
+def cell_estimate_level(g: _Geometry) -> _Geometry | None:
+    """The cells of the level that estimates the cells' part of the error where the fine level has one cell per
+    patch side (:data:`CELL_ESTIMATE_CELLS` per side, integrated with the coarse elements), or ``None``: with
+    several cells the coarse level halves them and its difference holds both parts; a point patch
+    (``pixel_sampling="center"``) has no cell error."""
+    return g.with_cells(CELL_ESTIMATE_CELLS) if g.m == 1 and g.cell_half_diag > 0 else None
+
+
 def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_ptrs, with_provenance=False):
     """The elements of both levels: ``(coarse, fine, refine_levels_used[, fine provenance])``,
     :class:`~._nlos_pairs.LevelElements` (coarse: edges of at most twice ``element_size_m``; fine: each coarse
@@ -264,7 +283,9 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
 
     Two levels are integrated: the *fine* one (elements of at most ``element_size_m``, ``patch_cells``
     cells per patch side, visibility refinement) is the result; the *coarse* one (each fine element's
-    parent, of twice the size, and half the cells per side, at least one) serves the error estimate.
+    parent, of twice the size, and half the cells per side, at least one) serves the error estimate. With one
+    cell per side a third, the coarse elements with :data:`CELL_ESTIMATE_CELLS` cells per side
+    (:func:`cell_estimate_level`), estimates the cells' part, which the coarse level (one cell too) cannot see.
 
     ``progress(done, total)``, optional: called after every chunk of pairs, ``done / total`` the share of the
     pairs integrated (both levels; ``total`` fixed for the call).
@@ -281,27 +302,36 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     max_depth = options.get("max_depth", 4)
     spot_ids = list(range(setup.n_spots)) if confocal else list(spots)
     G_out = 1 if confocal else len(spots)
-    zeros = np.zeros((G_out, P, g.n_ext))
-    fine = {"hist": zeros, "bound": zeros.copy(), "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)),
-            "outside": np.zeros((G_out, P)), "pairs": 0}
-    coarse = None
+    fine = coarse = cells = None
     info = {"elements": 0, "coarse_elements": 0, "refine_levels": 0, "pairs": 0, "patch_cells": m}
     if setup.hidden_shapes and (max_depth >= 4 or max_depth == -1):
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
         lv_c, lv_f, levels = level_elements(scene, setup, g, options, spot_ids, hidden_ptrs)
         g_c = g.with_cells(max(1, g.m // 2))
+        g_cc = cell_estimate_level(g)
         n_f, n_c = len(g.cell_p) * lv_f.n, len(g_c.cell_p) * lv_c.n  # pairs of each level
-        tick_f = tick_c = None
+        n_cc = 0 if g_cc is None else len(g_cc.cell_p) * lv_c.n
+        tick_f = tick_c = tick_cc = None
         if progress is not None:
             def tick_f(done):
-                progress(done, n_f + n_c)
+                progress(done, n_f + n_c + n_cc)
 
             def tick_c(done):
-                progress(n_f + done, n_f + n_c)
+                progress(n_f + done, n_f + n_c + n_cc)
+
+            def tick_cc(done):
+                progress(n_f + n_c + done, n_f + n_c + n_cc)
         fine = _level(scene, setup, g, lv_f, spot_ids, confocal, G_out, tick_f)
-        coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c)
+        # (the estimate's levels keep no per-bin light of mixed visibility: 2 [G, P, n_ext] arrays less)
+        coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c, with_bound=False)
+        if g_cc is not None:
+            cells = _level(scene, setup, g_cc, lv_c, spot_ids, confocal, G_out, tick_cc, with_bound=False)
         info.update(elements=lv_f.n, coarse_elements=lv_c.n, refine_levels=levels,
-                    pairs=fine["pairs"] + coarse["pairs"])
+                    pairs=fine["pairs"] + coarse["pairs"] + (0 if cells is None else cells["pairs"]))
+    if fine is None:  # no three-bounce light (no hidden shapes, or max_depth below 4): an empty level
+        zeros = np.zeros((G_out, P, g.n_ext))
+        fine = {"hist": zeros, "bound": zeros.copy(), "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)),
+                "outside": np.zeros((G_out, P)), "pairs": 0}
     hist = fine["hist"]
     steady = fine["steady"]
     outside = fine["outside"]
@@ -310,6 +340,11 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     if coarse is not None:
         bound = bound + discretisation_error(fine["hist"], coarse["hist"])
     tot_bound = fine["vis_err"] + (np.abs(fine["steady"] - coarse["steady"]) if coarse is not None else 0.0)
+    if cells is not None:
+        # one cell per side: the coarse level's difference is the elements' part; the cells' part is the coarse
+        # elements' one cell against CELL_ESTIMATE_CELLS (same local root mean square), scaled to the one cell's own error
+        bound = bound + local_rms(coarse["hist"] - cells["hist"]) * CELL_ESTIMATE_FACTOR
+        tot_bound = tot_bound + np.abs(coarse["steady"] - cells["steady"]) * CELL_ESTIMATE_FACTOR
     # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)
     wr = setup.wall_return
     for gi in range(G_out):
@@ -348,15 +383,17 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     return results
 
 
-def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_out, tick=None) -> dict:
+def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_out, tick=None,
+           with_bound: bool = True) -> dict:
     """Integrate one level (elements ``lv``, the cells of ``g``) for every spot of the group (``tick(pairs done)``
     after every chunk, optional).
 
-    Returns ``hist``, ``bound`` (light of mixed visibility, per bin) ``[G, P, n_ext]``, ``steady``,
-    ``vis_err``, ``outside`` ``[G, P]`` and ``pairs`` (pairs times the spots each was deposited for).
+    Returns ``hist``, ``bound`` (light of mixed visibility, per bin; no bins without ``with_bound``)
+    ``[G, P, n_ext]``, ``steady``, ``vis_err``, ``outside`` ``[G, P]`` and ``pairs`` (pairs times the spots each
+    was deposited for).
     """
     P = g.W * g.H
-    out = {"hist": np.zeros((G_out, P, g.n_ext)), "bound": np.zeros((G_out, P, g.n_ext)),
+    out = {"hist": np.zeros((G_out, P, g.n_ext)), "bound": np.zeros((G_out, P, g.n_ext if with_bound else 0)),
            "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)), "outside": np.zeros((G_out, P)),
            "pairs": 0}
     side = SpotSide(scene, setup, g, spot_ids, lv)

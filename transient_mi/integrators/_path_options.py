@@ -53,7 +53,7 @@ def read_nlos_options(props, plugin: str) -> dict:
         "estimator": get_choice(props, plugin, "estimator", "monte_carlo", ("monte_carlo", "quadrature")),
         "element_size_m": get_float(props, plugin, "element_size_m", q.DEFAULT_ELEMENT_SIZE_M, min_value=1e-5,
                                     max_value=10.0),
-        "patch_cells": get_int(props, plugin, "patch_cells", q.DEFAULT_PATCH_CELLS, min_value=2, max_value=64),
+        "patch_cells": get_int(props, plugin, "patch_cells", q.DEFAULT_PATCH_CELLS, min_value=1, max_value=64),
         "refine_levels": get_int(props, plugin, "refine_levels", q.DEFAULT_REFINE_LEVELS, min_value=0,
                                  max_value=8),
     }

@@ -300,15 +300,19 @@ class TransientNLOSPath(mi.CppADIntegrator):
            rises as its inverse square.
        * - ``patch_cells``
          - integer
-         - ``quadrature``: cells per side of a pixel's wall patch, in [2, 64]
-           (default 4; the error estimate compares with half as many; one
-           point, the centre, with ``pixel_sampling="center"``).
+         - ``quadrature``: cells per side of a pixel's wall patch, in [1, 64]
+           (default 4; the error estimate compares with half as many; with
+           one, the cells' part of the error is estimated on the coarse
+           elements, one cell against two; one point, the centre, with
+           ``pixel_sampling="center"``).
        * - ``refine_levels``
          - integer
          - ``quadrature``: times an element of mixed visibility is split in
-           four, in [0, 8] (default 1: on the paper scene, 8 x 8 pixels, 8 ps bins, levels
-           0, 1, 2, 3 stated error ratios 0.12, 0.082, 0.078, 0.076 at 10 ms
-           in 2, 3, 7 and 16 s; the light still mixed is bounded).
+           four, in [0, 8] (default 1: on the paper scene, 8 x 8 pixels, 8 ps bins,
+           one cell per patch, levels 0, 1, 2, 3 stated error ratios 0.13,
+           0.10, 0.095, 0.093 at 10 ms in 1.5, 2.2, 3.8 and 4.4 s,
+           bench/results/quadrature_settings_a8_b8.json; the light still
+           mixed is bounded).
 
     Determinism: each SIMD lane accumulates its own histogram slot (see
     :mod:`transient_mi.integrators._lanes`), so the same seed gives the same
