@@ -85,8 +85,8 @@ PAPER_ESTIMATOR = "quadrature"
 PAPER_ELEMENT_SIZE_M = 0.04
 #: The quadrature's cells per pixel patch side on the paper scene: its 1 cm^2 patches are small against the 50 cm to
 #: the mannequin, so one cell per patch (its tilt and convexity shift make it linear; the error estimate holds the
-#: cells' part, one cell against two on the coarse elements). On the 32 x 32 array at 1 ps it states 0.0055 at 10 ms
-#: (two cells: 0.0042) in 0.65 times the time of two (bench/results/paper_estimators_a32_e10ms*.json).
+#: cells' part, one cell against two on the coarse elements). On the 32 x 32 array at 1 ps it states 0.0039 at 10 ms
+#: (two cells: 0.0031) in 0.63 times the time of two (bench/results/paper_estimators_a32_e10ms*.json).
 PAPER_PATCH_CELLS = 1
 #: Array sizes compared in the paper (Fig. 4 and Fig. 5).
 PAPER_ARRAY_SIZES = (4, 8, 16, 32)
