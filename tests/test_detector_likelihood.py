@@ -27,16 +27,22 @@ def _ideal(scale, seed=0):
     return x
 
 
-@pytest.mark.parametrize("scale", [1e-5, 2e-2])  # low flux, and strong pile-up (about 2 photons per cycle)
-@pytest.mark.parametrize("jitter_ps", [0.0, 25.0, 200.0])  # none, a short kernel, a long (FFT) one
-def test_vjp_matches_central_differences(scale, jitter_ps):
-    layer = _layer(jitter_ps)
-    x = _ideal(scale)
+def _assert_vjp_matches_central_differences(layer, x, scale):
+    """``layer.vjp`` against central differences of ``layer`` along a random direction of size ``scale`` (step 1e-4,
+    relative tolerance 1e-6)."""
     rng = np.random.default_rng(1)
     g, v = rng.standard_normal((3, T)), rng.standard_normal((3, T)) * scale
     h = 1e-4
     fd = (np.sum(g * layer(x + h * v)) - np.sum(g * layer(x - h * v))) / (2 * h)
     assert np.sum(layer.vjp(x, g) * v) == pytest.approx(fd, rel=1e-6, abs=1e-12)
+
+
+@pytest.mark.parametrize("scale", [1e-5, 2e-2])  # low flux, and strong pile-up (about 2 photons per cycle)
+@pytest.mark.parametrize("jitter_ps", [0.0, 25.0, 200.0])  # none, a short kernel, a long (FFT) one
+def test_vjp_matches_central_differences(scale, jitter_ps):
+    layer = _layer(jitter_ps)
+    x = _ideal(scale)
+    _assert_vjp_matches_central_differences(layer, x, scale)
 
 
 def test_low_flux_limit_is_the_detectors_low_flux_mean():
@@ -100,11 +106,7 @@ def test_renewal_vjp_matches_central_differences(scale):
     layer = _renewal_layer()
     x = _ideal(scale)
     assert np.all(layer.blind(x) == 2)
-    rng = np.random.default_rng(1)
-    g, v = rng.standard_normal((3, T)), rng.standard_normal((3, T)) * scale
-    h = 1e-4
-    fd = (np.sum(g * layer(x + h * v)) - np.sum(g * layer(x - h * v))) / (2 * h)
-    assert np.sum(layer.vjp(x, g) * v) == pytest.approx(fd, rel=1e-6, abs=1e-12)
+    _assert_vjp_matches_central_differences(layer, x, scale)
 
 
 def test_renewal_mean_is_the_analytic_engines_mean():
