@@ -350,6 +350,14 @@ def test_error_estimate_keeps_each_pixels_sum_of_squares():
     e = discretisation_error(d, np.zeros(12))
     assert e[6] == pytest.approx(np.sqrt((9.0 + 16.0) / 5.0) / ESTIMATE_DIVISOR)
     assert e[0] == 0.0 and e[-1] == 0.0 and (e >= 0).all()
+    # filtered a block of rows at a time (small temporaries): the same bytes as the whole array at once
+    from scipy.ndimage import uniform_filter1d
+
+    from transient_mi.integrators._nlos_error_estimate import RMS_ROWS, local_rms
+
+    big = rng.normal(size=(2, RMS_ROWS + 7, 40))
+    whole = np.sqrt(np.maximum(uniform_filter1d(np.square(big), 5, axis=-1, mode="reflect"), 0.0))
+    assert local_rms(big).tobytes() == whole.tobytes()
 
 
 def test_one_cell_error_estimate_covers_the_actual_error():

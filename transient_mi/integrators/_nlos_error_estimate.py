@@ -33,6 +33,9 @@ from scipy.ndimage import uniform_filter1d
 
 #: Bins on either side over which a bin's estimate takes the root mean square of the two-level difference.
 ESTIMATE_REACH_BINS = 2
+#: Rows (pixels) filtered at a time: the float64 temporaries of a [spots, pixels, bins] capture stay this many rows
+#: (each row is filtered on its own, so the result does not depend on it).
+RMS_ROWS = 256
 #: The order of the method assumed by Richardson's rule.
 ESTIMATE_ORDER = 2
 #: The two-level difference over the fine level's error: ``2^p - 1`` (3 for second order).
@@ -42,9 +45,13 @@ ESTIMATE_DIVISOR = 2.0 ** ESTIMATE_ORDER - 1.0
 def local_rms(d: np.ndarray) -> np.ndarray:
     """Root mean square of ``d [..., T]`` over ``2 ESTIMATE_REACH_BINS + 1`` bins centred on each bin of the last
     axis (reflected at its ends, so the sum of squares of every row is kept)."""
-    ms = uniform_filter1d(np.square(np.asarray(d, dtype=np.float64)), 2 * ESTIMATE_REACH_BINS + 1, axis=-1,
-                          mode="reflect")
-    return np.sqrt(np.maximum(ms, 0.0))
+    d = np.asarray(d, dtype=np.float64)
+    rows = d.reshape(-1, d.shape[-1]) if d.ndim else d.reshape(1, 1)
+    out = np.empty(rows.shape)
+    for r0 in range(0, len(rows), RMS_ROWS):  # (a block of rows at a time: the temporaries stay small)
+        ms = uniform_filter1d(np.square(rows[r0:r0 + RMS_ROWS]), 2 * ESTIMATE_REACH_BINS + 1, axis=-1, mode="reflect")
+        np.sqrt(np.maximum(ms, 0.0), out=out[r0:r0 + RMS_ROWS])
+    return out.reshape(d.shape)
 
 
 def discretisation_error(fine: np.ndarray, coarse: np.ndarray) -> np.ndarray:
@@ -60,4 +67,6 @@ def discretisation_error(fine: np.ndarray, coarse: np.ndarray) -> np.ndarray:
     ndarray, float64, shape of ``fine``
         ``local_rms(fine - coarse) / ESTIMATE_DIVISOR``, photons per pulse per bin (>= 0).
     """
-    return local_rms(np.asarray(fine, dtype=np.float64) - coarse) / ESTIMATE_DIVISOR
+    out = local_rms(np.asarray(fine, dtype=np.float64) - coarse)
+    out /= ESTIMATE_DIVISOR
+    return out
