@@ -45,19 +45,25 @@ def _grid(n: int, side: float, tilt_deg: float = 30.0, z: float = 0.5):
     return x, np.array(f)
 
 
-@pytest.fixture(scope="module")
-def capture(tmp_path_factory):
+def _tilted_plane_counts(tmp_path_factory, name: str, **defines):
+    """The tilted plane rendered by quadrature (4 cm elements, 2 cells; one laser spot, 5 mm aperture) with
+    ``defines`` on top, detected with the paper's detector for 10 ms (seed 0): the counts capture's directory."""
     from spad_detector import detect_stack
     from transient_mi.paper import paper_detector
     from transient_mi.render_capture import render
     from transient_mi.scenes import scene_path
 
-    d = tmp_path_factory.mktemp("meshcap")
+    d = tmp_path_factory.mktemp(name)
     ideal = render(scene_path("nlos_tilted_plane"), d / "ideal", progress=False,
-                   defines={"width": "4", "height": "4", "spots_x": "1", "spots_y": "1", "pixel_footprint_m": "0.1",
-                            "aperture_diameter_m": "0.005", "n_bins": "300", "bin_width_ps": "16", "t0_ps": "9500",
-                            "estimator": "quadrature", "element_size_m": "0.04", "patch_cells": "2"})
+                   defines={"spots_x": "1", "spots_y": "1", "aperture_diameter_m": "0.005", "estimator": "quadrature",
+                            "element_size_m": "0.04", "patch_cells": "2", **defines})
     return detect_stack(ideal, d / "counts", paper_detector(), exposure_s=0.01, seed=0, progress=False)
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    return _tilted_plane_counts(tmp_path_factory, "meshcap", width="4", height="4", pixel_footprint_m="0.1",
+                                n_bins="300", bin_width_ps="16", t0_ps="9500")
 
 
 def _fd_check(fun, x, g, h, rel):
@@ -182,17 +188,8 @@ def test_resume_after_a_subdivision_stage(capture, tmp_path):
 def capture_8x8(tmp_path_factory):
     """The tilted plane on 8 x 8 pixels of 4 cm, one laser spot, 250 bins of 32 ps, the paper's detector for
     10 ms (about 2 s to render)."""
-    from spad_detector import detect_stack
-    from transient_mi.paper import paper_detector
-    from transient_mi.render_capture import render
-    from transient_mi.scenes import scene_path
-
-    d = tmp_path_factory.mktemp("meshcap8")
-    ideal = render(scene_path("nlos_tilted_plane"), d / "ideal", progress=False,
-                   defines={"width": "8", "height": "8", "spots_x": "1", "spots_y": "1", "pixel_footprint_m": "0.04",
-                            "aperture_diameter_m": "0.005", "n_bins": "250", "bin_width_ps": "32", "t0_ps": "10500",
-                            "estimator": "quadrature", "element_size_m": "0.04", "patch_cells": "2"})
-    return detect_stack(ideal, d / "counts", paper_detector(), exposure_s=0.01, seed=0, progress=False)
+    return _tilted_plane_counts(tmp_path_factory, "meshcap8", width="8", height="8", pixel_footprint_m="0.04",
+                                n_bins="250", bin_width_ps="32", t0_ps="10500")
 
 
 def _tilt_deg_and_depth(v):
