@@ -27,8 +27,11 @@ import argparse
 import json
 import os
 import re
+import signal
+import subprocess
 import sys
 import tempfile
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -164,6 +167,11 @@ def kernel_env(*, small: bool, out_dir=None) -> dict:
 def execute_notebook(nb, *, cwd=HERE, small: bool = False, out_dir=None, timeout_s: float = 1800.0):
     """Run every cell of ``nb`` (in place) in a fresh kernel; returns ``nb``.
 
+    The kernel is driven from a child process (``build.py --execute-one``) that is killed, kernel
+    included, once ``timeout_s`` plus a grace of :data:`GRACE_S` has passed: a kernel that dies in
+    native code (a segmentation fault in a Dr.Jit worker thread, say) can leave nbclient waiting
+    for output that never comes, and a test must fail, not hang.
+
     Parameters
     ----------
     nb : nbformat.NotebookNode
@@ -178,11 +186,50 @@ def execute_notebook(nb, *, cwd=HERE, small: bool = False, out_dir=None, timeout
 
     Raises
     ------
-    nbclient.exceptions.CellExecutionError
-        A cell raised (the message shows the cell and the traceback).
-    nbclient.exceptions.CellTimeoutError
-        The notebook ran past ``timeout_s``.
+    NotebookError
+        A cell raised, the kernel died, or the notebook ran past ``timeout_s`` (the message says
+        which, with the end of the child's output).
     """
+    with tempfile.TemporaryDirectory(prefix="transient-mi-nb-") as tmp:
+        src, dst = Path(tmp) / "in.ipynb", Path(tmp) / "out.ipynb"
+        nbformat.write(nb, str(src))
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--execute-one", str(src), str(dst),
+               "--cwd", str(cwd), "--timeout", str(timeout_s)]
+        if small:
+            cmd.append("--small")
+        if out_dir is not None:
+            cmd += ["--out-dir", str(out_dir)]
+        log = Path(tmp) / "log.txt"
+        with open(log, "wb") as f:
+            proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, start_new_session=True)
+            try:
+                rc = proc.wait(timeout=timeout_s + GRACE_S)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+                rc = None
+        tail = log.read_text(errors="replace")[-4000:]
+        if rc is None:
+            raise NotebookError(f"the notebook ran past {timeout_s:.0f} s (+{GRACE_S:.0f} s grace) and was "
+                                f"killed; its kernel hung or died. Output:\n{tail}")
+        if rc != 0:
+            raise NotebookError(f"executing the notebook failed (exit status {rc}):\n{tail}")
+        done = nbformat.read(str(dst), as_version=4)
+    nb.cells = done.cells
+    nb.metadata = done.metadata
+    return nb
+
+
+class NotebookError(RuntimeError):
+    """A notebook did not run to its end: a cell raised, its kernel died, or it ran out of time."""
+
+
+#: Seconds the child driving the kernel gets past the notebook's own limit before it is killed.
+GRACE_S = 60.0
+
+
+def _execute_in_this_process(nb, *, cwd, small: bool, out_dir, timeout_s: float):
+    """What :func:`execute_notebook`'s child runs: nbclient in this process (cell errors raise)."""
     from nbclient import NotebookClient
 
     deadline = time.monotonic() + timeout_s
@@ -191,11 +238,48 @@ def execute_notebook(nb, *, cwd=HERE, small: bool = False, out_dir=None, timeout
         return max(1, int(deadline - time.monotonic()))
 
     with kernel_manager() as km:
+        shutdown = km.shutdown_kernel
+
+        def shutdown_kernel(*args, **kwargs):  # (nbclient's own shutdown: the watchdog stands down)
+            km._transient_mi_shutting_down = True
+            return shutdown(*args, **kwargs)
+
+        km.shutdown_kernel = shutdown_kernel
+        threading.Thread(target=_exit_when_kernel_dies, args=(km,), daemon=True).start()
         client = NotebookClient(nb, km=km, timeout_func=remaining, record_timing=False, allow_errors=False,
                                 resources={"metadata": {"path": str(cwd)}})
         client.execute(env=kernel_env(small=small, out_dir=out_dir))
     nb.metadata["kernelspec"] = dict(KERNELSPEC)
     return nb
+
+
+def _exit_when_kernel_dies(km, poll_s: float = 0.5) -> None:
+    """Watchdog thread of :func:`_execute_in_this_process`: exit this process (status 3) once the kernel
+    process has ended on its own. nbclient 0.11 waits forever for the output of a cell whose kernel died
+    of a signal (measured: a segmentation fault in a cell)."""
+    while True:
+        time.sleep(poll_s)
+        proc = getattr(getattr(km, "provisioner", None), "process", None)
+        code = proc.poll() if proc is not None else None
+        if code is not None and not getattr(km, "_transient_mi_shutting_down", False):
+            print(f"the notebook's kernel died (exit status {code}"
+                  f"{', signal ' + signal.Signals(-code).name if code < 0 else ''})", file=sys.stderr, flush=True)
+            os._exit(3)
+
+
+def _execute_one(argv) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("src")
+    ap.add_argument("dst")
+    ap.add_argument("--cwd", required=True)
+    ap.add_argument("--timeout", type=float, required=True)
+    ap.add_argument("--small", action="store_true")
+    ap.add_argument("--out-dir", default=None)
+    a = ap.parse_args(argv)
+    nb = nbformat.read(a.src, as_version=4)
+    _execute_in_this_process(nb, cwd=a.cwd, small=a.small, out_dir=a.out_dir, timeout_s=a.timeout)
+    nbformat.write(nb, a.dst)
+    return 0
 
 
 def image_outputs(nb) -> int:
@@ -226,6 +310,9 @@ def write_notebook(nb, path) -> Path:
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["--execute-one"]:  # (execute_notebook's child)
+        return _execute_one(argv[1:])
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("names", nargs="*", help="build only notebooks whose names start with these (e.g. 01 03)")
     ap.add_argument("--small", action="store_true", help="tiny settings (TRANSIENT_MI_NOTEBOOK_SMALL=1)")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib.util
 import sys
+import time
 from pathlib import Path
 
 import nbformat
@@ -72,6 +73,27 @@ def test_kernel_is_this_interpreter():
     lines = nb.cells[0].outputs[0]["text"].split()
     assert Path(lines[0]).resolve() == Path(sys.executable).resolve()
     assert lines[1] == "1"
+
+
+def test_a_kernel_that_dies_in_native_code_fails_the_notebook_instead_of_hanging():
+    # (a Dr.Jit worker thread once segfaulted in a test run and nbclient waited for output forever)
+    nb = nbformat.v4.new_notebook()
+    nb.cells = [nbformat.v4.new_code_cell("import ctypes; ctypes.string_at(0)"),
+                nbformat.v4.new_code_cell("print('never')")]
+    t0 = time.monotonic()
+    with pytest.raises(build.NotebookError, match="kernel died .*SIGSEGV"):
+        build.execute_notebook(nb, small=True, timeout_s=120)
+    assert time.monotonic() - t0 < 60  # (it took 180 s, killed by the grace, before the watchdog)
+
+
+def test_a_notebook_past_its_time_is_stopped(monkeypatch):
+    monkeypatch.setattr(build, "GRACE_S", 5.0)
+    nb = nbformat.v4.new_notebook()
+    nb.cells = [nbformat.v4.new_code_cell("import time; time.sleep(600)")]
+    t0 = time.monotonic()
+    with pytest.raises(build.NotebookError):
+        build.execute_notebook(nb, small=True, timeout_s=3)
+    assert time.monotonic() - t0 < 3 + 5 + 10  # (the limit, the grace and a margin for the kill)
 
 
 @pytest.mark.parametrize("src", SOURCES, ids=[p.stem for p in SOURCES])
