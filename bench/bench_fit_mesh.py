@@ -52,7 +52,22 @@ def _capture(work: Path, scene: str, width: int, spots: int, exposure_s: float) 
                         overwrite=True)
 
 
-def _targets(scene: str, fit: dict) -> dict:
+def _closed_hole_bound(counts: Path) -> dict:
+    """Metrics of the holed plate's square without the hole against the truth, on the fit's grid: the best a
+    fit that cannot open the hole reaches."""
+    import trimesh
+
+    from transient_core.stack import read_manifest
+    from transient_mi.fit.outputs import _backprojection, _bounds, _ground_truth, mesh_metrics
+    from transient_mi.scenes.topology import closed_plate_mesh
+
+    man = read_manifest(counts)
+    m = mesh_metrics(trimesh.Trimesh(*closed_plate_mesh(), process=False), _backprojection(counts, _bounds(man)),
+                     _ground_truth(man)[0])
+    return {k: m[k] for k in ("silhouette_iou", "iou", "chamfer_mesh_m")}
+
+
+def _targets(scene: str, fit: dict, counts: Path) -> dict:
     """The issue's targets for this scene and whether the fit meets them."""
     from transient_mi.scenes.topology import HOLED_PLATE_CLOSED_IOU, TOPOLOGY_SHAPES
 
@@ -63,7 +78,8 @@ def _targets(scene: str, fit: dict) -> dict:
                "note": "the issue's 'IoU >= 0.6' for shapes of other topology, read as both the voxel IoU and "
                        "the silhouette IoU; a small capture"}
         if scene == "holed_plate":
-            out["closed_hole_silhouette_iou"] = HOLED_PLATE_CLOSED_IOU
+            out["closed_hole_silhouette_iou_whole_plate"] = HOLED_PLATE_CLOSED_IOU
+            out["closed_hole_on_the_grid"] = _closed_hole_bound(counts)
         return out
     return {"chamfer_mesh_m_max": TARGETS["chamfer_mesh_m"], "silhouette_iou_min": TARGETS["silhouette_iou"],
             "met": {"chamfer": (fit["chamfer_mesh_m"] or 9) <= TARGETS["chamfer_mesh_m"],
@@ -137,7 +153,7 @@ def main() -> None:
               "n_faces": {"start": res["parameters"]["start"]["n_faces"], "fit": res["parameters"]["fit"]["n_faces"]},
               "time_s": {"capture": t_cap, "fit_wall": t_fit, "align": res["time_s"]["align"],
                          "optimisation": res["time_s"]["optimisation"]},
-              "targets": _targets(a.scene, rows["fit"])}
+              "targets": _targets(a.scene, rows["fit"], counts)}
     for k, r in rows.items():
         print(f"{k:15s} " + "  ".join(f"{c}={v:.4g}" for c, v in r.items() if v is not None))
     print(f"fit {t_fit:.0f} s")
