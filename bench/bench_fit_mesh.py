@@ -8,6 +8,11 @@ configuration (8 x 8 pixels of 4 cm, 2 x 2 laser spots), not the issue's full-si
 
     python bench/bench_fit_mesh.py --save --figure docs/img/fit_mesh_letter_views.png   # fit_mesh_letter.json
     python bench/bench_fit_mesh.py --scene nlos_tilted_plane --save
+    python bench/bench_fit_mesh.py --scene chair --save         # generated (transient_mi.scenes.topology)
+    python bench/bench_fit_mesh.py --scene holed_plate --save
+
+``--scene`` takes an embedded scene or one of the generated shapes of other topology
+(:data:`transient_mi.scenes.topology.TOPOLOGY_SHAPES`), whose scene is written into the work folder.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import _record  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = {"chamfer_mesh_m": 0.005, "silhouette_iou": 0.8}
+IOU_OTHER_TOPOLOGY = 0.6  # the issue's target for the generated shapes of other topology
 
 
 def _capture(work: Path, scene: str, width: int, spots: int, exposure_s: float) -> Path:
@@ -30,18 +36,55 @@ def _capture(work: Path, scene: str, width: int, spots: int, exposure_s: float) 
     from transient_mi.paper import paper_detector
     from transient_mi.render_capture import render
     from transient_mi.scenes import scene_path
+    from transient_mi.scenes.topology import TOPOLOGY_SHAPES, write_topology_scene
 
     d = work / f"{scene}_{width}_{spots}"
     if (d / "counts" / "manifest.json").is_file():
         return d / "counts"
     pix = 0.32 / width
-    ideal = render(scene_path(scene), d / "ideal", progress=False, resume=True,
+    xml = write_topology_scene(scene, d / "scene") if scene in TOPOLOGY_SHAPES else scene_path(scene)
+    ideal = render(xml, d / "ideal", progress=False, resume=True,
                    defines={"width": str(width), "height": str(width), "spots_x": str(spots), "spots_y": str(spots),
                             "spot_spacing_m": "0.2", "pixel_footprint_m": repr(pix), "aperture_diameter_m": "0.005",
                             "n_bins": "400", "bin_width_ps": "16", "t0_ps": "9000", "estimator": "quadrature",
                             "element_size_m": "0.02", "patch_cells": "2"})
     return detect_stack(ideal, d / "counts", paper_detector(), exposure_s=exposure_s, seed=0, progress=False,
                         overwrite=True)
+
+
+def _closed_hole_bound(counts: Path) -> dict:
+    """Metrics of the holed plate's square without the hole against the truth, on the fit's grid: the best a
+    fit that cannot open the hole reaches."""
+    import trimesh
+
+    from transient_core.stack import read_manifest
+    from transient_mi.fit.outputs import _backprojection, _bounds, _ground_truth, mesh_metrics
+    from transient_mi.scenes.topology import closed_plate_mesh
+
+    man = read_manifest(counts)
+    m = mesh_metrics(trimesh.Trimesh(*closed_plate_mesh(), process=False), _backprojection(counts, _bounds(man)),
+                     _ground_truth(man)[0])
+    return {k: m[k] for k in ("silhouette_iou", "iou", "chamfer_mesh_m")}
+
+
+def _targets(scene: str, fit: dict, counts: Path) -> dict:
+    """The issue's targets for this scene and whether the fit meets them."""
+    from transient_mi.scenes.topology import HOLED_PLATE_CLOSED_IOU, TOPOLOGY_SHAPES
+
+    if scene in TOPOLOGY_SHAPES:
+        out = {"iou_min": IOU_OTHER_TOPOLOGY,
+               "met": {"iou": (fit["iou"] or 0) >= IOU_OTHER_TOPOLOGY,
+                       "silhouette_iou": (fit["silhouette_iou"] or 0) >= IOU_OTHER_TOPOLOGY},
+               "note": "the issue's 'IoU >= 0.6' for shapes of other topology, read as both the voxel IoU and "
+                       "the silhouette IoU; a small capture"}
+        if scene == "holed_plate":
+            out["closed_hole_silhouette_iou_whole_plate"] = HOLED_PLATE_CLOSED_IOU
+            out["closed_hole_on_the_grid"] = _closed_hole_bound(counts)
+        return out
+    return {"chamfer_mesh_m_max": TARGETS["chamfer_mesh_m"], "silhouette_iou_min": TARGETS["silhouette_iou"],
+            "met": {"chamfer": (fit["chamfer_mesh_m"] or 9) <= TARGETS["chamfer_mesh_m"],
+                    "silhouette_iou": (fit["silhouette_iou"] or 0) >= TARGETS["silhouette_iou"]},
+            "note": "the issue's targets are for the full 16x16, 4x4-spot capture; this is a smaller one"}
 
 
 def dead_time_check(counts: Path) -> dict:
@@ -110,11 +153,7 @@ def main() -> None:
               "n_faces": {"start": res["parameters"]["start"]["n_faces"], "fit": res["parameters"]["fit"]["n_faces"]},
               "time_s": {"capture": t_cap, "fit_wall": t_fit, "align": res["time_s"]["align"],
                          "optimisation": res["time_s"]["optimisation"]},
-              "targets": {"chamfer_mesh_m_max": TARGETS["chamfer_mesh_m"],
-                          "silhouette_iou_min": TARGETS["silhouette_iou"],
-                          "met": {"chamfer": (rows["fit"]["chamfer_mesh_m"] or 9) <= TARGETS["chamfer_mesh_m"],
-                                  "silhouette_iou": (rows["fit"]["silhouette_iou"] or 0) >= TARGETS["silhouette_iou"]},
-                          "note": "the issue's targets are for the full 16x16, 4x4-spot capture; this is a smaller one"}}
+              "targets": _targets(a.scene, rows["fit"], counts)}
     for k, r in rows.items():
         print(f"{k:15s} " + "  ".join(f"{c}={v:.4g}" for c, v in r.items() if v is not None))
     print(f"fit {t_fit:.0f} s")

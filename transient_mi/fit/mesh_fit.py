@@ -3,7 +3,8 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
 
 1. Start: a reconstruction's surface (:mod:`~transient_mi.fit.mesh_start`: the backprojection's front surface
    by default, a closed surface around its occupied voxels, or any mesh file such as a ``recon`` method's
-   ``surface.ply``), at ``cell_m``; its reflectance is set so the model holds as many counts as the capture.
+   ``surface.ply``), at ``cell_m``, less any face across the device's view of the wall
+   (:func:`~transient_mi.fit.mesh_start.clear_view`); its reflectance is set so the model holds as many counts as the capture.
 2. Alignment (``align`` iterations, 8 by default; :mod:`~transient_mi.fit.mesh_align`): the start mesh's global
    affine map and its reflectance by Levenberg-Marquardt, from the start blur to the end blur: depth, tilt,
    extent and reflectance are coupled in the data, which a per-vertex first-order method follows slowly.
@@ -192,6 +193,13 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
             st = json.loads(stage_file.read_text())
             v0, f0 = np.asarray(st["vertices"]), np.asarray(st["faces"])
         cap = _capture_model(capture, v0, f0, settings, bin_width_ps)
+        if not resuming:  # (the start's faces across the device's lines of sight dropped: mesh_start)
+            from .mesh_start import clear_view, device_sight_lines
+
+            v1, f1 = clear_view(v0, f0, *device_sight_lines(cap.sensor, cap.scene, cap.width, cap.height))
+            if len(f1) != len(f0):
+                v0, f0 = v1, f1
+                cap = _capture_model(capture, v0, f0, settings, bin_width_ps)
         # (everything checked: only now is anything written)
         if existing and overwrite and not resume:
             for name in _OUTPUTS:

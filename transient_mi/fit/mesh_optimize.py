@@ -25,6 +25,13 @@ silhouette of an open surface seen from the wall is fitted. What is not differen
 mesh starting or stopping to hide another from the wall or a laser spot (self-occlusion): the fit starts
 from the front surface (a height field facing the wall, no self-occlusion), the large-steps smoothing moves
 hidden vertices with their visible neighbours, and the regularisers keep the rest in place.
+
+The device's view: the detector must see every wall patch (the scene refuses a mesh that hides one,
+:class:`~transient_mi.sensors._nlos_setup.NLOSSetup`), and the true shape does. An Adam step that would move
+the mesh into a line of sight from the detector to the wall is halved until it does not (at most
+``MAX_STEP_HALVINGS`` times, then the iterate stays where it was), as the alignment counts such a trial mesh as
+a rise of the objective; found on the generated chair and holed plate (``transient_mi.scenes.topology``), whose
+fits stretched the mesh sideways towards the detector.
 """
 
 from __future__ import annotations
@@ -36,6 +43,35 @@ import numpy as np
 from .optimize import FitState, resolve_spp, sigma_schedule, step_scale
 
 __all__ = ["run_mesh_adam", "regularized_objective"]
+
+#: An Adam step whose mesh hides a wall patch from the detector is halved at most this many times.
+MAX_STEP_HALVINGS = 6
+
+
+def hides_a_wall_patch(capture, vertices: np.ndarray, albedo: float) -> bool:
+    """Whether the mesh ``vertices [V, 3]`` (m) hides a wall patch from the detector (the scene's own check, a
+    few ray tests; the mesh is left set)."""
+    from transient_core.errors import UserInputError
+
+    capture.set_mesh(vertices, albedo)
+    capture.sensor.forget_nlos_setup()
+    try:
+        capture.sensor.nlos_setup(capture.scene)
+    except UserInputError:
+        return True
+    return False
+
+
+def _keep_the_view(model, capture, theta: np.ndarray, new: np.ndarray) -> np.ndarray:
+    """``new``, or the step from ``theta`` towards it halved until its mesh hides no wall patch (module
+    docstring)."""
+    step = new - theta
+    for _ in range(MAX_STEP_HALVINGS + 1):
+        cand = theta + step
+        if not hides_a_wall_patch(capture, model.vertices(cand), model.albedo(cand)):
+            return cand
+        step = 0.5 * step
+    return theta
 
 
 def regularized_objective(model, capture, theta, sigma_ps: float, *, end_ps: float | None = None, seed: int = 0,
@@ -117,7 +153,8 @@ def run_mesh_adam(model, capture, state: FitState, settings, *, stage_start: int
         if per_vertex:  # (a floor: vertices whose gradient is a millionth of the largest stay put)
             dv = np.maximum(dv, 1e-3 * float(np.max(dv)))
         denom = np.concatenate([dv, [np.sqrt(vh[-1])]]) + 1e-30
-        theta = np.clip(theta - step_scale(i, n) * model.step * mh / denom, model.lower, model.upper)
+        theta = _keep_the_view(model, capture, theta,
+                               np.clip(theta - step_scale(i, n) * model.step * mh / denom, model.lower, model.upper))
         if i >= tail_from:
             state.tail_sum = (np.asarray(state.tail_sum) + theta).tolist() if state.tail_count else theta.tolist()
             state.tail_count += 1

@@ -12,6 +12,12 @@ its front side only):
   nets isosurface of :func:`recon.surface.isosurface` of the occupancy, at level 0.5), outward normals;
 * :func:`load_mesh` (``--start-mesh PATH``): any PLY or OBJ, e.g. a ``recon`` method's ``surface.ply``.
 
+A start must leave the device's view clear: the scene refuses a mesh that hides a wall patch from the detector
+or a laser spot from the laser (:class:`~transient_mi.sensors._nlos_setup.NLOSSetup`), and a reconstruction's
+surface near the wall can (found on a generated chair captured on 4 x 4 pixels). :func:`clear_view` drops the
+start's faces that a line of sight crosses (:func:`device_sight_lines`: detector to the wall's target, to every
+patch's corners and centre; laser to every spot); the true shape crosses none of them.
+
 Meshes finer than the fit's resolution are simplified by vertex clustering (:func:`cluster`: vertices snapped to
 a grid of ``cell_m``, merged, degenerate faces dropped; Rossignac and Borrel 1993). :func:`subdivide` splits
 every triangle in four (edge midpoints): the next, finer stage.
@@ -25,7 +31,8 @@ import numpy as np
 
 from transient_core.errors import UserInputError
 
-__all__ = ["front_surface", "closed_surface", "load_mesh", "cluster", "subdivide", "orient_to_wall"]
+__all__ = ["front_surface", "closed_surface", "load_mesh", "cluster", "subdivide", "orient_to_wall",
+           "device_sight_lines", "clear_view"]
 
 
 def _clean(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -153,3 +160,47 @@ def subdivide(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     v2, f2 = trimesh.remesh.subdivide(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64))
     return np.asarray(v2, dtype=np.float64), np.asarray(f2, dtype=np.int64)
+
+
+def device_sight_lines(sensor, scene, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(origins [N, 3], ends [N, 3])`` (m) of the lines of sight an array capture needs clear: the detector to
+    the wall's target, to each patch's corners (pulled in by 1e-4 of a side, as the scene's check) and centre,
+    and the laser to each spot."""
+    D = np.asarray(sensor.origin, dtype=np.float64)
+    fr, pitch = sensor.frame, float(sensor.pixel_pitch_m)
+    ends = [np.asarray(sensor.target, dtype=np.float64)[None],
+            fr.grid_corners(width, height, pitch, shrink=1e-4, cell=float(sensor.pixel_footprint_m)).reshape(-1, 3),
+            fr.grid(width, height, pitch).reshape(-1, 3)]
+    origins = [np.broadcast_to(D, (sum(len(e) for e in ends), 3))]
+    for em in scene.emitters():
+        if hasattr(em, "spot_targets"):
+            t = em.spot_targets()
+            ends.append(t)
+            origins.append(np.broadcast_to(np.asarray(em.origin, dtype=np.float64), t.shape))
+    return np.concatenate(origins), np.concatenate(ends)
+
+
+def clear_view(v: np.ndarray, f: np.ndarray, origins: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh without the faces that a segment ``origins -> ends`` crosses (Moller-Trumbore, both sides), unused
+    vertices dropped; the mesh unchanged (same arrays) when none does."""
+    v = np.asarray(v, dtype=np.float64)
+    f = np.asarray(f, dtype=np.int64)
+    a, e1, e2 = v[f[:, 0]], v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+    hit = np.zeros(len(f), dtype=bool)
+    for o, d in zip(np.asarray(origins, dtype=np.float64), np.asarray(ends, dtype=np.float64) - origins):
+        p = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, p)
+        ok = np.abs(det) > 1e-15
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        s = o - a
+        u = np.einsum("ij,ij->i", s, p) * inv
+        q = np.cross(s, e1)
+        w = (q @ d) * inv
+        t = np.einsum("ij,ij->i", e2, q) * inv
+        hit |= ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0) & (t < 1)
+    if not hit.any():
+        return v, f
+    if hit.all():
+        raise UserInputError("the start mesh lies across the device's view of the wall (every face hides a wall "
+                             "patch or a laser spot); start from another surface (--start-mesh)")
+    return _clean(v, f[~hit])
