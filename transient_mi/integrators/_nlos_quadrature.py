@@ -320,7 +320,8 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     if setup.hidden_shapes and (max_depth >= 4 or max_depth == -1):
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
         lv_c, lv_f, levels = level_elements(scene, setup, g, options, spot_ids, hidden_ptrs)
-        g_c = g.with_cells(max(1, g.m // 2))
+        m_c = max(1, g.m // 2)
+        g_c = g if m_c == g.m else g.with_cells(m_c)  # (one cell per side: the same cells, their wall once)
         g_cc = cell_estimate_level(g)
         n_f, n_c = len(g.cell_p) * lv_f.n, len(g_c.cell_p) * lv_c.n  # pairs of each level
         n_cc = 0 if g_cc is None else len(g_cc.cell_p) * lv_c.n
@@ -334,9 +335,11 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
 
             def tick_cc(done):
                 progress(n_f + n_c + done, n_f + n_c + n_cc)
-        fine = _level(scene, setup, g, lv_f, spot_ids, confocal, G_out, tick_f)
+        wall = WallCells(scene, setup, g.cell_p, g.D)
+        fine = _level(scene, setup, g, lv_f, spot_ids, confocal, G_out, tick_f, wall=wall)
         # (the estimate's levels keep no per-bin light of mixed visibility: 2 [G, P, n_ext] arrays less)
-        coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c, with_bound=False)
+        coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c, with_bound=False,
+                        wall=wall if g_c is g else None)
         if g_cc is not None:
             cells = _level(scene, setup, g_cc, lv_c, spot_ids, confocal, G_out, tick_cc, with_bound=False)
         info.update(elements=lv_f.n, coarse_elements=lv_c.n, refine_levels=levels,
@@ -397,9 +400,10 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
 
 
 def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_out, tick=None,
-           with_bound: bool = True) -> dict:
+           with_bound: bool = True, wall: WallCells | None = None) -> dict:
     """Integrate one level (elements ``lv``, the cells of ``g``) for every spot of the group (``tick(pairs done)``
-    after every chunk, optional).
+    after every chunk, optional; ``wall``: the :class:`~._nlos_surfaces.WallCells` of ``g``'s cells, when another
+    level has them already).
 
     Returns ``hist``, ``bound`` (light of mixed visibility, per bin; no bins without ``with_bound``)
     ``[G, P, n_ext]``, ``steady``, ``vis_err``, ``outside`` ``[G, P]`` and ``pairs`` (pairs times the spots each
@@ -410,7 +414,7 @@ def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_
            "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)), "outside": np.zeros((G_out, P)),
            "pairs": 0}
     side = SpotSide(scene, setup, g, spot_ids, lv)
-    wall = WallCells(scene, setup, g.cell_p, g.D)
+    wall = WallCells(scene, setup, g.cell_p, g.D) if wall is None else wall
     for e0, e1 in chunk_starts(len(g.cell_p), lv.n):
         ch = Chunk(scene, g, lv, wall, e0, e1, side, confocal)
         ch.spread(out, lv, side, confocal, ch.fx_pairs(g, lv, side, confocal))
