@@ -164,17 +164,19 @@ def adjoint_group(g, grad_ext, per_pixel, e0, ne, vis_p, A, w1, w2, tilt, vis_s,
                 g[row, i] = _SHARE[m] * acc
 
 
-@numba.njit(cache=True, parallel=True, fastmath=False)
+@numba.njit(cache=True, fastmath=False)
 def pairs_lit(geo, cos_p, side_x, e0, ne, per_pixel, vis_s, side_s, wall_lambertian, lambertian, confocal):
     """Which pairs of a chunk can carry light for some spot of the group, by geometry alone (so a zero BSDF value
     or intensity still gets its derivative): ``geo > 0``, the element in front of a Lambertian wall (``cos_p >
     0``), and a spot that sees one of the element's samples, on the cell's side of a Lambertian element. The
     others have no light and no derivative whatever their visibility from the cell, so it is not tested (bool
-    ``[n]``; arguments as :func:`spread_group`)."""
+    ``[n]``; arguments as :func:`spread_group`). Single-threaded: a few comparisons per pair, about 5 ns (1 ms for
+    the 196,608 pairs of the confocal 32 x 32 benchmark at 57 mm), where a parallel region took 9-16 ms on the
+    shared 2-core machine (its threads wait for a core)."""
     n = geo.shape[0]
     G = side_s.shape[1]
     lit = np.zeros(n, dtype=np.bool_)
-    for i in numba.prange(n):
+    for i in range(n):
         if geo[i] == 0.0 or (wall_lambertian and cos_p[i] == 0.0):
             continue
         e = e0 + i % ne
@@ -226,9 +228,32 @@ def _amplitude_parts(X, q0, q1, q2, ne, wall_n):
             u2 * u2)
 
 
-@numba.njit(cache=True, parallel=True, fastmath=False)
+#: Chunks of fewer pairs than this run :func:`pair_geometry` on one thread: about 50 ns a pair (12 ms at this size),
+#: where a parallel region cost more than it saved on the shared 2-core machine (its threads wait for a core: the
+#: confocal 32 x 32 benchmark's render, 172,032 pairs in its largest chunk, took 0.29 s against 0.32 s median,
+#: 0.15 s of CPU against 0.18 s, at load 9). Same bytes either way (the pairs are independent).
+PARALLEL_MIN_PAIRS = 1 << 18
+
+
 def pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, area, n_sh, wall_n_sh, wall_side, e0, e1,
                   ax, ay, fl, bin_m, photons, has_cells, wall_n):
+    """:func:`_pair_geometry` (its docstring has the arguments and results), on one thread for a chunk of fewer than
+    :data:`PARALLEL_MIN_PAIRS` pairs."""
+    args = (cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, area, n_sh, wall_n_sh, wall_side, e0, e1, ax,
+            ay, fl, bin_m, photons, has_cells, wall_n)
+    if len(cell_p) * (e1 - e0) >= PARALLEL_MIN_PAIRS:
+        return _pair_geometry(*args)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        return _pair_geometry(*args)
+    finally:
+        numba.set_num_threads(threads)
+
+
+@numba.njit(cache=True, parallel=True, fastmath=False)
+def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, area, n_sh, wall_n_sh, wall_side, e0,
+                   e1, ax, ay, fl, bin_m, photons, has_cells, wall_n):
     """Detector-side geometry of the chunk's pairs (cells x elements ``e0:e1``, cell-major), float64, one pair per
     iteration in parallel; ``rd_c``, ``uq_c``, ``w0_c``, ``corner_d``: :func:`cell_terms`.
 

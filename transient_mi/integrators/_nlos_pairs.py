@@ -52,17 +52,57 @@ def spot_masks(scene, setup, spots, pts: np.ndarray) -> np.ndarray:
                                                                                                        len(S))
 
 
+class TracedVisibility:
+    """Visibility masks already traced for the first ``n`` elements of a level (by the refinement test,
+    :func:`~._nlos_quadrature.refine_visibility`): from the laser spots ``spots`` (``spot``, ``uint8 [n, G]``, as
+    :func:`spot_masks`) and, where that test used the level's own cells, from the cells ``cell_p`` (``cell``,
+    ``uint8 [C, n]``, as :func:`~._nlos_surfaces.visibility_masks`; ``None`` otherwise). :class:`SpotSide` and
+    :class:`Chunk` take them instead of tracing the same rays again (each ray's result does not depend on the
+    launch it is traced in: same bytes)."""
+
+    def __init__(self, spots, spot: np.ndarray, cell_p: np.ndarray | None = None, cell: np.ndarray | None = None):
+        self.spots = list(spots)
+        self.spot, self.cell_p, self.cell = spot, cell_p, cell
+        self.n = len(spot)
+
+    def kept(self, keep: np.ndarray) -> "TracedVisibility":
+        """The masks of the elements ``keep`` (bool ``[n]``), in order."""
+        return TracedVisibility(self.spots, self.spot[keep], self.cell_p,
+                                None if self.cell is None else np.ascontiguousarray(self.cell[:, keep]))
+
+
 class LevelElements:
     """A level's elements: vertices ``tri [n, 3, 3]``, source triangles ``src`` (rows of the
     :class:`~._nlos_elements.Faces`), visibility samples, areas, normals and the surfaces at the centroids
-    (:class:`~._nlos_surfaces.ElementSurfaces`)."""
+    (:class:`~._nlos_surfaces.ElementSurfaces`); ``traced``, optional: the :class:`TracedVisibility` of its first
+    elements."""
 
-    def __init__(self, setup, faces, hidden_ptrs, tri: np.ndarray, src: np.ndarray):
+    def __init__(self, setup, faces, hidden_ptrs, tri: np.ndarray, src: np.ndarray,
+                 traced: TracedVisibility | None = None):
         self.n = len(tri)
         self.tri, self.src = tri, src
         self.pts, self.area, self.nrm = element_terms(tri)
         self.X0 = self.pts[:, 0]
         self.surf = ElementSurfaces(setup.hidden_shapes, hidden_ptrs, faces, tri, src)
+        self.traced = traced
+
+    def spot_vis(self, scene, setup, spots) -> np.ndarray:
+        """:func:`spot_masks` of every element from the spots ``spots``, ``uint8 [n, G]`` (the traced ones taken,
+        the others traced)."""
+        t = self.traced
+        if t is None or t.spots != list(spots):
+            return spot_masks(scene, setup, spots, self.pts)
+        if t.n == self.n:
+            return t.spot
+        return np.concatenate([t.spot, spot_masks(scene, setup, spots, self.pts[t.n:])])
+
+    def traced_cells(self, cell_p: np.ndarray, e0: int, e1: int) -> np.ndarray | None:
+        """The traced masks of the elements ``e0:e1`` from the cells ``cell_p``, ``uint8 [C, k]`` for the first ``k``
+        of them (``k`` may be 0), or ``None`` when no masks were traced from these cells."""
+        t = self.traced
+        if t is None or t.cell is None or not np.array_equal(t.cell_p, cell_p):
+            return None
+        return t.cell[:, e0:max(e0, min(e1, t.n))]
 
 
 class SpotSide:
@@ -80,7 +120,7 @@ class SpotSide:
         beam = np.asarray(setup.spot_targets, dtype=np.float64)[self.spots] - self.Lo
         self.beam = beam / np.linalg.norm(beam, axis=1, keepdims=True)
         self.laser_leg = np.linalg.norm(self.S - self.Lo, axis=1)  # [G]
-        self.vis = spot_masks(scene, setup, self.spots, lv.pts)
+        self.vis = lv.spot_vis(scene, setup, self.spots)
         self.intensity = np.asarray(self.intensity_ad(scene, lv.X0), dtype=np.float64).reshape(n, G)
         self.B, self.r_sv, self.r_sx = spot_knots(lv.tri, lv.X0, self.S, g.fl * self.laser_leg, g.bin_m,
                                        g.t0_m / g.bin_m - g.pad)
@@ -120,11 +160,20 @@ class Chunk:
             self.f_p = np.asarray(wall.pair_values(g.cell_p, lv.X0, e0, e1), dtype=np.float64)
         lit = pairs_lit(self.geo, self.cos_p, self.side_x, e0, self.ne, self.per_pixel, side.vis, side.side_s,
                         wall.lambertian, lv.surf.lambertian, confocal)
-        if lit.all():
+        known = lv.traced_cells(g.cell_p, e0, e1)  # [C, k]: the first k elements' masks, traced already
+        k = 0 if known is None else known.shape[1]
+        if k == self.ne:
+            self.vis_p = known.reshape(-1) * lit
+        elif k == 0 and lit.all():
             self.vis_p = visibility_masks(scene, g.cell_p, g.normal, lv.pts, e0, e1)
         else:
             self.vis_p = np.zeros(self.n, dtype=np.uint8)
-            idx = np.flatnonzero(lit)
+            todo = lit
+            if k:
+                self.vis_p.reshape(C, self.ne)[:, :k] = known
+                self.vis_p *= lit
+                todo = lit & (np.arange(self.n) % self.ne >= k)
+            idx = np.flatnonzero(todo)
             self.vis_p[idx] = visibility_masks(scene, g.cell_p, g.normal, lv.pts, e0, e1, idx)
 
     def spot_of_pair(self) -> np.ndarray:

@@ -80,7 +80,8 @@ from transient_core.units import C_M_PER_PS
 from transient_mi.integrators._nlos_elements import fine_provenance, mesh_triangles, sample_points, split4, subdivide
 from transient_mi.integrators._nlos_error_estimate import discretisation_error, local_rms
 from transient_mi.integrators._nlos_pair_kernels import cell_terms
-from transient_mi.integrators._nlos_pairs import Chunk, LevelElements, SpotSide, chunk_starts, spot_masks
+from transient_mi.integrators._nlos_pairs import (Chunk, LevelElements, SpotSide, TracedVisibility, chunk_starts,
+                                                  spot_masks)
 from transient_mi.integrators._nlos_surfaces import WallCells, visibility_masks
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
@@ -178,32 +179,42 @@ class _Geometry:
         return _Geometry(self._setup, self._film, cells)
 
 
-def _mixed_elements(scene, setup, g: _Geometry, spots, tri) -> np.ndarray:
-    """Elements whose visibility samples disagree for some cell of ``g`` or some spot (bool ``[n]``)."""
+def _mixed_elements(scene, setup, g: _Geometry, spots, tri, keep_cells: bool = False):
+    """Elements whose visibility samples disagree for some cell of ``g`` or some spot: ``(mixed, traced)``, bool
+    ``[n]`` and the masks traced for the test (:class:`~._nlos_pairs.TracedVisibility`; its cells' masks only with
+    ``keep_cells``)."""
     pts = sample_points(tri)
     vs = spot_masks(scene, setup, spots, pts)
     mixed = ((vs != 0) & (vs != 15)).any(axis=1)
     C = len(g.cell_p)
+    vc = np.empty((C, len(tri)), dtype=np.uint8) if keep_cells else None
     for e0, e1 in chunk_starts(4 * C, len(tri)):
         v = visibility_masks(scene, g.cell_p, g.normal, pts, e0, e1).reshape(C, e1 - e0)
         mixed[e0:e1] |= ((v != 0) & (v != 15)).any(axis=0)
-    return mixed
+        if keep_cells:
+            vc[:, e0:e1] = v
+    return mixed, TracedVisibility(spots, vs, g.cell_p if keep_cells else None, vc)
 
 
-def refine_visibility(scene, setup, g: _Geometry, spots, tri, src, refine_levels: int, prov=None):
+def refine_visibility(scene, setup, g: _Geometry, spots, tri, src, refine_levels: int, prov=None,
+                      keep_cells: bool = False):
     """Split mixed-visibility elements (and ``prov``) in four, ``refine_levels`` times at most: ``(tri, src, levels,
-    prov)`` (``src``: each element's source triangle, a row of the :class:`~._nlos_elements.Faces`)."""
+    prov, traced)`` (``src``: each element's source triangle, a row of the :class:`~._nlos_elements.Faces`;
+    ``traced``: the masks of the last test for the elements it kept, which come first, as
+    :class:`~._nlos_pairs.TracedVisibility` (cells' masks with ``keep_cells``), or ``None`` without a test)."""
     levels = 0
+    traced = None
     for _ in range(refine_levels):
-        mixed = _mixed_elements(scene, setup, g, spots, tri)
+        mixed, traced = _mixed_elements(scene, setup, g, spots, tri, keep_cells)
         if not mixed.any():
             break
         keep = ~mixed
+        traced = traced.kept(keep)
         tri = np.concatenate([tri[keep], split4(tri[mixed])])
         src = np.concatenate([src[keep], np.repeat(src[mixed], 4)])
         prov = None if prov is None else np.concatenate([prov[keep], split4(prov[mixed])])
         levels += 1
-    return tri, src, levels, prov
+    return tri, src, levels, prov, traced
 
 
 # ------------------------------------------------------------------ the render
@@ -231,12 +242,14 @@ def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_p
     tri_c, src_c = subdivide(faces.tri, np.arange(len(faces.tri)), 2.0 * h)
     tri_f, src_f = split4(tri_c), np.repeat(src_c, 4)
     prov = fine_provenance(faces.tri, 2.0 * h) if with_provenance else None
-    # split as the coarse level's cells see it (a quarter of the rays); still-mixed fine pairs are bounded
-    tri_f, src_f, levels, prov = refine_visibility(scene, setup, g.with_cells(max(1, g.m // 2)), spot_ids, tri_f,
-                                                   src_f, int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)),
-                                                   prov)
-    out = (LevelElements(setup, faces, hidden_ptrs, tri_c, src_c), LevelElements(setup, faces, hidden_ptrs, tri_f,
-                                                                                  src_f), levels)
+    # split as the coarse level's cells see it (a quarter of the rays); still-mixed fine pairs are bounded. The
+    # test's masks serve the fine level (from its own cells too with one cell per side: the same rays)
+    m_test = max(1, g.m // 2)
+    tri_f, src_f, levels, prov, traced = refine_visibility(
+        scene, setup, g if m_test == g.m else g.with_cells(m_test), spot_ids, tri_f, src_f,
+        int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)), prov, keep_cells=m_test == g.m)
+    out = (LevelElements(setup, faces, hidden_ptrs, tri_c, src_c),
+           LevelElements(setup, faces, hidden_ptrs, tri_f, src_f, traced), levels)
     return out + ((prov,) if with_provenance else ())
 
 
@@ -307,7 +320,8 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     if setup.hidden_shapes and (max_depth >= 4 or max_depth == -1):
         hidden_ptrs = mi.ShapePtr(setup.hidden_shapes)
         lv_c, lv_f, levels = level_elements(scene, setup, g, options, spot_ids, hidden_ptrs)
-        g_c = g.with_cells(max(1, g.m // 2))
+        m_c = max(1, g.m // 2)
+        g_c = g if m_c == g.m else g.with_cells(m_c)  # (one cell per side: the same cells, their wall once)
         g_cc = cell_estimate_level(g)
         n_f, n_c = len(g.cell_p) * lv_f.n, len(g_c.cell_p) * lv_c.n  # pairs of each level
         n_cc = 0 if g_cc is None else len(g_cc.cell_p) * lv_c.n
@@ -321,9 +335,11 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
 
             def tick_cc(done):
                 progress(n_f + n_c + done, n_f + n_c + n_cc)
-        fine = _level(scene, setup, g, lv_f, spot_ids, confocal, G_out, tick_f)
+        wall = WallCells(scene, setup, g.cell_p, g.D)
+        fine = _level(scene, setup, g, lv_f, spot_ids, confocal, G_out, tick_f, wall=wall)
         # (the estimate's levels keep no per-bin light of mixed visibility: 2 [G, P, n_ext] arrays less)
-        coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c, with_bound=False)
+        coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c, with_bound=False,
+                        wall=wall if g_c is g else None)
         if g_cc is not None:
             cells = _level(scene, setup, g_cc, lv_c, spot_ids, confocal, G_out, tick_cc, with_bound=False)
         info.update(elements=lv_f.n, coarse_elements=lv_c.n, refine_levels=levels,
@@ -384,9 +400,10 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
 
 
 def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_out, tick=None,
-           with_bound: bool = True) -> dict:
+           with_bound: bool = True, wall: WallCells | None = None) -> dict:
     """Integrate one level (elements ``lv``, the cells of ``g``) for every spot of the group (``tick(pairs done)``
-    after every chunk, optional).
+    after every chunk, optional; ``wall``: the :class:`~._nlos_surfaces.WallCells` of ``g``'s cells, when another
+    level has them already).
 
     Returns ``hist``, ``bound`` (light of mixed visibility, per bin; no bins without ``with_bound``)
     ``[G, P, n_ext]``, ``steady``, ``vis_err``, ``outside`` ``[G, P]`` and ``pairs`` (pairs times the spots each
@@ -397,7 +414,7 @@ def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_
            "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)), "outside": np.zeros((G_out, P)),
            "pairs": 0}
     side = SpotSide(scene, setup, g, spot_ids, lv)
-    wall = WallCells(scene, setup, g.cell_p, g.D)
+    wall = WallCells(scene, setup, g.cell_p, g.D) if wall is None else wall
     for e0, e1 in chunk_starts(len(g.cell_p), lv.n):
         ch = Chunk(scene, g, lv, wall, e0, e1, side, confocal)
         ch.spread(out, lv, side, confocal, ch.fx_pairs(g, lv, side, confocal))
