@@ -115,19 +115,18 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
                 f = full * frac
                 tlo, a, b = _knots(A, B, i, e, s)
                 first, last, inside = masses(buf, tlo, a, b, cell, n_ext)
+                # (views indexed from 0: the deposit loops run several bins per instruction)
+                mv = buf[first:last + 1]
+                hv = hist[row, k, first:last + 1]
+                for j in range(mv.shape[0]):
+                    hv[j] += f * mv[j]
                 if _NVIS[m] < 4:
                     fe = full * max(frac, 1.0 - frac)
                     if keep_bound:
-                        for bin_ in range(first, last + 1):
-                            hist[row, k, bin_] += f * buf[bin_]
-                            bound[row, k, bin_] += fe * buf[bin_]
-                    else:
-                        for bin_ in range(first, last + 1):
-                            hist[row, k, bin_] += f * buf[bin_]
+                        bv = bound[row, k, first:last + 1]
+                        for j in range(mv.shape[0]):
+                            bv[j] += fe * mv[j]
                     vis_err[row, k] += fe
-                else:
-                    for bin_ in range(first, last + 1):
-                        hist[row, k, bin_] += f * buf[bin_]
                 outside[row, k] += f * (1.0 - inside)
                 steady[row, k] += f
 
