@@ -29,8 +29,9 @@ truncation is below 1e-6 of the element's mass.
 
 From ``VECTOR_EDGES`` bins on (the paper scene's 1 ps bins: about 80 per pair) the CDF is evaluated at every
 edge first and the masses are its differences, taken from the last bin down, each loop over a view indexed from 0
-(numba cannot vectorise a loop whose array index could be negative: the views made these loops, and the callers'
-deposits, run several bins per instruction).
+(numba cannot vectorise a loop whose array index could be negative: the views made these loops, and
+:func:`~._nlos_pair_kernels.spread_group`'s deposits of pairs of ``DEPOSIT_VIEW_BINS`` bins or more, run several
+bins per instruction).
 
 Units: everything here is in *bins* (time divided by the bin width, origin at the start of the padded
 axis). Numba, float64, one thread: the deposit order is fixed (same inputs, same bytes).
