@@ -6,7 +6,8 @@ demo's 11.5 ns) to a noise target (``--target``, default 0.1) at ``--exposure-ms
 detector, once by Monte Carlo (the scene's 1024-spp pilot, as the demo) and once by the quadrature (from
 ``--element-size-m`` and ``--patch-cells``, refined by ``render --noise-target``), one after the other in this
 process, and prints one JSON object: per estimator the wall time of the render (JIT compilation included: a
-first render in a fresh process), the samples or the quadrature's settings it ended with, and the ratio the
+first render in a fresh process) and its CPU time (every thread of this process: on a machine shared with other
+work it moves less than the wall time), the samples or the quadrature's settings it ended with, and the ratio the
 render states (``render.noise_target.spots``) and that ``detect`` states for the counts.
 
     python bench/bench_paper_estimators.py --array 4 --save
@@ -43,16 +44,17 @@ def one(estimator: str, a, work: Path) -> dict:
     params = paper_detector()
     spec = NoiseTargetSpec(target=a.target, params=params, exposure_s=a.exposure_ms * 1e-3)
     lines = []
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     job = prepare_render(scene_file(), work / estimator, defines=d, spp=cfg.spp, seed=0, noise_target=spec)
     ideal = run_render(job, progress=False, log=lines.append)
-    wall = time.perf_counter() - t
+    wall, cpu = time.perf_counter() - t, time.process_time() - cpu
     counts = detect_stack(ideal, work / f"{estimator}_counts", params, exposure_s=a.exposure_ms * 1e-3, seed=1,
                           progress=False, warn=False)
     m = json.loads((Path(ideal) / "manifest.json").read_text())
     rn = json.loads((Path(counts) / "manifest.json").read_text())["detector"]["resolved"]["render_noise"]
     spots = m["render"]["noise_target"]["spots"]
     return {"estimator": m["render"]["estimator"], "render_wall_s": round(wall, 1),
+            "render_cpu_s": round(cpu, 1),
             "spots": spots, "met": m["render"]["noise_target"]["met"],
             "render_noise_ratio_detect": rn["ratio"],
             "render_noise_ratio_pixel_totals": (rn.get("pixel_totals") or {}).get("ratio_pooled"), "log": lines}

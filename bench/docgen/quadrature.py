@@ -70,15 +70,16 @@ def quadrature_cost_inline(R) -> str:
 #: bench/bench_paper_estimators.py's records quoted in quadrature.md ("When Monte Carlo is still used"): 16 x 16 pixels
 #: at the demo's 1 ps bins and 10 ms to a target of 0.01 (both estimators), then 4 x 4 pixels at 1 s per spot (Monte
 #: Carlo alone: its samples reach the cap), then the paper's 32 x 32 array by the quadrature alone, at the paper
-#: scene's cells (one per patch) and at two per side (run right after it).
+#: scene's cells (one per patch), the same with the code before the vectorised bin masses (run right after it, the
+#: same load), and at two per side (an earlier record).
 PAPER_ESTIMATORS = ("paper_estimators_a16_e10ms", "paper_estimators_a4_e1000ms", "paper_estimators_a32_e10ms",
-                    "paper_estimators_a32_e10ms_cells2")
+                    "paper_estimators_a32_e10ms_before", "paper_estimators_a32_e10ms_cells2")
 
 
 def paper_estimators_table(R) -> str:
     """The paper scene at a noise target by each estimator, side by side (one run each, the same load)."""
-    lines = ["  | pixels, bins, target | exposure per spot | estimator | render (s) | ended with | ratio stated by "
-             "detect (bins; pixel totals) | target met |", "  |---|---|---|---:|---|---:|---|"]
+    lines = ["  | pixels, bins, target | exposure per spot | estimator | render (s) | CPU (s) | ended with | ratio "
+             "stated by detect (bins; pixel totals) | target met |", "  |---|---|---|---:|---:|---|---:|---|"]
     recs = [R(PAPER_ESTIMATORS[0])]
     for name in PAPER_ESTIMATORS[1:]:
         try:
@@ -99,13 +100,15 @@ def paper_estimators_table(R) -> str:
                 how = f"{lo} spp" if lo == hi else f"{lo}-{hi} spp"
             tot = x.get("render_noise_ratio_pixel_totals")
             lines.append(f"  | {r['array']} x {r['array']}, {r['bin_width_ps']:g} ps, {r['target']:g} | "
-                         f"{r['exposure_ms']:g} ms | {x['estimator']} | {x['render_wall_s']:.0f} | {how} | "
+                         f"{r['exposure_ms']:g} ms | {x['estimator']} | {x['render_wall_s']:.0f} | "
+                         f"{'n/a' if x.get('render_cpu_s') is None else format(x['render_cpu_s'], '.0f')} | {how} | "
                          f"{x['render_noise_ratio_detect']:.3g}; {'n/a' if tot is None else format(tot, '.3g')} | "
                          f"{'yes' if x['met'] else 'no'} |")
     lines += ["", f"  ({recs[0]['result']['spots']} spots, the paper's detector; Monte Carlo from the demo's 1024-spp "
               "pilot, capped at 2^20 spp; the quadrature from the paper scene's settings when its record was made, its "
               "cells per patch side in the row; render times include the first render's JIT compilation and writing "
-              "the capture.) " + " ".join(provenance(rec) for rec in recs)]
+              "the capture; CPU: every thread of the process, where recorded, which moves less than the wall time "
+              "when other work shares the machine.) " + " ".join(provenance(rec) for rec in recs)]
     return "\n" + "\n".join(lines) + "\n"
 
 
@@ -169,3 +172,29 @@ def scene_settings_table(R) -> str:
               f"return on, {r['detector']}; refine_levels 1; in bold each scene file's default; JIT compiled "
               "before.) " + " ".join(provenance(rec) for rec in recs)]
     return "\n".join(lines) + "\n"
+
+
+#: bench/bench_quadrature_profile.py's records: where a render's time goes (the README letter, the paper's 32 x 32).
+QUADRATURE_PROFILES = ("quadrature_profile_letter", "quadrature_profile_paper")
+
+
+def quadrature_profile_inline(R) -> str:
+    """Each profiled render's CPU time and the shares of its largest stages (CPU: every thread)."""
+    parts = []
+    for name in QUADRATURE_PROFILES:
+        rec = R(name)
+        r = rec["result"]
+        tot = r["render_call"]["cpu_s"]
+        st = r["stages"]
+
+        def share(k):
+            return 100.0 * st[k]["cpu_s"] / tot if k in st and tot > 0 else 0.0
+
+        levels = ", ".join(f"{k.split(': ')[1]} level {share(k):.0f} %" for k in st if k.startswith("level: "))
+        parts.append(f"{r['config'].split(' (')[0] if name.endswith('letter') else r['config'].split(',')[0]} of "
+                     f"`{r['scene'].split('/')[-1]}`: {tot:.0f} s CPU ({r['render_call']['wall_s']:.0f} s wall) of "
+                     f"which the bin masses and deposits {share('bin masses and deposits'):.0f} %, the pair geometry "
+                     f"{share('pair geometry'):.0f} %, visibility rays {share('visibility rays'):.0f} %, the elements "
+                     f"and their refinement {share('elements and visibility refinement'):.0f} %, the error estimate "
+                     f"{share('error estimate'):.0f} % (by level: {levels}) ({provenance(rec, short=True)})")
+    return "; ".join(parts)

@@ -40,6 +40,10 @@ def _share(mask: int) -> float:
     return f
 
 
+#: From this many bins on a pair's deposit runs through a view of its row (a loop that vectorises); shorter ones,
+#: and the few of mixed visibility, index the rows directly (a view costs more than it saves on two or three bins).
+DEPOSIT_VIEW_BINS = 8
+
 #: Visible share and count of visible samples per 4-bit visibility mask.
 _SHARE = np.array([_share(m) for m in range(16)])
 _NVIS = np.array([bin(m).count("1") for m in range(16)], dtype=np.int64)
@@ -125,9 +129,14 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
                         for bin_ in range(first, last + 1):
                             hist[row, k, bin_] += f * buf[bin_]
                     vis_err[row, k] += fe
-                else:
+                elif last - first < DEPOSIT_VIEW_BINS:
                     for bin_ in range(first, last + 1):
                         hist[row, k, bin_] += f * buf[bin_]
+                else:  # (views indexed from 0: the loop runs several bins per instruction)
+                    mv = buf[first:last + 1]
+                    hv = hist[row, k, first:last + 1]
+                    for j in range(mv.shape[0]):
+                        hv[j] += f * mv[j]
                 outside[row, k] += f * (1.0 - inside)
                 steady[row, k] += f
 

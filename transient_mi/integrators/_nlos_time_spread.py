@@ -27,6 +27,12 @@ below ``REL_WIDTH_EPS`` of the element's spread is replaced by the derivative at
 (``\Delta_w G(y) = G'(y - w/2) + O(w^2 G''')``), which avoids dividing round-off by a vanishing width; the
 truncation is below 1e-6 of the element's mass.
 
+From ``VECTOR_EDGES`` bins on (the paper scene's 1 ps bins: about 80 per pair) the CDF is evaluated at every
+edge first and the masses are its differences, taken from the last bin down, each loop over a view indexed from 0
+(numba cannot vectorise a loop whose array index could be negative: the views made these loops, and
+:func:`~._nlos_pair_kernels.spread_group`'s deposits of pairs of ``DEPOSIT_VIEW_BINS`` bins or more, run several
+bins per instruction).
+
 Units: everything here is in *bins* (time divided by the bin width, origin at the start of the padded
 axis). Numba, float64, one thread: the deposit order is fixed (same inputs, same bytes).
 """
@@ -149,14 +155,28 @@ def cell_widths(u1, u2, t1, t2):
     return u1, u2, 0.5 * u1, 0.5 * u2, 1.0 / u1 if u1 > 0.0 else 0.0, 1.0 / u2 if u2 > 0.0 else 0.0, t1, t2
 
 
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _differences(v, prev):
+    """In place, the CDF values ``v`` at a run of upper bin edges into the bins' masses (``prev``: the CDF at the
+    first bin's lower edge); returns the mass of the run, ``v[-1] - prev`` (the sum of its masses, up to rounding:
+    exact where the run is the whole support, 1 - 0). The differences are taken from the last bin down, so the loop
+    reads values it has not yet overwritten and runs several bins per instruction."""
+    n = v.shape[0]
+    inside = v[n - 1] - prev
+    for i in range(n - 1, 0, -1):
+        v[i] -= v[i - 1]
+    v[0] -= prev
+    return inside
+
+
 @numba.njit(cache=True, fastmath=False)
 def masses(buf, tlo, a, b, cell, n_ext):
     """Bin masses of one pair's arrival distribution (knots ``tlo``, ``tlo + a``, ``tlo + b``, the cell's widths
     ``u1``, ``u2`` and tilts ``t1``, ``t2`` in ``cell`` = :func:`cell_widths`; bins of the padded axis; the cell's
     amplitude ``1 + t1 v1 + t2 v2`` linear in the cell coordinates
     ``v_i`` in ``[-1/2, 1/2]`` along which the arrival time grows by ``u_i``) written to ``buf[first:last + 1]``
-    for the bins inside ``[0, n_ext)``; returns ``(first, last, inside)``, ``inside`` the mass inside (summed in
-    bin order). The tilts move light within the pair's spread and leave its total unchanged; a tilt along a width
+    for the bins inside ``[0, n_ext)``; returns ``(first, last, inside)``, ``inside`` the mass inside (the CDF's
+    difference over the bins written; below ``VECTOR_EDGES`` bins their masses summed in bin order). The tilts move light within the pair's spread and leave its total unchanged; a tilt along a width
     below ``REL_WIDTH_EPS`` of the spread is dropped (its effect on any bin is ``|t| u / 12`` of the density there).
     The one mass computation of the primal (:func:`~._nlos_pair_kernels.spread_group`) and its adjoint
     (:func:`~._nlos_pair_kernels.adjoint_group`).
@@ -208,18 +228,14 @@ def masses(buf, tlo, a, b, cell, n_ext):
         edge = float(first) - tlo
         prev = 1.0 if edge + tlo >= hi else _cdf(edge, k, h1, h2, mode, c0, c1, c2)
     if mode == 0 and last - first >= VECTOR_EDGES:
-        # the CDF at every edge first (no edge depends on another: the loop runs several edges per instruction),
-        # then the masses in bin order
-        for bin_ in range(first, last + 1):
-            edge = float(bin_ + 1) - tlo
+        # the CDF at every edge first (no edge depends on another: the loops run several edges per instruction), then
+        # the masses as its differences
+        v = buf[first:last + 1]  # (a view indexed from 0: with a bin index that could be negative no loop vectorises)
+        for i in range(v.shape[0]):
+            edge = float(i + first + 1) - tlo
             cur = _cdf_widths(edge, k, h1, h2, c0, c1, c2)
-            buf[bin_] = 1.0 if edge + tlo >= hi else cur
-        for bin_ in range(first, last + 1):
-            cur = buf[bin_]
-            buf[bin_] = cur - prev
-            inside += cur - prev
-            prev = cur
-        return first, last, inside
+            v[i] = 1.0 if edge + tlo >= hi else cur
+        return first, last, _differences(v, prev)
     for bin_ in range(first, last + 1):
         edge = float(bin_ + 1) - tlo
         if edge + tlo >= hi:
