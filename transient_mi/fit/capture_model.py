@@ -48,6 +48,9 @@ from transient_core.stack import read_manifest, read_spot
 
 __all__ = ["CaptureModel"]
 
+#: The quadrature's cells per pixel patch side in a fit.
+FIT_PATCH_CELLS = 1
+
 
 def _blur_time(x: np.ndarray, sigma_bins: float) -> np.ndarray:
     if sigma_bins <= 1e-3:
@@ -267,8 +270,11 @@ class CaptureModel:
         self.estimator_reason = why
         self.element_size_m = float(element_size_m)
         if self.estimator == "quadrature":
+            # one cell per pixel patch (the paper scene's own captures use one) and the fine level only: a fit
+            # reads no error estimate, whose levels (the coarse elements, and with one cell the cells' level)
+            # cost as much as the result (:func:`~transient_mi.integrators._nlos_quadrature.error_estimate`)
             self.integrator.nlos_options.update(estimator="quadrature", element_size_m=self.element_size_m,
-                                                patch_cells=2, refine_levels=1)
+                                                patch_cells=FIT_PATCH_CELLS, refine_levels=1, error_estimate=False)
 
     def set_element_size(self, element_size_m: float) -> None:
         """The quadrature's element size for the next renders (coarse to fine; no effect with Monte Carlo)."""
