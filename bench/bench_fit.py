@@ -14,6 +14,7 @@ Targets (issue 14): joint angles within 5 degrees, position within 1 cm, Chamfer
 
     python bench/bench_fit.py --save          # capture (cached in --work) + fit; bench/results/fit.json
     python bench/bench_fit.py --array 8 --iterations 40    # quick look
+    python bench/bench_fit.py --array 8 --iterations 40 --estimator quadrature    # the deterministic forward model
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--array", type=int, default=32)
     ap.add_argument("--iterations", type=int, default=None, help="default: the fit command's")
+    ap.add_argument("--estimator", default=None, help="the fit's forward model (default: the fit command's)")
     ap.add_argument("--work", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "transient-mi-bench-fit",
                     help="where the capture is cached and the fit written")
     ap.add_argument("--figure", type=Path, default=None, help="also copy the fit's fit.png here")
@@ -75,7 +77,10 @@ def main() -> None:
 
     counts, meta = _capture(a.work, a.array)
     out = a.work / f"fit_{a.array:02d}"
-    settings = FitSettings() if a.iterations is None else FitSettings(iterations=a.iterations)
+    kw = {} if a.iterations is None else {"iterations": a.iterations}
+    if a.estimator is not None:
+        kw["estimator"] = a.estimator
+    settings = FitSettings(**kw)
     t0 = time.perf_counter()
     res = fit_capture(counts, out, settings=settings, overwrite=True, progress=False, log=lambda *x: None)
     wall = time.perf_counter() - t0
@@ -84,6 +89,7 @@ def main() -> None:
     result = {
         "capture": {"array": a.array, "spots": 4, **meta},
         "settings": res["config"]["settings"], "bin_width_ps": res["config"]["bin_width_ps"],
+        "estimator": res["estimator"],
         "fit_wall_s": wall, "optimisation_s": res["time_s"]["optimisation"], "process_cpu_s": cpu,
         "parameters": res["parameters"], "poisson_nll": res["poisson_nll"], "metrics": m,
         "targets": {"joint_error_max_deg": 5.0, "position_error_m": 0.01, "chamfer_m": 0.007, "iou": 0.6,

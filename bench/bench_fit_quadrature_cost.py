@@ -4,9 +4,12 @@ quadrature``) against Monte Carlo's, on bench_fit.py's capture of the paper's ma
 
 One iteration is one render (residual) and one backward pass (gradient with respect to the twin's vertices and
 reflectance). Measured per twin tessellation (``--detail``; the fit's default is 20) at the quadrature's
-coarse-to-fine element sizes, and Monte Carlo at the fit's default samples (bench_fit.py's settings).
+coarse-to-fine element sizes (the fit's quadrature settings: one cell per pixel patch, the fine level only), and
+Monte Carlo at the fit's default samples (bench_fit.py's settings). Each row is the second of two iterations at
+the same parameters (the first compiles and loads kernels).
 
     python bench/bench_fit_quadrature_cost.py --array 8 --save
+    python bench/bench_fit_quadrature_cost.py --array 32 --save     # bench_fit's full-size capture
 """
 
 from __future__ import annotations
@@ -45,7 +48,7 @@ def main() -> None:
     import transient_mi  # noqa: F401
 
     import bench_fit
-    from transient_mi.fit.capture_model import CaptureModel
+    from transient_mi.fit.capture_model import FIT_QUADRATURE, CaptureModel
     from transient_mi.fit.models import MannequinModel
     from transient_mi.fit.optimize import FitSettings, resolve_spp
 
@@ -61,7 +64,9 @@ def main() -> None:
                      "spp_residual": spp_r, **_iteration(cap, mdl, theta, spp, spp_r)})
         print(rows[-1], flush=True)
         for h in [float(x) for x in a.element_sizes_m.split(",")]:
-            cap = CaptureModel(counts, mdl.faces, mdl.n_vertices, estimator="quadrature", element_size_m=h)
+            cap = CaptureModel(counts, mdl.faces, mdl.n_vertices, estimator="quadrature", element_size_m=h,
+                               **FIT_QUADRATURE)
+            _iteration(cap, mdl, theta, 0, 0)
             r = _iteration(cap, mdl, theta, 0, 0)
             rows.append({"estimator": "quadrature", "detail": detail, "faces": len(mdl.faces), "element_size_m": h,
                          **r})

@@ -57,7 +57,7 @@ from docgen.nlos_quadrature import nlos_quadrature_table  # noqa: E402
 from docgen.fit_mesh import fit_mesh_plane_table, fit_mesh_table, fit_mesh_topology_table  # noqa: E402
 from docgen.studies import (  # noqa: E402
     studies_para, _study_inline, dataset_para, dataset_docs_table, view_para, view_docs_table, fit_para,
-    dataset_noise_standard_table, DATASET_NT,
+    dataset_noise_standard_table, DATASET_NT, fit_quadrature_cost_table,
 )
 
 
@@ -98,6 +98,7 @@ GENERATORS = {
     "dataset_noise_standard": (dataset_noise_standard_table, list(DATASET_NT), False),
     "gradient": (gradient_para, ["gradient"], False),
     "fit": (fit_para, ["fit"], False),
+    "fit_quadrature_cost": (fit_quadrature_cost_table, ["fit_quadrature_cost_32"], False),
     "front_limit": (front_limit_inline, ["front_surface_limit"], True),
     "completion_limit": (completion_limit_inline, ["front_surface_limit"], True),
     "recon_quality": (recon_quality_para, ["mannequin_features", "study_methods_nlos_letter",

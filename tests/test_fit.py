@@ -19,7 +19,7 @@ import pytest
 import transient_mi  # noqa: F401  (before mitsuba/drjit)
 from transient_core.errors import UserInputError
 from transient_mi.fit import FitSettings, PatchesModel, fit_capture
-from transient_mi.fit.capture_model import CaptureModel
+from transient_mi.fit.capture_model import FIT_QUADRATURE, CaptureModel
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH = {"x_m": 0.0, "y_m": 0.0, "z_m": 0.5, "yaw_deg": 30.0, "pitch_deg": 0.0}
@@ -180,8 +180,8 @@ def test_a_full_output_directory_is_refused(capture, tmp_path):
 
 
 def test_quadrature_forward_model_gradient_equals_central_differences(capture):
-    """``estimator="quadrature"``: the deterministic forward model's gradient of ``<w, ideal>`` (all four spots in
-    one backward pass) with respect to the patch's depth and turn, chained through the model (no area term: the
+    """``estimator="quadrature"`` with the models' fits' settings (one cell per patch, the fine level only): the
+    deterministic forward model's gradient of ``<w, ideal>`` (all four spots in one backward pass) with respect to the patch's depth and turn, chained through the model (no area term: the
     quadrature's vertex gradient holds the area's change), against central differences of its own renders;
     the same inputs give the same bytes. Deterministic: tolerance relative 1e-3 (float32 histograms over steps
     of 1 mm and 0.2 degrees; measured below 1e-4)."""
@@ -191,7 +191,7 @@ def test_quadrature_forward_model_gradient_equals_central_differences(capture):
 
     model = PatchesModel(1, 0.4)
     cap = CaptureModel(capture, model.faces, model.n_vertices, bin_width_ps=16.0, estimator="quadrature",
-                       element_size_m=0.1)
+                       element_size_m=0.1, **FIT_QUADRATURE)
     assert cap.estimator == "quadrature" and cap.estimator_reason is None
     theta = _truth_theta(model)
     w = np.random.default_rng(1).uniform(0.5, 1.5, size=(cap.n_spots, cap.width * cap.height, cap.n_bins))
@@ -229,7 +229,7 @@ def test_quadrature_fit_is_reproducible(capture):
 
     model = PatchesModel(1, 0.4)
     cap = CaptureModel(capture, model.faces, model.n_vertices, bin_width_ps=16.0, estimator="auto",
-                       element_size_m=0.1)
+                       element_size_m=0.1, **FIT_QUADRATURE)
     assert cap.estimator == "quadrature"
     theta = _truth_theta(model) + np.array([0.02, -0.01, 0.03, -5.0, 3.0, 0.0])
     runs = []
@@ -238,3 +238,23 @@ def test_quadrature_fit_is_reproducible(capture):
                          FitSettings(iterations=2, estimator="quadrature", element_size_m=0.1, sigma_start_ps=150.0))
         runs.append((state.theta, [h[0] for h in state.history], [h[3] for h in state.history]))
     assert runs[0] == runs[1] and runs[0][0] != theta.tolist()
+
+
+def test_monte_carlo_forward_model_of_a_quadrature_capture_samples(capture, tmp_path):
+    """``estimator="monte_carlo"`` renders by Monte Carlo even when the capture's own scene was rendered by the
+    quadrature (the paper scene's default, so the demo's captures): two seeds give different renders (a quadrature
+    render would repeat its bytes), and the quadrature's per-call options are not set."""
+    import shutil
+
+    d = tmp_path / "counts"
+    shutil.copytree(capture, d)
+    m = json.loads((d / "manifest.json").read_text())
+    m["render"]["defines"]["estimator"] = "quadrature"
+    (d / "manifest.json").write_text(json.dumps(m))
+    model = PatchesModel(1, 0.4)
+    cap = CaptureModel(d, model.faces, model.n_vertices, bin_width_ps=16.0, estimator="monte_carlo")
+    assert cap.estimator == "monte_carlo" and cap.integrator.nlos_options["estimator"] == "monte_carlo"
+    theta = _truth_theta(model)
+    cap.set_mesh(model.vertices(theta), model.albedo(theta))
+    a, b = cap.ideal(1, 4, 80.0), cap.ideal(2, 4, 80.0)
+    assert a.sum() > 0 and not np.array_equal(a, b)

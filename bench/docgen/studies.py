@@ -158,11 +158,15 @@ def fit_para(R) -> str:
     head = "| | fit | backprojection (paper's filter) | target |\n|---|---|---|---|\n"
     body = "\n".join(f"| {a} | {x} | {y} | {z} |" for a, x, y, z in rows)
     st = r["settings"]
+    names = {"quadrature": "the quadrature", "monte_carlo": "Monte Carlo"}
+    cap_est = names.get(cap["defines"].get("estimator", "monte_carlo"), "Monte Carlo")
+    fit_est = f" (forward model: {names[r['estimator']['used']]})" if r.get("estimator") else ""
     return (f"\nThe paper's scene ({cap['array']}x{cap['array']} array, 2 x 2 laser spots, the paper's detector for "
-            f"{cap['exposure_s'] * 1000:g} ms per spot, rendered to the demo's noise target) with the mannequin in a "
+            f"{cap['exposure_s'] * 1000:g} ms per spot, rendered by {cap_est} to the demo's noise target) with the "
+            f"mannequin in a "
             f"pose the fit does not start from (`{cap['defines'].get('joints', '')}`, turned "
             f"{cap['defines']['rotation']} degrees, {cap['defines']['distance']} m from the wall); the fit ran "
-            f"{st['iterations']} iterations with its defaults:\n\n" + head + body
+            f"{st['iterations']} iterations with its defaults{fit_est}:\n\n" + head + body
             + f"\n\nPoisson NLL of the counts: {r['poisson_nll']['start']:.6g} at the start, {r['poisson_nll']['fit']:.6g} "
             f"fitted. {provenance(rec)}\n")
 
@@ -195,3 +199,25 @@ def dataset_noise_standard_table(R) -> str:
     if missing:
         lines += ["", not_measured(missing, True).strip("()") + "."]
     return "\n" + "\n".join(lines) + "\n"
+
+
+def fit_quadrature_cost_table(R) -> str:
+    """One fit iteration's cost per forward model on bench_fit's capture (bench_fit_quadrature_cost.py), with the
+    300 default iterations' optimisation extrapolated (labelled)."""
+    rec = R("fit_quadrature_cost_32")
+    r = rec["result"]
+    rows = r["rows"]
+    mc = {x["detail"]: x["iteration_s"] for x in rows if x["estimator"] == "monte_carlo"}
+    head = ("| forward model | twin detail (faces) | render | backward pass | iteration | against Monte Carlo | "
+            "300 iterations (extrapolated) |\n|---|---|---|---|---|---|---|\n")
+    body = []
+    for x in rows:
+        quad = x["estimator"] == "quadrature"
+        what = f"quadrature, {100 * x['element_size_m']:g} cm" if quad else \
+            f"Monte Carlo, {x['spp']} + {x['spp_residual']} spp"
+        ratio = f"{x['iteration_s'] / mc[x['detail']]:.0f}x" if quad and x["detail"] in mc else ""
+        body.append(f"| {what} | {x['detail']} ({x['faces']}) | {x['render_s']:.1f} s | {x['backward_s']:.1f} s | {x['iteration_s']:.1f} s | {ratio} | "
+                    f"{300 * x['iteration_s'] / 60:.0f} min |")
+    return (f"\nOne iteration of the fit (one render for the residual, one backward pass) on bench_fit's capture "
+            f"({r['array']}x{r['array']} pixels, {r['spots']} laser spots, 10 ps bins), at the start pose; the "
+            f"second of two iterations:\n\n" + head + "\n".join(body) + f"\n\n{provenance(rec)}\n")

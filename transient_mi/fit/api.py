@@ -139,7 +139,7 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
     from transient_core.progress import progress_bar
     from transient_core.stack import read_manifest
 
-    from .capture_model import CaptureModel
+    from .capture_model import FIT_QUADRATURE, CaptureModel
     from .models import MannequinModel, PatchesModel
 
     settings = settings or FitSettings()
@@ -164,7 +164,7 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
         manifest = read_manifest(capture)
         mdl = MannequinModel(detail) if model == "mannequin" else PatchesModel(n_patches, patch_side_m)
         cap = CaptureModel(capture, mdl.faces, mdl.n_vertices, bin_width_ps=bin_width_ps,
-                           estimator=settings.estimator, element_size_m=settings.element_size_m)
+                           estimator=settings.estimator, element_size_m=settings.element_size_m, **FIT_QUADRATURE)
         bounds = _bounds(manifest)
         rec_bp = _backprojection(capture, bounds)
         # (everything checked: only now is anything written)

@@ -48,6 +48,13 @@ from transient_core.stack import read_manifest, read_spot
 
 __all__ = ["CaptureModel"]
 
+#: The quadrature's settings of the models' fits (``mannequin``, ``patches``: :func:`~transient_mi.fit.api.fit_capture`):
+#: one cell per pixel patch side (the paper scene's own captures use one) and the fine level only (a fit reads no
+#: error estimate, whose levels, the coarse elements and with one cell the cells' level, cost as much as the result:
+#: :func:`~transient_mi.integrators._nlos_quadrature.error_estimate`). The free-mesh fit keeps the defaults (2 cells,
+#: the estimate's levels integrated).
+FIT_QUADRATURE = {"patch_cells": 1, "error_estimate": False}
+
 
 def _blur_time(x: np.ndarray, sigma_bins: float) -> np.ndarray:
     if sigma_bins <= 1e-3:
@@ -70,6 +77,12 @@ class CaptureModel:
     bin_width_ps : float
         The fit's time bins, ps; an integer multiple of the capture's that divides its number of bins
         (default 10 ps).
+    estimator, element_size_m : str, float
+        ``auto`` (the quadrature where the scene allows it), ``quadrature`` or ``monte_carlo`` (whatever estimator
+        rendered the capture); the quadrature's element size, m.
+    patch_cells, error_estimate : int, bool
+        The quadrature's cells per pixel patch side, and whether its renders integrate the error estimate's levels
+        (:data:`FIT_QUADRATURE`: the models' fits' choice).
 
     Attributes
     ----------
@@ -80,7 +93,7 @@ class CaptureModel:
 
     def __init__(self, capture_dir, faces: np.ndarray, n_vertices: int, *, bin_width_ps: float = 10.0,
                  albedo: float = 0.5, estimator: str = "auto", element_size_m: float = 0.03,
-                 dead_time: str = "first_order"):
+                 dead_time: str = "first_order", patch_cells: int = 2, error_estimate: bool = True):
         self.capture_dir = Path(capture_dir)
         if dead_time not in ("first_order", "renewal"):
             raise ValueError(f"dead_time={dead_time!r}: expected first_order or renewal")
@@ -125,7 +138,7 @@ class CaptureModel:
         self.k_floor = float(held.mean()) if held.size else 1.0
         self._detector_setup(m)
         self._scene_setup(render, faces, n_vertices, albedo)
-        self._choose_estimator(estimator, element_size_m)
+        self._choose_estimator(estimator, element_size_m, int(patch_cells), bool(error_estimate))
         self._blurred = {}
         self._keep = None
 
@@ -240,7 +253,8 @@ class CaptureModel:
         self.rkey = [k for k in self.params.keys() if k.startswith("model.bsdf.reflectance")][0]
         self.spots = list(range(self.n_spots)) if self.manifest["capture"] == "array" else [0]
 
-    def _choose_estimator(self, requested: str, element_size_m: float) -> None:
+    def _choose_estimator(self, requested: str, element_size_m: float, patch_cells: int = 2,
+                          error_estimate: bool = True) -> None:
         """``estimator``: ``quadrature`` where the capture's scene allows it (meshes, a planar relay wall, no
         windows, media or beam divergence: :func:`~transient_mi.integrators._nlos_quadrature.check_supported`),
         else ``monte_carlo``; ``estimator_reason`` says why not (None when it is the quadrature or was asked
@@ -266,9 +280,13 @@ class CaptureModel:
         self.estimator = "monte_carlo" if requested == "monte_carlo" or why else "quadrature"
         self.estimator_reason = why
         self.element_size_m = float(element_size_m)
-        if self.estimator == "quadrature":
+        if self.estimator == "monte_carlo":
+            # (the capture's own scene may have been rendered by the quadrature: the paper scene's default)
+            self.integrator.nlos_options["estimator"] = "monte_carlo"
+        else:
             self.integrator.nlos_options.update(estimator="quadrature", element_size_m=self.element_size_m,
-                                                patch_cells=2, refine_levels=1)
+                                                patch_cells=patch_cells, refine_levels=1,
+                                                error_estimate=error_estimate)
 
     def set_element_size(self, element_size_m: float) -> None:
         """The quadrature's element size for the next renders (coarse to fine; no effect with Monte Carlo)."""

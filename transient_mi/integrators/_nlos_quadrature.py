@@ -77,7 +77,8 @@ import numba
 import numpy as np
 
 from transient_core.units import C_M_PER_PS
-from transient_mi.integrators._nlos_elements import fine_provenance, mesh_triangles, sample_points, split4, subdivide
+from transient_mi.integrators._nlos_elements import (fine_provenance, mesh_triangles, provenance, sample_points, split4,
+                                                     subdivide, subdivide_provenance)
 from transient_mi.integrators._nlos_error_estimate import discretisation_error, local_rms
 from transient_mi.integrators._nlos_pair_kernels import cell_terms
 from transient_mi.integrators._nlos_pairs import (Chunk, LevelElements, SpotSide, TracedVisibility, chunk_starts,
@@ -98,6 +99,14 @@ DEFAULT_ELEMENT_SIZE_M = 0.01
 DEFAULT_PATCH_CELLS = 4
 #: Default visibility refinement levels.
 DEFAULT_REFINE_LEVELS = 1
+
+
+def error_estimate(options: dict) -> bool:
+    """Whether a render integrates the levels of the error estimate (the default). ``options["error_estimate"] =
+    False`` (set by the fit, :mod:`transient_mi.fit.capture_model`, not a scene parameter) integrates the fine level
+    only, its elements split directly to ``element_size_m`` (not the coarse level's split in four): the result's
+    error then holds the mixed visibility's bound only, without the discretisation estimate."""
+    return bool(options.get("error_estimate", True))
 
 
 def needs_remainder(options: dict) -> bool:
@@ -239,16 +248,21 @@ def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_p
     one split in four, then refined where visibility is mixed; the provenance: :func:`~._nlos_elements.provenance`)."""
     h = float(options.get("element_size_m", DEFAULT_ELEMENT_SIZE_M))
     faces = mesh_triangles(setup.hidden_shapes)
-    tri_c, src_c = subdivide(faces.tri, np.arange(len(faces.tri)), 2.0 * h)
-    tri_f, src_f = split4(tri_c), np.repeat(src_c, 4)
-    prov = fine_provenance(faces.tri, 2.0 * h) if with_provenance else None
+    if error_estimate(options):
+        tri_c, src_c = subdivide(faces.tri, np.arange(len(faces.tri)), 2.0 * h)
+        tri_f, src_f = split4(tri_c), np.repeat(src_c, 4)
+        prov = fine_provenance(faces.tri, 2.0 * h) if with_provenance else None
+    else:  # (no coarse level: the fine elements directly)
+        tri_c = src_c = None
+        tri_f, src_f = subdivide(faces.tri, np.arange(len(faces.tri)), h)
+        prov = subdivide_provenance(faces.tri, provenance(len(faces.tri)), h) if with_provenance else None
     # split as the coarse level's cells see it (a quarter of the rays); still-mixed fine pairs are bounded. The
     # test's masks serve the fine level (from its own cells too with one cell per side: the same rays)
     m_test = max(1, g.m // 2)
     tri_f, src_f, levels, prov, traced = refine_visibility(
         scene, setup, g if m_test == g.m else g.with_cells(m_test), spot_ids, tri_f, src_f,
         int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)), prov, keep_cells=m_test == g.m)
-    out = (LevelElements(setup, faces, hidden_ptrs, tri_c, src_c),
+    out = (None if tri_c is None else LevelElements(setup, faces, hidden_ptrs, tri_c, src_c),
            LevelElements(setup, faces, hidden_ptrs, tri_f, src_f, traced), levels)
     return out + ((prov,) if with_provenance else ())
 
@@ -322,8 +336,9 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
         lv_c, lv_f, levels = level_elements(scene, setup, g, options, spot_ids, hidden_ptrs)
         m_c = max(1, g.m // 2)
         g_c = g if m_c == g.m else g.with_cells(m_c)  # (one cell per side: the same cells, their wall once)
-        g_cc = cell_estimate_level(g)
-        n_f, n_c = len(g.cell_p) * lv_f.n, len(g_c.cell_p) * lv_c.n  # pairs of each level
+        g_cc = cell_estimate_level(g) if lv_c is not None else None
+        n_f = len(g.cell_p) * lv_f.n  # pairs of each level
+        n_c = 0 if lv_c is None else len(g_c.cell_p) * lv_c.n
         n_cc = 0 if g_cc is None else len(g_cc.cell_p) * lv_c.n
         tick_f = tick_c = tick_cc = None
         if progress is not None:
@@ -338,12 +353,14 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
         wall = WallCells(scene, setup, g.cell_p, g.D)
         fine = _level(scene, setup, g, lv_f, spot_ids, confocal, G_out, tick_f, wall=wall)
         # (the estimate's levels keep no per-bin light of mixed visibility: 2 [G, P, n_ext] arrays less)
-        coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c, with_bound=False,
-                        wall=wall if g_c is g else None)
+        if lv_c is not None:
+            coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c, with_bound=False,
+                            wall=wall if g_c is g else None)
         if g_cc is not None:
             cells = _level(scene, setup, g_cc, lv_c, spot_ids, confocal, G_out, tick_cc, with_bound=False)
-        info.update(elements=lv_f.n, coarse_elements=lv_c.n, refine_levels=levels,
-                    pairs=fine["pairs"] + coarse["pairs"] + (0 if cells is None else cells["pairs"]))
+        info.update(elements=lv_f.n, coarse_elements=0 if lv_c is None else lv_c.n, refine_levels=levels,
+                    pairs=fine["pairs"] + (0 if coarse is None else coarse["pairs"])
+                    + (0 if cells is None else cells["pairs"]))
     if fine is None:  # no three-bounce light (no hidden shapes, or max_depth below 4): an empty level
         zeros = np.zeros((G_out, P, g.n_ext))
         fine = {"hist": zeros, "bound": zeros.copy(), "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)),

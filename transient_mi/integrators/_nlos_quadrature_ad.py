@@ -164,9 +164,11 @@ class _FineLevel:
         ``g_elem`` (:func:`~._nlos_quadrature_geom.geometry_adjoint`, once per spot: all the chunk's cells for an
         array capture, each pixel's cells with its own spot for a confocal one)."""
         g, side = self.g, self.side
-        r_pv, r_px, opl_d, cell_shift = pair_lengths(g.cell_p, self.lv.X0, self.lv.tri, ch.e0, ch.e1, g.D,
-                                                     g.cell_ax, g.cell_ay, g.fl, g.cell_half_diag > 0)
-        vis_p = ((ch.vis_p[:, None] >> np.arange(4)) & 1).astype(np.bool_)
+        if getattr(ch, "_lengths", None) is None:  # (the spots' rows of a chunk share its lengths and visibility)
+            ch._lengths = pair_lengths(g.cell_p, self.lv.X0, self.lv.tri, ch.e0, ch.e1, g.D, g.cell_ax, g.cell_ay,
+                                       g.fl, g.cell_half_diag > 0) \
+                + (((ch.vis_p[:, None] >> np.arange(4)) & 1).astype(np.bool_),)
+        r_pv, r_px, opl_d, cell_shift, vis_p = ch._lengths
         m2 = g.m * g.m
         jobs = [(k, k * m2, (k + 1) * m2) for k in range(self.P)] if self.confocal else [(row, 0, len(g.cell_p))]
         for s, c_lo, c_hi in jobs:

@@ -118,22 +118,29 @@ def pair_lengths(cell_p, X0, tri, e0, e1, D, ax, ay, fl, has_cells):
     r_px = np.empty(n)
     opl_d = np.empty(n)
     cell_shift = np.zeros(n)
-    for i in numba.prange(n):
+    for i in numba.prange(n):  # (written out per component: no heap allocation per pair; the same operations)
         c = i // ne
         e = e0 + i - c * ne
         p = cell_p[c]
-        r = np.sqrt(_dot(X0[e] - p, X0[e] - p))
+        x = X0[e]
+        r = np.sqrt((x[0] - p[0]) * (x[0] - p[0]) + (x[1] - p[1]) * (x[1] - p[1]) + (x[2] - p[2]) * (x[2] - p[2]))
         r_px[i] = r
         for v in range(3):
-            r_pv[i, v] = np.sqrt(_dot(tri[e, v] - p, tri[e, v] - p))
-        rd = np.sqrt(_dot(p - D, p - D))
+            t = tri[e, v]
+            r_pv[i, v] = np.sqrt((t[0] - p[0]) * (t[0] - p[0]) + (t[1] - p[1]) * (t[1] - p[1])
+                                 + (t[2] - p[2]) * (t[2] - p[2]))
+        rd = np.sqrt((p[0] - D[0]) * (p[0] - D[0]) + (p[1] - D[1]) * (p[1] - D[1]) + (p[2] - D[2]) * (p[2] - D[2]))
         opl_d[i] = fl * rd
         if has_cells:
             acc = 0.0
             for cu in (-0.5, 0.5):
                 for cv in (-0.5, 0.5):
-                    q = p + cu * ax + cv * ay
-                    acc += fl * np.sqrt(_dot(q - D, q - D)) + np.sqrt(_dot(X0[e] - q, X0[e] - q))
+                    q0 = p[0] + cu * ax[0] + cv * ay[0]
+                    q1 = p[1] + cu * ax[1] + cv * ay[1]
+                    q2 = p[2] + cu * ax[2] + cv * ay[2]
+                    acc += fl * np.sqrt((q0 - D[0]) * (q0 - D[0]) + (q1 - D[1]) * (q1 - D[1])
+                                        + (q2 - D[2]) * (q2 - D[2])) \
+                        + np.sqrt((x[0] - q0) * (x[0] - q0) + (x[1] - q1) * (x[1] - q1) + (x[2] - q2) * (x[2] - q2))
             cell_shift[i] = (acc / 4.0 - (fl * rd + r)) / 3.0
     return r_pv, r_px, opl_d, cell_shift
 
@@ -154,6 +161,8 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
     when the detector leg is in the path length. Lengths in metres, ``spot_opl`` the laser leg,
     ``t_origin_bins`` the padded axis's origin in path-length bins.
     """
+    # (per pair, every vector expression is written out per component into arrays allocated once per element: the
+    # same floating-point operations in the same order as the vector form, without a heap allocation per pair)
     for j in numba.prange(ne):
         e = e0 + j
         xb = np.zeros(3)  # adjoint of the centroid
@@ -162,14 +171,20 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
         vb = np.zeros((3, 3))  # of the vertices directly (the knots' path lengths)
         x0 = X0[e]
         nn = nrm[e]
-        us = S - x0
+        us = np.empty(3)
+        for q in range(3):
+            us[q] = S[q] - x0[q]
         rs = np.sqrt(_dot(us, us))
-        us = us / rs  # element -> spot
+        for q in range(3):
+            us[q] = us[q] / rs  # element -> spot
         c_x = _dot(nn, us)
         c_s = -_dot(wall_n, us)
         perm = np.empty(3, dtype=np.int64)
         tk = np.empty(3)
         tb = np.empty(3)
+        d = np.empty(3)
+        g = np.empty(3)
+        gv = np.empty(3)
         for c in range(c_lo, c_hi):
             i = c * ne + j
             full = base[i] * f_x[i] * spot_weight[e]
@@ -186,26 +201,38 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
             if acc == 0.0 and s_t == 0.0 and s_a == 0.0 and s_b == 0.0 and s_w1 == 0.0 and s_w2 == 0.0:
                 continue
             p = cell_p[c]
-            d = x0 - p
+            for q in range(3):
+                d[q] = x0[q] - p[q]
             r = np.sqrt(_dot(d, d))
-            d = d / r  # cell -> centroid
+            for q in range(3):
+                d[q] = d[q] / r  # cell -> centroid
             # --- the light F (log-derivative of each factor, times F * acc)
             fa = f * acc
             ab += fa / area[e]
             cx = _dot(nn, d)
             if abs(cx) > _TINY:
-                nb += fa * d / cx
-                xb += fa * (nn - cx * d) / (r * cx)
-            xb += fa * (-2.0 / r) * d
+                for q in range(3):
+                    nb[q] += fa * d[q] / cx
+                for q in range(3):
+                    xb[q] += fa * (nn[q] - cx * d[q]) / (r * cx)
+            m2r = fa * (-2.0 / r)
+            for q in range(3):
+                xb[q] += m2r * d[q]
             cp = _dot(wall_n, d)
             if abs(cp) > _TINY:
-                xb += fa * (wall_n - cp * d) / (r * cp)
+                for q in range(3):
+                    xb[q] += fa * (wall_n[q] - cp * d[q]) / (r * cp)
             if abs(c_x) > _TINY:
-                nb += fa * us / c_x
-                xb -= fa * (nn - c_x * us) / (rs * c_x)
+                for q in range(3):
+                    nb[q] += fa * us[q] / c_x
+                for q in range(3):
+                    xb[q] -= fa * (nn[q] - c_x * us[q]) / (rs * c_x)
             if abs(c_s) > _TINY:
-                xb += fa * (wall_n + c_s * us) / (rs * c_s)  # d/dX0 of wall_n . (-us)
-            xb += fa * (2.0 / rs) * us
+                for q in range(3):
+                    xb[q] += fa * (wall_n[q] + c_s * us[q]) / (rs * c_s)  # d/dX0 of wall_n . (-us)
+            p2r = fa * (2.0 / rs)
+            for q in range(3):
+                xb[q] += p2r * us[q]
             # --- the masses: knots (sorted as _pair_knots sorts them) and widths
             for v in range(3):
                 tk[v] = r_pv[i, v] + r_sv[e, v]
@@ -219,24 +246,37 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
             fb = f / bin_m
             for v in range(3):
                 lb = fb * (tb[v] - 0.25 * s_t)  # knot v = (l_v + 0.75 (l_c - mean l) + cell_shift) / bin_m - origin
-                qv = tri[e, v] - p
-                sv = tri[e, v] - S
-                vb[v] += lb * (qv / r_pv[i, v] + sv / r_sv[e, v])
-            xb += (0.75 * fb * s_t) * (d - us)  # the centroid's path length r_pX + r_SX
+                for q in range(3):
+                    vb[v, q] += lb * ((tri[e, v, q] - p[q]) / r_pv[i, v] + (tri[e, v, q] - S[q]) / r_sv[e, v])
+            cs = 0.75 * fb * s_t
+            for q in range(3):
+                xb[q] += cs * (d[q] - us[q])  # the centroid's path length r_pX + r_SX
             if has_cells:
-                g = np.zeros(3)
+                for q in range(3):
+                    g[q] = 0.0
                 for cu in (-0.5, 0.5):
                     for cv in (-0.5, 0.5):
-                        q = x0 - (p + cu * ax + cv * ay)
-                        g += q / np.sqrt(_dot(q, q))
-                xb += (fb * s_t / 3.0) * (0.25 * g - d)
+                        for q in range(3):
+                            gv[q] = x0[q] - (p[q] + cu * ax[q] + cv * ay[q])
+                        nq = np.sqrt(_dot(gv, gv))
+                        for q in range(3):
+                            g[q] += gv[q] / nq
+                c3 = fb * s_t / 3.0
+                for q in range(3):
+                    xb[q] += c3 * (0.25 * g[q] - d[q])
             if s_w1 != 0.0 or s_w2 != 0.0:
-                qd = p - D
-                gv = fl * qd / np.sqrt(_dot(qd, qd)) - d
+                for q in range(3):
+                    gv[q] = p[q] - D[q]
+                nd = np.sqrt(_dot(gv, gv))
+                for q in range(3):
+                    gv[q] = fl * gv[q] / nd - d[q]
                 for (wv, sw) in ((ax, s_w1), (ay, s_w2)):
                     if sw != 0.0:
                         sg = 1.0 if _dot(gv, wv) > 0.0 else -1.0
-                        xb -= (f * sw * sg / bin_m) * (wv - _dot(wv, d) * d) / r
+                        cw = f * sw * sg / bin_m
+                        wd = _dot(wv, d)
+                        for q in range(3):
+                            xb[q] -= cw * (wv[q] - wd * d[q]) / r
         # --- centroid, unit normal and area to the vertices
         e1 = tri[e, 1] - tri[e, 0]
         e2 = tri[e, 2] - tri[e, 0]
