@@ -37,7 +37,8 @@ MARKER = re.compile(r"<!-- bench:(?P<name>[a-z0-9_]+) -->(?P<body>.*?)<!-- /benc
 
 from docgen.common import Missing, Records, not_measured  # noqa: E402
 from docgen.demo import (  # noqa: E402
-    demo_table, demo_wall_inline, demo_quick_inline, noise_demo_para, noise_cost_inline, noise_vs_spp_inline,
+    demo_exposures_table, demo_table, demo_wall_inline, demo_quick_inline, noise_demo_para, noise_cost_inline,
+    noise_vs_spp_inline,
 )
 from docgen.rendering import (  # noqa: E402
     integrator_para, channels_para, volpath_para, volpath_mitransient_para, cornell_inline, gradient_para,
@@ -67,6 +68,7 @@ GENERATORS = {
     "demo_wall": (demo_wall_inline, ["demo"], True),
     "demo_quick": (demo_quick_inline, ["demo_quick"], True),
     "demo_table": (demo_table, ["demo"], False),
+    "demo_exposures": (demo_exposures_table, ["demo"], False),
     "detector_inline": (detector_readme_inline, ["detector"], True),
     "cornell_render": (cornell_inline, ["integrator"], True),
     "integrator": (integrator_para, ["integrator"], False),

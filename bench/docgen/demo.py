@@ -76,3 +76,35 @@ def noise_vs_spp_inline(R) -> str:
     lo, mid, hi = min(r), 1024, max(r)
     return (f"{r[lo]['ratio_bins']:.3g} at {lo} spp, {r[mid]['ratio_bins']:.3g} at {mid}, {r[hi]['ratio_bins']:.3g} at "
             f"{hi} (" + _own_provenance(rec, "render_noise_vs_spp").replace("Source: ", "").rstrip(".") + ")")
+
+
+#: The demo's records by exposure per spot (bench_demo.py --exposure-ms; the plain record is the default 10 ms).
+DEMO_EXPOSURES = (("demo_e1ms", 1.0), ("demo", 10.0), ("demo_e1000ms", 1000.0))
+
+
+def demo_exposures_table(R) -> str:
+    """The demo at each measured exposure per spot: wall time against issue 27's 3 minutes, the render's share,
+    the quadrature's settings and the worst rendering / photon noise ratio of its table."""
+    from .common import Missing
+
+    head = ("| exposure per spot | demo wall (s) | render (s) | elements, cells per patch | worst rendering / photon "
+            "noise (bins) | within 3 min | 1-min load (start -> end) | record |\n|---|---|---|---|---|---|---|---|\n")
+    rows = []
+    for name, ms in DEMO_EXPOSURES:
+        try:
+            rec = R(name)
+        except Missing:
+            rows.append(f"| {ms:g} ms | not measured | | | | | | `bench/results/{name}.json` missing |")
+            continue
+        run = rec["result"]["fastest"] if "fastest" in rec["result"] else rec["result"]["runs"][0]
+        full = next(r for r in rec["result"]["runs"] if r["wall_s"] == run["wall_s"])
+        sizes = sorted({(round(1000 * r["quadrature_element_size_m"], 1), r["quadrature_patch_cells"])
+                        for r in full["rows"] if r.get("estimator") == "quadrature"})
+        settings = "; ".join(f"{s:g} mm, {c}" for s, c in sizes) if sizes else "Monte Carlo"
+        worst = max(r["render_noise_ratio"] for r in full["rows"])
+        m = rec["machine"]
+        rows.append(f"| {ms:g} ms | {run['wall_s']:.0f} | {run['step_sums_s']['render']:.0f} | {settings} | "
+                    f"{worst:.2g} | {'yes' if run['wall_s'] <= 180 else 'no'} | "
+                    f"{m['load_average_1min_start']:.1f} -> {m['load_average_1min_end']:.1f} | "
+                    f"`bench/results/{name}.json`, {rec['date_utc'][:10]} |")
+    return "\n" + head + "\n".join(rows) + "\n\n(`python bench/bench_demo.py [--exposure-ms MS] --save`, 2 cores.)\n"
