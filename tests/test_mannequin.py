@@ -17,6 +17,7 @@ import trimesh
 from transient_core.errors import UserInputError
 from recon.ground_truth import ground_truth_depth_map, ground_truth_silhouette
 from transient_core.units import C_M_PER_PS
+from transient_mi.fit.mesh_start import ray_triangles
 from transient_mi.scenes import mannequin as mq
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -300,16 +301,7 @@ def _brute_force_depth(mesh, x, y):
     for i, yy in enumerate(y):
         for j, xx in enumerate(x):
             o = np.array([xx, yy, -10.0])
-            p = np.cross(d, e2)
-            det = np.einsum("ij,ij->i", e1, p)
-            ok = np.abs(det) > 1e-15
-            inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-            s = o - a
-            u = np.einsum("ij,ij->i", s, p) * inv
-            q = np.cross(s, e1)
-            v = (q @ d) * inv
-            t = np.einsum("ij,ij->i", e2, q) * inv
-            hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1)
+            hit, t = ray_triangles(a, e1, e2, o, d)
             if hit.any():
                 out[i, j] = o[2] + t[hit].min()
     return out

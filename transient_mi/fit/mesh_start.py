@@ -180,6 +180,35 @@ def device_sight_lines(sensor, scene, width: int, height: int) -> tuple[np.ndarr
     return np.concatenate(origins), np.concatenate(ends)
 
 
+def ray_triangles(a: np.ndarray, e1: np.ndarray, e2: np.ndarray, o: np.ndarray, d: np.ndarray):
+    """Moller-Trumbore intersection of the line ``o + t d`` with triangles ``a, a + e1, a + e2`` (both sides).
+
+    Parameters
+    ----------
+    a, e1, e2 : ndarray, shape (F, 3)
+        Each triangle's first vertex and its two edges from it (m).
+    o, d : ndarray, shape (3,)
+        The line's origin (m) and direction (any length: ``t`` is in its units).
+
+    Returns
+    -------
+    inside : ndarray of bool, shape (F,)
+        The line crosses the triangle (parallel lines never do).
+    t : ndarray, shape (F,)
+        The line parameter of the crossing (meaningless where not ``inside``).
+    """
+    p = np.cross(d, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    ok = np.abs(det) > 1e-15
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s = o - a
+    u = np.einsum("ij,ij->i", s, p) * inv
+    q = np.cross(s, e1)
+    w = (q @ d) * inv
+    t = np.einsum("ij,ij->i", e2, q) * inv
+    return ok & (u >= 0) & (w >= 0) & (u + w <= 1), t
+
+
 def clear_view(v: np.ndarray, f: np.ndarray, origins: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The mesh without the faces that a segment ``origins -> ends`` crosses (Moller-Trumbore, both sides), unused
     vertices dropped; the mesh unchanged (same arrays) when none does."""
@@ -188,16 +217,8 @@ def clear_view(v: np.ndarray, f: np.ndarray, origins: np.ndarray, ends: np.ndarr
     a, e1, e2 = v[f[:, 0]], v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
     hit = np.zeros(len(f), dtype=bool)
     for o, d in zip(np.asarray(origins, dtype=np.float64), np.asarray(ends, dtype=np.float64) - origins):
-        p = np.cross(d, e2)
-        det = np.einsum("ij,ij->i", e1, p)
-        ok = np.abs(det) > 1e-15
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        s = o - a
-        u = np.einsum("ij,ij->i", s, p) * inv
-        q = np.cross(s, e1)
-        w = (q @ d) * inv
-        t = np.einsum("ij,ij->i", e2, q) * inv
-        hit |= ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0) & (t < 1)
+        inside, t = ray_triangles(a, e1, e2, o, d)
+        hit |= inside & (t > 0) & (t < 1)
     if not hit.any():
         return v, f
     if hit.all():
