@@ -285,6 +285,25 @@ def test_a_step_into_the_detectors_view_is_halved(capture):
     assert np.array_equal(_keep_the_view(m, cap, th, aside), aside)
 
 
+def test_a_tail_mean_that_hides_a_wall_patch_gives_way_to_the_last_iterate(capture):
+    """The fit is the mean of the tail's iterates; each iterate is kept clear of the detector's view, their mean
+    need not be (the scene would refuse it at the final render): then the last iterate is the fit. Ray tests only."""
+    from transient_mi.fit.mesh_optimize import fit_parameters, hides_a_wall_patch
+    from transient_mi.fit.optimize import FitState
+
+    v, f = _grid(3, 0.2, tilt_deg=0.0)
+    cap = _capture_model(capture, v, f, SETTINGS, 16.0)
+    m = MeshModel(v, f, 0.5, smoothing=10.0)
+    th = m.initial()
+    into_view = m.theta_of(v + np.array([-0.6, 0.11, 0.3]), 0.5)  # (as above: hides the top row's patches)
+    clear = m.theta_of(v + np.array([0.0, 0.0, 0.05]), 0.5)
+    assert hides_a_wall_patch(cap, m.vertices(into_view), 0.5)
+    hiding_mean = FitState(theta=th.tolist(), tail_sum=(2 * into_view).tolist(), tail_count=2)
+    assert np.array_equal(fit_parameters(m, cap, hiding_mean), th)
+    clear_mean = FitState(theta=th.tolist(), tail_sum=(clear + th).tolist(), tail_count=2)
+    assert np.array_equal(fit_parameters(m, cap, clear_mean), (clear + th) / 2)
+
+
 def test_a_start_across_the_devices_view_loses_those_faces(capture):
     """A start mesh partly across the detector's lines of sight to the wall patches (the scene would refuse it)
     loses the faces the lines cross and no others: what is left hides no patch; a start clear of the view comes

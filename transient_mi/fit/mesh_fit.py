@@ -286,7 +286,9 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
     from .outputs import _front_figure, _ground_truth, _loss_figure, _write_text, backprojection_metrics, mesh_metrics
     from .mesh_figures import three_view_figure
 
-    theta = state.result()
+    from .mesh_optimize import fit_parameters
+
+    theta = fit_parameters(model, cap, state)
     fitted = model.mesh(theta)
     sv, sf, salb = start
     start_mesh = trimesh.Trimesh(vertices=np.asarray(sv), faces=np.asarray(sf, dtype=np.int64), process=False)

@@ -74,6 +74,15 @@ def _keep_the_view(model, capture, theta: np.ndarray, new: np.ndarray) -> np.nda
     return theta
 
 
+def fit_parameters(model, capture, state) -> np.ndarray:
+    """The fit's parameters: the mean of the tail's iterates (:meth:`FitState.result`), or the last iterate where
+    that mean's mesh hides a wall patch (every iterate was kept clear of the view, their mean need not be)."""
+    theta = state.result()
+    if state.tail_count and hides_a_wall_patch(capture, model.vertices(theta), model.albedo(theta)):
+        return np.asarray(state.theta, dtype=np.float64)
+    return theta
+
+
 def regularized_objective(model, capture, theta, sigma_ps: float, *, end_ps: float | None = None, seed: int = 0,
                           spp: int = 0, gradient: bool = True):
     """``(data + S R, data, S R, dtheta or None)`` of ``theta`` at the temporal blur ``sigma_ps``, rendered at
