@@ -169,6 +169,25 @@ def test_fit_recovers_a_displaced_plane(capture, tmp_path):
     assert json.loads((tmp_path / "fit" / "fit.json").read_text())["estimator"]["used"] == "quadrature"
 
 
+def test_fit_recovers_a_displaced_plane_from_a_confocal_capture(tmp_path_factory, tmp_path):
+    """The same recovery from a confocal capture (each pixel's own patch lit in turn; 4 x 4 pixels): the Chamfer
+    distance falls below a third of the start's and the NLL drops (measured 3.5 -> 0.32 cm)."""
+    from transient_mi.scenes._ply import write_ply
+
+    counts = _tilted_plane_counts(tmp_path_factory, "meshcap_confocal", capture="confocal", width="4", height="4",
+                                  pixel_footprint_m="0.1", n_bins="300", bin_width_ps="16", t0_ps="9500")
+    v, f = _grid(4, 0.4)
+    write_ply(tmp_path / "start.ply", v + np.array([0.0, 0.0, 0.04]), f)
+    res = fit_capture(counts, tmp_path / "fit", model="mesh", bin_width_ps=16.0, progress=False,
+                      log=lambda *a: None,
+                      settings=FitSettings(iterations=24, sigma_start_ps=120.0, element_size_m=0.05),
+                      mesh=MeshSettings(start_mesh=str(tmp_path / "start.ply"), stages=1, cell_m=0.02, step_m=0.004,
+                                        align=0))
+    m = res["metrics"]
+    assert m["fit"]["chamfer_mesh_m"] < m["start"]["chamfer_mesh_m"] / 3, m
+    assert res["poisson_nll"]["fit"] < res["poisson_nll"]["start"]
+
+
 def test_resume_after_a_subdivision_stage(capture, tmp_path):
     """Two alignment iterations, then two iterations in two stages (the mesh subdivided after the first);
     resuming the finished fit does nothing more; other settings are refused."""
