@@ -230,7 +230,7 @@ def test_thin_dielectric_sheet_transmits_its_total_transmittance_without_delay()
 
 def test_a_non_delta_occluder_is_still_refused_with_one_line():
     # a diffuse square under the window, in front of the corner (0.1, 0.1) of the detector's patches (but not
-    # of the array's target: that shape would be taken for the relay wall)
+    # of the array's target: that shape is refused by the next test's check)
     occluder = square((-0.4, 0.025, 0.6), 0.03, 0.5, id_="box")
     scene = nlos_scene(hidden=[slab(0.01), occluder], width=4, height=4, footprint=0.05)
     with pytest.raises(PluginParameterError) as e:
@@ -244,6 +244,18 @@ def test_a_non_delta_occluder_is_still_refused_with_one_line():
         scene.sensors()[0].nlos_setup(scene)
     msg = str(e.value)
     assert "\n" not in msg and "laser spot 0 is off the relay wall" in msg and "hits another surface first" in msg
+
+
+def test_a_shape_across_the_targets_line_of_sight_is_not_taken_for_the_relay_wall():
+    # a diffuse square half-way from the detector to the array's target, wide enough to hide every patch corner:
+    # it was taken for the relay wall; the scene names its wall (id relay_wall), so the setup refuses in one line
+    d = np.asarray(DETECTOR, dtype=float)
+    occluder = square(tuple(0.5 * d), 0.6, 0.5, id_="box")
+    scene = nlos_scene(hidden=[occluder], width=4, height=4, footprint=0.05)
+    with pytest.raises(PluginParameterError) as e:
+        scene.sensors()[0].nlos_setup(scene)
+    msg = str(e.value)
+    assert "\n" not in msg and "first hits shape 'box', not the relay wall" in msg
 
 
 def test_window_and_mirror_are_not_hidden_geometry():

@@ -230,9 +230,11 @@ class CaptureModel:
         sensor = src.sensors()[0]
         if not hasattr(sensor, "nlos_setup"):
             raise UserInputError(f"capture {str(self.capture_dir)!r}: its scene has no spad_array sensor")
-        wall = [s for s in src.shapes() if s.id() == "relay_wall"]
+        from transient_mi.sensors._nlos_setup import RELAY_WALL_ID
+
+        wall = [s for s in src.shapes() if s.id() == RELAY_WALL_ID]
         if not wall:
-            raise UserInputError(f"capture {str(self.capture_dir)!r}: its scene has no shape with id relay_wall")
+            raise UserInputError(f"capture {str(self.capture_dir)!r}: its scene has no shape with id {RELAY_WALL_ID}")
         self.mesh = mi.Mesh("model", int(n_vertices), len(faces), has_vertex_normals=False,
                             props=self._mesh_props(albedo))
         mp = mi.traverse(self.mesh)

@@ -53,6 +53,11 @@ def _fmt(p) -> str:
     return "(" + ", ".join(f"{float(c):.4g}" for c in p) + ")"
 
 
+#: The id that names the relay wall in a scene (where a scene names it, the detector's target ray must hit it
+#: first; a scene without it takes the shape hit at the target as its wall).
+RELAY_WALL_ID = "relay_wall"
+
+
 @dataclass
 class NLOSSetup:
     """Everything the estimator and the manifest need about one NLOS capture.
@@ -164,6 +169,11 @@ class NLOSSetup:
                 f"{name}: the ray from origin={_fmt(D)} to target={_fmt(sensor.target)} hits no surface; "
                 "target must be a point on the relay wall")
         wall = si_t["shape"][0]
+        if wall.id() != RELAY_WALL_ID and any(s.id() == RELAY_WALL_ID for s in scene.shapes()):
+            raise PluginParameterError(
+                f"{name}: the ray from origin={_fmt(D)} to target={_fmt(sensor.target)} first hits shape "
+                f"'{wall.id()}', not the relay wall (the shape with id '{RELAY_WALL_ID}'): nothing may stand between "
+                "the detector and the wall; move that shape or the target")
         thick = _thickness_along(wall, frame)
         if thick > 0.25 * max(_extent_in_frame(wall, frame)):
             raise PluginParameterError(
