@@ -159,16 +159,20 @@ class _FineLevel:
                       self.side.B, self.confocal)
         return g
 
-    def geometry(self, g_elem, grad_ext, ch, t: dict, row: int) -> None:
+    def pair_lengths(self, ch) -> tuple:
+        """The chunk's pair lengths (:func:`~._nlos_quadrature_geom.pair_lengths`) and its pairs' visibility as
+        ``bool [n, 4]``: what :meth:`geometry` needs for every spot's row of the chunk (computed once a chunk)."""
+        g = self.g
+        return pair_lengths(g.cell_p, self.lv.X0, self.lv.tri, ch.e0, ch.e1, g.D, g.cell_ax, g.cell_ay, g.fl,
+                            g.cell_half_diag > 0) + (((ch.vis_p[:, None] >> np.arange(4)) & 1).astype(np.bool_),)
+
+    def geometry(self, g_elem, grad_ext, ch, t: dict, row: int, lengths: tuple) -> None:
         """Add the derivative with respect to the element vertices of the chunk's pairs with the spot of ``row`` to
         ``g_elem`` (:func:`~._nlos_quadrature_geom.geometry_adjoint`, once per spot: all the chunk's cells for an
-        array capture, each pixel's cells with its own spot for a confocal one)."""
+        array capture, each pixel's cells with its own spot for a confocal one); ``lengths``: :meth:`pair_lengths`
+        of ``ch``."""
         g, side = self.g, self.side
-        if getattr(ch, "_lengths", None) is None:  # (the spots' rows of a chunk share its lengths and visibility)
-            ch._lengths = pair_lengths(g.cell_p, self.lv.X0, self.lv.tri, ch.e0, ch.e1, g.D, g.cell_ax, g.cell_ay,
-                                       g.fl, g.cell_half_diag > 0) \
-                + (((ch.vis_p[:, None] >> np.arange(4)) & 1).astype(np.bool_),)
-        r_pv, r_px, opl_d, cell_shift, vis_p = ch._lengths
+        r_pv, r_px, opl_d, cell_shift, vis_p = lengths
         m2 = g.m * g.m
         jobs = [(k, k * m2, (k + 1) * m2) for k in range(self.P)] if self.confocal else [(row, 0, len(g.cell_p))]
         for s, c_lo, c_hi in jobs:
@@ -218,6 +222,7 @@ def _backward(scene, setup, options, sensor, grad_in, geometry: bool, spots) -> 
         g_elem = np.zeros(lv.lv.tri.shape) if geometry else None  # d/d(element vertices) [n, 3, 3]
         for ch, fx_pair in lv.chunks(scene):
             g_rows = lv.adjoint(ch, grad_ext)
+            lengths = lv.pair_lengths(ch) if geometry else None  # (shared by the spots' rows)
             for row in lv.rows():
                 t = lv.terms(ch, fx_pair, row)
                 gg = g_rows[row] * ch.geo
@@ -235,7 +240,7 @@ def _backward(scene, setup, options, sensor, grad_in, geometry: bool, spots) -> 
                         dr.backward_from(upload((gg * ch.f_p * sw).astype(np.float32)) * lv.f_x_ad(ch, row),
                                          flags=_FLAGS)
                 if geometry:
-                    lv.geometry(g_elem, grad_ext, ch, t, row)
+                    lv.geometry(g_elem, grad_ext, ch, t, row, lengths)
         with dr.resume_grad():
             for coef, value in ((C, lambda: lv.side.intensity_ad(scene, lv.lv.X0)),
                                 (A, lv.wall.value_ad), (B, lambda: lv.lv.surf.toward_ad(lv.side.S))):
