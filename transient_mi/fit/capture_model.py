@@ -255,8 +255,8 @@ class CaptureModel:
         self.rkey = [k for k in self.params.keys() if k.startswith("model.bsdf.reflectance")][0]
         self.spots = list(range(self.n_spots)) if self.manifest["capture"] == "array" else [0]
 
-    def _choose_estimator(self, requested: str, element_size_m: float, patch_cells: int = 2,
-                          error_estimate: bool = True) -> None:
+    def _choose_estimator(self, requested: str, element_size_m: float, patch_cells: int,
+                          error_estimate: bool) -> None:
         """``estimator``: ``quadrature`` where the capture's scene allows it (meshes, a planar relay wall, no
         windows, media or beam divergence: :func:`~transient_mi.integrators._nlos_quadrature.check_supported`),
         else ``monte_carlo``; ``estimator_reason`` says why not (None when it is the quadrature or was asked
