@@ -176,3 +176,29 @@ def test_demo_shows_the_best_array_method_beside_the_paper_pipeline(quick_demo):
     done = json.loads((quick_demo / table["recon"][completed] / "recon.json").read_text())
     assert done["params"]["completion"]["prior"] == "elliptical cross-sections"
     assert "fig6_methods.png" in (quick_demo / "summary.md").read_text()
+
+
+def test_demo_starts_each_array_from_the_settings_the_previous_one_needed(tmp_path):
+    """With the quadrature and a noise target, the first array's refinement starts from the scene's settings and
+    the next array's from the finest settings the first one's capture needed (same scene, exposure and detector;
+    on the demo's arrays of 4 x 4 to 32 x 32 pixels, of 1 cm patches, that met the target in one round). At 1 s per
+    spot the scene's settings state more than 0.1 (arrays of 2 x 2 and 4 x 4 pixels, 8 ps bins: seconds)."""
+    from transient_mi.demo import run_demo
+    from transient_mi.paper import (PAPER_ELEMENT_SIZE_M, PAPER_PATCH_CELLS, PAPER_REFINE_LEVELS, DemoSettings)
+
+    s = DemoSettings(arrays=(2, 4), bin_width_ps=8.0, n_bins=1438, exposure_s=1.0, voxels=(16, 16, 8),
+                     estimator="quadrature")
+    out = run_demo(tmp_path / "demo", settings=s, progress=False, log=lambda line: None)
+    first, second = (json.loads((out / "captures" / f"array_{n:02d}" / "ideal" / "manifest.json").read_text())
+                     for n in (2, 4))
+    nt1, nt2 = first["render"]["noise_target"], second["render"]["noise_target"]
+    assert nt1["met"] and nt2["met"]
+    assert all(sp["rounds"] >= 2 for sp in nt1["spots"])  # the scene's settings did not meet it
+    assert first["variance"]["settings"] == {"element_size_m": PAPER_ELEMENT_SIZE_M, "patch_cells": PAPER_PATCH_CELLS,
+                                             "refine_levels": PAPER_REFINE_LEVELS}
+    per = first["variance"]["settings_per_spot"]
+    finest = {"element_size_m": min(p["element_size_m"] for p in per),
+              "patch_cells": max(p["patch_cells"] for p in per),
+              "refine_levels": max(p["refine_levels"] for p in per)}
+    assert second["variance"]["settings"] == finest  # where the second array's refinement started
+    assert all(sp["element_size_m"] <= finest["element_size_m"] for sp in nt2["spots"])

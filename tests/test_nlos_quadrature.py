@@ -378,14 +378,27 @@ def test_error_estimate_keeps_each_pixels_sum_of_squares():
     e = discretisation_error(d, np.zeros(12))
     assert e[6] == pytest.approx(np.sqrt((9.0 + 16.0) / 5.0) / ESTIMATE_DIVISOR)
     assert e[0] == 0.0 and e[-1] == 0.0 and (e >= 0).all()
-    # filtered a block of rows at a time (small temporaries): the same bytes as the whole array at once
+    # the kernel (rows in parallel, the difference formed inside) against scipy's filter of the squares, and the
+    # same bytes on one thread as on two
+    import numba
     from scipy.ndimage import uniform_filter1d
 
-    from transient_mi.integrators._nlos_error_estimate import RMS_ROWS, local_rms
+    from transient_mi.integrators._nlos_error_estimate import local_rms
 
-    big = rng.normal(size=(2, RMS_ROWS + 7, 40))
-    whole = np.sqrt(np.maximum(uniform_filter1d(np.square(big), 5, axis=-1, mode="reflect"), 0.0))
-    assert local_rms(big).tobytes() == whole.tobytes()
+    big = rng.normal(size=(2, 300, 40))
+    other = rng.normal(size=(2, 300, 40))
+    scipy_form = np.sqrt(np.maximum(uniform_filter1d(np.square(big - other), 5, axis=-1, mode="reflect"), 0.0))
+    np.testing.assert_allclose(local_rms(big, other), scipy_form, rtol=1e-12)
+    np.testing.assert_allclose(local_rms(big, other, 0.5), 0.5 * scipy_form, rtol=1e-12)
+    np.testing.assert_allclose(local_rms(big[..., :3]), np.sqrt(uniform_filter1d(np.square(big[..., :3]), 5, axis=-1,
+                                                                                 mode="reflect")), rtol=1e-12)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        one = local_rms(big, other)
+    finally:
+        numba.set_num_threads(threads)
+    assert one.tobytes() == local_rms(big, other).tobytes()
 
 
 def test_one_cell_error_estimate_covers_the_actual_error():
@@ -432,6 +445,26 @@ def test_estimate_levels_without_bound_bins_give_the_same_capture():
     for name in ("histogram", "error_bound", "total_error_bound", "steady"):
         assert getattr(lean, name).tobytes() == getattr(full, name).tobytes(), name
 
+
+
+def test_error_parts_sum_to_the_error_and_change_nothing_else():
+    """Asked for its error's parts (``error_parts``, the noise target's refinement), a render returns the
+    visibility, elements and cells parts (one cell per side: all three), which sum to its error up to float32
+    rounding, and the capture and error are the same bytes as without them (the paper's mannequin, 2 x 2 pixels:
+    its limbs leave pairs of mixed visibility). Deterministic."""
+    from transient_mi.scene_io import load_scene
+
+    scene = load_scene("scenes/paper_mannequin.xml", dict(include_wall_return="false", array="2", spots="1",
+                                                          n_bins="1152", bin_width_ps="10"))
+    plain = _render(scene, patch_cells=1)
+    parted = _render(scene, patch_cells=1, error_parts=True)
+    assert plain.error_parts is None
+    assert sorted(parted.error_parts) == ["cells", "elements", "visibility"]
+    assert all(float(a.max()) > 0 for a in parted.error_parts.values())
+    total = sum(a.astype(np.float64) for a in parted.error_parts.values())
+    np.testing.assert_allclose(total, parted.error_bound, rtol=1e-6, atol=1e-6 * float(parted.error_bound.max()))
+    for name in ("histogram", "error_bound", "total_error_bound", "steady"):
+        assert getattr(plain, name).tobytes() == getattr(parted, name).tobytes(), name
 
 
 def test_below_three_bounces_only_the_wall_return_is_rendered():
@@ -507,15 +540,18 @@ def test_noise_target_refines_the_quadrature(tmp_path):
     assert spot["met"] and nt["met"] and spot["ratio"] <= 0.01
     assert spot["rounds"] >= 2 and spot["element_size_m"] < 0.01 and spot["patch_cells"] > 4  # it refined
     assert m["variance"]["settings_per_spot"] == [{"element_size_m": spot["element_size_m"],
-                                                   "patch_cells": spot["patch_cells"]}]
+                                                   "patch_cells": spot["patch_cells"],
+                                                   "refine_levels": spot["refine_levels"]}]
     assert "spp_per_spot" not in m["variance"]
 
 
-def test_noise_target_refinement_grows_the_elements_that_set_the_error():
-    """A refinement round grows the fine element count by ``1 / f^2`` (the error's second order), also where the
-    meshes' triangles are smaller than twice ``element_size_m`` (lowering ``h`` by ``f`` alone would split
-    nothing there), and refines the cells only where they are larger than the elements."""
-    from transient_mi.integrators._nlos_elements import effective_edge_m, fine_count, split4, subdivide
+def test_noise_target_refinement_shrinks_the_elements_that_set_the_error():
+    """A refinement step shrinks the elements' size as their error sees it (the area-weighted root mean square of
+    their longest edge) by ``f``, also where the meshes' triangles are smaller than twice ``element_size_m``
+    (lowering ``h`` by ``f`` alone would split nothing there), and where a few large triangles set it among many
+    small ones (the mannequin's case: ``h f`` suffices, where a count ``1 / f^2`` times larger splits far more); it
+    refines the cells only where they are larger than the elements."""
+    from transient_mi.integrators._nlos_elements import element_scale_m, fine_count, split4, subdivide
     from transient_mi.noise_target import _next_quadrature_level
 
     rng = np.random.default_rng(3)
@@ -526,14 +562,48 @@ def test_noise_target_refinement_grows_the_elements_that_set_the_error():
     for h in (0.04, 0.005):  # the count without building the elements is the quadrature's own
         assert fine_count(small, h) == len(split4(subdivide(small, np.arange(400), 2 * h)[0]))
     h, m = _next_quadrature_level(small, 0.004, 0.04, 2, f)
-    assert fine_count(small, h) >= fine_count(small, 0.04) / f ** 2
-    assert fine_count(small, 0.04 * f) == fine_count(small, 0.04)  # h f alone would have changed nothing
-    assert effective_edge_m(small, fine_count(small, h)) > 0.004 / 2 and m == 2  # 2 mm cells: smaller, kept
+    assert element_scale_m(small, h) <= f * element_scale_m(small, 0.04) * (1 + 1e-9)
+    assert element_scale_m(small, 0.04 * f) == element_scale_m(small, 0.04)  # h f alone would have changed nothing
+    assert element_scale_m(small, h) > 0.004 / 2 and m == 2  # 2 mm cells: smaller, kept
     # one large square (2 triangles): h f suffices, and 7.5 mm cells are larger than its ~5 mm elements
     sq = np.array([[[0, 0, 0.5], [0.2, 0, 0.5], [0.2, 0.2, 0.5]], [[0, 0, 0.5], [0.2, 0.2, 0.5], [0, 0.2, 0.5]]])
     h, m = _next_quadrature_level(sq, 0.03, 0.01, 4, f)
-    assert 0.9 * 0.01 * f <= h <= 0.01 * f  # (the counts are whole: a step of 5 % below h f may be needed)
-    assert effective_edge_m(sq, fine_count(sq, h)) < 0.03 / 4 and m == 6
+    assert 0.9 * 0.01 * f <= h <= 0.01 * f  # (the divisions are whole: a step of 5 % below h f may be needed)
+    assert element_scale_m(sq, h) < 0.03 / 4 and m == 6
+    # the square beside 400 small triangles: the square's elements set the size, and h f is about enough, where
+    # the count's rule asked for 1 / f^2 as many elements
+    both = np.concatenate([sq, small])
+    h, m = _next_quadrature_level(both, 0.001, 0.01, 1, f)
+    assert 0.9 * 0.01 * f <= h <= 0.01 * f
+
+
+def test_noise_target_refines_the_part_of_the_error_that_sets_it():
+    """The refinement plan (:func:`~transient_mi.noise_target.plan_quadrature_level`) refines the part of the error
+    that sets the ratio: a visibility refinement level where the mixed-visibility bound dominates (elements and
+    cells kept), one more cell per side where the one-cell estimate dominates, smaller elements where theirs does
+    (cells kept with one per side); the planned shares meet ``PLAN_MARGIN`` x the target."""
+    from transient_mi.integrators._nlos_elements import element_scale_m
+    from transient_mi.noise_target import (ELEMENTS_ORDER, PLAN_MARGIN, QUADRATURE_ELEMENT_STEP,
+                                           QUADRATURE_MAX_REFINE_LEVELS, plan_quadrature_level)
+
+    sq = np.array([[[0, 0, 0.5], [0.2, 0, 0.5], [0.2, 0.2, 0.5]], [[0, 0, 0.5], [0.2, 0.2, 0.5], [0, 0.2, 0.5]]])
+    # visibility 0.2 of a ratio 0.3 (target 0.1): two levels halve its share twice
+    assert plan_quadrature_level(sq, 0.03, 0.01, 1, 1, 0.3, {"visibility": 0.2, "elements": 0.01, "cells": 0.001},
+                                 0.1) == (0.01, 1, 3)
+    # the one-cell estimate dominates: cells only
+    assert plan_quadrature_level(sq, 0.03, 0.01, 1, 1, 0.2, {"visibility": 0.001, "elements": 0.001, "cells": 0.2},
+                                 0.1) == (0.01, 2, 1)
+    # the elements dominate: they shrink (their size by the planned steps), one cell per side kept
+    h, m, rl = plan_quadrature_level(sq, 0.03, 0.01, 1, 1, 0.2, {"visibility": 0.0, "elements": 0.2, "cells": 0.0},
+                                     0.1)
+    steps = math.ceil(math.log(math.sqrt(PLAN_MARGIN * 0.1 / 0.2)) / math.log(QUADRATURE_ELEMENT_STEP ** ELEMENTS_ORDER))
+    assert (m, rl) == (1, 1)
+    assert element_scale_m(sq, h) <= QUADRATURE_ELEMENT_STEP ** steps * element_scale_m(sq, 0.01) * (1 + 1e-9)
+    assert element_scale_m(sq, h / 0.95) > QUADRATURE_ELEMENT_STEP ** steps * element_scale_m(sq, 0.01)  # no finer
+    # visibility beyond its cap goes to the elements
+    h, m, rl = plan_quadrature_level(sq, 0.03, 0.01, 1, QUADRATURE_MAX_REFINE_LEVELS, 0.2, {"visibility": 0.2},
+                                     0.1)
+    assert rl == QUADRATURE_MAX_REFINE_LEVELS and h < 0.01 and m == 1
 
 
 @pytest.mark.parametrize("cells", [None, 1])

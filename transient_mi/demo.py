@@ -50,7 +50,8 @@ class ArrayResult:
     spp: int = 0
     render_noise: dict = field(default_factory=dict)
     #: which estimator made the ideal capture (``quadrature`` or ``monte_carlo``) and, for the quadrature, the
-    #: largest element size (m) and fewest cells per patch side its spots were rendered with
+    #: largest element size (m), fewest cells per patch side and fewest visibility refinement levels its spots were
+    #: rendered with
     estimator: str = "monte_carlo"
     quadrature: dict = field(default_factory=dict)
 
@@ -98,8 +99,9 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
     params = paper_detector()
     (tmp / "recon").mkdir()
     results, hists = [], {}
+    start = {}  # the quadrature settings the noise target starts from (below)
     for i, n in enumerate(s.arrays):
-        cfg = s.config(n)
+        cfg = s.config(n).replace(**start)
         cap = tmp / "captures" / f"array_{n:02d}"
         cap.mkdir(parents=True)
         log(f"[{i + 1}/{len(s.arrays)}] {n}x{n} SPAD array: render, detect, reconstruct")
@@ -123,6 +125,10 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
         n_spots = m["n_files"]
         rn = m["detector"]["resolved"].get("render_noise") or {}
         estimator, quad = _estimator_of(ideal)
+        if estimator == "quadrature" and s.noise_target is not None:
+            # the next array starts its refinement from the settings this one needed (same scene, exposure and
+            # detector: the same parts of the error set its ratio), not from the scene's: one round instead of two
+            start = _finest_settings(ideal)
         spp_used = 0 if estimator == "quadrature" else rendered_spp(ideal, s.spp)
         results.append(ArrayResult(
             array=n, metrics=metrics, pulses_per_spot=pulses, spp=spp_used, render_noise=rn,
@@ -136,6 +142,20 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
     return results, hists
 
 
+def _finest_settings(ideal: Path) -> dict:
+    """The finest quadrature settings any spot of a rendered ideal capture needed (smallest ``element_size_m``,
+    most ``patch_cells`` and ``refine_levels``; its manifest's ``variance.settings_per_spot``, else the capture's
+    settings), as :class:`~transient_mi.paper.PaperConfig` fields; empty for a capture without them."""
+    m = json.loads((Path(ideal) / "manifest.json").read_text())
+    var = m.get("variance") or {}
+    per = var.get("settings_per_spot") or [var.get("settings") or {}]
+    if not all(k in p for p in per for k in ("element_size_m", "patch_cells", "refine_levels")):
+        return {}
+    return {"element_size_m": min(p["element_size_m"] for p in per),
+            "patch_cells": max(p["patch_cells"] for p in per),
+            "refine_levels": max(p["refine_levels"] for p in per)}
+
+
 def _estimator_of(ideal: Path) -> tuple[str, dict]:
     """``(estimator, settings)`` of a rendered ideal capture (its manifest): for the quadrature, the coarsest
     element size and cells per patch side over its spots (refined ones with a noise target)."""
@@ -145,10 +165,13 @@ def _estimator_of(ideal: Path) -> tuple[str, dict]:
         return est, {}
     per = (m.get("variance") or {}).get("settings_per_spot")
     if per:
-        return est, {"element_size_m": max(p["element_size_m"] for p in per),
-                     "patch_cells": min(p["patch_cells"] for p in per)}
+        out = {"element_size_m": max(p["element_size_m"] for p in per),
+               "patch_cells": min(p["patch_cells"] for p in per)}
+        if all("refine_levels" in p for p in per):
+            out["refine_levels"] = min(p["refine_levels"] for p in per)
+        return est, out
     st = (m.get("variance") or {}).get("settings") or {}
-    return est, {k: st[k] for k in ("element_size_m", "patch_cells") if k in st}
+    return est, {k: st[k] for k in ("element_size_m", "patch_cells", "refine_levels") if k in st}
 
 
 # ------------------------------------------------------------------ figures
@@ -336,8 +359,9 @@ def metrics_table_markdown(rows: list[dict]) -> str:
         if r.get("estimator", "monte_carlo") != "quadrature":
             return f"{r.get('spp', 'n/a')} spp"
         h, c = r.get("quadrature_element_size_m"), r.get("quadrature_patch_cells")
+        lv = r.get("quadrature_refine_levels")
         return "quadrature" + (f", {1000 * h:.3g} mm, {c} cell{'' if c == 1 else 's'}" if h is not None and c is not None
-                               else "")
+                               else "") + ("" if lv is None else f", {lv} visibility level{'' if lv == 1 else 's'}")
 
     lines = ["| array | Chamfer (cm) | accuracy (cm) | completeness (cm) | depth MAE (cm) | depth coverage | IoU | "
              "counts / pixel / spot | rendered with | rendering / photon noise (bins; pixel totals) |",

@@ -88,6 +88,10 @@ PAPER_ELEMENT_SIZE_M = 0.04
 #: cells' part, one cell against two on the coarse elements). On the 32 x 32 array at 1 ps it states 0.0039 at 10 ms
 #: (two cells: 0.0031) in 0.63 times the time of two (bench/results/paper_estimators_a32_e10ms*.json).
 PAPER_PATCH_CELLS = 1
+#: The quadrature's visibility refinement levels on the paper scene (the integrator's default): elements whose
+#: visibility samples disagree are split in four this many times; ``render --noise-target`` adds levels where the
+#: light of such elements sets the error (transient_mi.noise_target.plan_quadrature_level).
+PAPER_REFINE_LEVELS = 1
 #: Array sizes compared in the paper (Fig. 4 and Fig. 5).
 PAPER_ARRAY_SIZES = (4, 8, 16, 32)
 #: Reconstruction volume: the wall's extent in x and y, 25 cm to 75 cm in front of it.
@@ -124,6 +128,9 @@ class PaperConfig:
         ``monte_carlo`` (``spp`` samples; the default, :data:`PAPER_ESTIMATOR`) or ``quadrature`` (deterministic
         three-bounce light with a stored error estimate; ``spp`` unused unless ``max_depth`` > 4;
         docs/quadrature.md).
+    element_size_m, patch_cells, refine_levels : float, int, int or None
+        The quadrature's settings (None: the scene's, :data:`PAPER_ELEMENT_SIZE_M`, :data:`PAPER_PATCH_CELLS`,
+        :data:`PAPER_REFINE_LEVELS`); with a noise target, where its refinement starts.
     """
 
     array: int = 16
@@ -140,6 +147,9 @@ class PaperConfig:
     bin_width_ps: float = PAPER.tcspc_bin_width_ps
     max_depth: int = 4
     estimator: str = PAPER_ESTIMATOR
+    element_size_m: float | None = None
+    patch_cells: int | None = None
+    refine_levels: int | None = None
 
     def defines(self) -> dict[str, str]:
         """The ``-D`` values for ``scenes/paper_mannequin.xml``."""
@@ -150,6 +160,9 @@ class PaperConfig:
             "n_bins": str(self.n_bins), "bin_width_ps": repr(float(self.bin_width_ps)),
             "max_depth": str(self.max_depth), "estimator": self.estimator,
             **({"joints": self.joints} if self.joints else {}),
+            **({"element_size_m": repr(float(self.element_size_m))} if self.element_size_m is not None else {}),
+            **({"patch_cells": str(int(self.patch_cells))} if self.patch_cells is not None else {}),
+            **({"refine_levels": str(int(self.refine_levels))} if self.refine_levels is not None else {}),
         }
 
     def replace(self, **changes) -> "PaperConfig":
@@ -224,9 +237,10 @@ def scene_defaults() -> list[tuple[str, str]]:
         ("power_w", repr(c.power_w)), ("spp", str(SCENE_SPP)), ("t0_ps", repr(c.t0_ps)),
         ("n_bins", str(c.n_bins)), ("bin_width_ps", repr(c.bin_width_ps)), ("max_depth", str(c.max_depth)),
         # the estimator of three-bounce light (docs/quadrature.md): PAPER_ESTIMATOR; the quadrature's element size
-        # (m) and cells per patch side on this scene (PAPER_ELEMENT_SIZE_M, PAPER_PATCH_CELLS)
+        # (m), cells per patch side and visibility refinement levels on this scene (PAPER_ELEMENT_SIZE_M,
+        # PAPER_PATCH_CELLS, PAPER_REFINE_LEVELS)
         ("estimator", c.estimator), ("element_size_m", repr(PAPER_ELEMENT_SIZE_M)),
-        ("patch_cells", str(PAPER_PATCH_CELLS)),
+        ("patch_cells", str(PAPER_PATCH_CELLS)), ("refine_levels", str(PAPER_REFINE_LEVELS)),
         ("capture", "array"), ("include_wall_return", "true"),
         ("wavelength_nm", repr(PAPER.wavelength_nm)), ("repetition_rate_hz", repr(PAPER.repetition_rate_hz)),
         ("laser_origin", _vec(PAPER.laser_origin_m)), ("detector_origin", _vec(PAPER.detector_origin_m)),

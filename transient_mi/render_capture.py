@@ -430,7 +430,8 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
         m["render"]["noise_target"]["spots"] = spots_nt
         if stack.is_error_bound(m):  # the quadrature's settings per spot
             m["variance"]["settings_per_spot"] = [{"element_size_m": s_["element_size_m"],
-                                                  "patch_cells": s_["patch_cells"]} for s_ in spots_nt]
+                                                  "patch_cells": s_["patch_cells"],
+                                                  "refine_levels": s_["refine_levels"]} for s_ in spots_nt]
         else:
             m["variance"]["spp_per_spot"] = [s_["spp"] for s_ in spots_nt]
             m["variance"]["replicates_per_spot"] = [s_["replicates"] for s_ in spots_nt]

@@ -28,30 +28,53 @@ squares and every lit 8-bin window's summed squares; a single bin can fall short
 
 from __future__ import annotations
 
+import numba
 import numpy as np
-from scipy.ndimage import uniform_filter1d
 
 #: Bins on either side over which a bin's estimate takes the root mean square of the two-level difference.
 ESTIMATE_REACH_BINS = 2
-#: Rows (pixels) filtered at a time: the float64 temporaries of a [spots, pixels, bins] capture stay this many rows
-#: (each row is filtered on its own, so the result does not depend on it).
-RMS_ROWS = 256
 #: The order of the method assumed by Richardson's rule.
 ESTIMATE_ORDER = 2
 #: The two-level difference over the fine level's error: ``2^p - 1`` (3 for second order).
 ESTIMATE_DIVISOR = 2.0 ** ESTIMATE_ORDER - 1.0
 
 
-def local_rms(d: np.ndarray) -> np.ndarray:
-    """Root mean square of ``d [..., T]`` over ``2 ESTIMATE_REACH_BINS + 1`` bins centred on each bin of the last
-    axis (reflected at its ends, so the sum of squares of every row is kept)."""
+@numba.njit(cache=True, parallel=True, fastmath=False)
+def _rms_rows(a, b, reach, scale, out):
+    """``out[k, t] = scale * sqrt(mean_{|j| <= reach} (a - b)[k, t + j]^2)``, indices reflected at the row's ends
+    (``-1 -> 0``, ``T -> T - 1``: scipy's ``mode="reflect"``), one row per iteration in parallel; each window summed
+    in order from its first bin (same inputs, same bytes, whatever the threads)."""
+    n, T = a.shape
+    w = 2 * reach + 1
+    inv_w = 1.0 / w
+    for k in numba.prange(n):
+        sq = np.empty(T)
+        for t in range(T):
+            d = a[k, t] - b[k, t]
+            sq[t] = d * d
+        for t in range(T):
+            acc = 0.0
+            for j in range(t - reach, t + reach + 1):
+                i = j
+                while i < 0 or i >= T:  # (reflected; a row shorter than the window reflects more than once)
+                    i = -i - 1 if i < 0 else 2 * T - i - 1
+                acc += sq[i]
+            out[k, t] = scale * np.sqrt(acc * inv_w)
+
+
+def local_rms(d: np.ndarray, minus: np.ndarray | None = None, scale: float = 1.0) -> np.ndarray:
+    """``scale`` times the root mean square of ``d - minus`` (``minus`` default 0) over ``2 ESTIMATE_REACH_BINS +
+    1`` bins centred on each bin of the last axis (reflected at its ends, so the sum of squares of every row is
+    kept), float64, the shape of ``d``; the difference is formed bin by bin inside the kernel (no temporaries of
+    the capture's size)."""
     d = np.asarray(d, dtype=np.float64)
-    rows = d.reshape(-1, d.shape[-1]) if d.ndim else d.reshape(1, 1)
+    shape = d.shape
+    rows = np.ascontiguousarray(d.reshape(-1, shape[-1]) if d.ndim else d.reshape(1, 1))
+    sub = (np.zeros_like(rows) if minus is None else
+           np.ascontiguousarray(np.broadcast_to(np.asarray(minus, dtype=np.float64), shape).reshape(rows.shape)))
     out = np.empty(rows.shape)
-    for r0 in range(0, len(rows), RMS_ROWS):  # (a block of rows at a time: the temporaries stay small)
-        ms = uniform_filter1d(np.square(rows[r0:r0 + RMS_ROWS]), 2 * ESTIMATE_REACH_BINS + 1, axis=-1, mode="reflect")
-        np.sqrt(np.maximum(ms, 0.0), out=out[r0:r0 + RMS_ROWS])
-    return out.reshape(d.shape)
+    _rms_rows(rows, sub, ESTIMATE_REACH_BINS, float(scale), out)
+    return out.reshape(shape)
 
 
 def discretisation_error(fine: np.ndarray, coarse: np.ndarray) -> np.ndarray:
@@ -67,6 +90,4 @@ def discretisation_error(fine: np.ndarray, coarse: np.ndarray) -> np.ndarray:
     ndarray, float64, shape of ``fine``
         ``local_rms(fine - coarse) / ESTIMATE_DIVISOR``, photons per pulse per bin (>= 0).
     """
-    out = local_rms(np.asarray(fine, dtype=np.float64) - coarse)
-    out /= ESTIMATE_DIVISOR
-    return out
+    return local_rms(fine, coarse, 1.0 / ESTIMATE_DIVISOR)

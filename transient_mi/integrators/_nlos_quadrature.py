@@ -109,6 +109,15 @@ def error_estimate(options: dict) -> bool:
     return bool(options.get("error_estimate", True))
 
 
+def error_parts(options: dict) -> bool:
+    """Whether a render returns its error's parts beside their sum (``options["error_parts"] = True``, set by
+    ``render --noise-target``'s refinement, :func:`transient_mi.noise_target.render_group_quadrature`, not a scene
+    parameter): ``TransientResult.error_parts`` then maps ``visibility`` (the mixed-visibility bound),
+    ``elements`` (the elements' discretisation estimate, with its cells' where the coarse level halves them) and,
+    with one cell per patch side, ``cells`` to arrays shaped as ``error_bound``, which is their sum."""
+    return bool(options.get("error_parts", False))
+
+
 def needs_remainder(options: dict) -> bool:
     """True when ``max_depth`` (-1: unlimited) asks for light beyond three bounces: the capture is then the
     quadrature's three-bounce light plus the Monte Carlo remainder (every other path, see
@@ -370,13 +379,20 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     outside = fine["outside"]
     # error: the light of mixed visibility, plus the discretisation estimated from the coarse level
     bound = fine["bound"]
+    parts = {"visibility": bound} if error_parts(options) else None
     if coarse is not None:
-        bound = bound + discretisation_error(fine["hist"], coarse["hist"])
+        part = discretisation_error(fine["hist"], coarse["hist"])
+        bound = bound + part
+        if parts is not None:
+            parts["elements"] = part
     tot_bound = fine["vis_err"] + (np.abs(fine["steady"] - coarse["steady"]) if coarse is not None else 0.0)
     if cells is not None:
         # one cell per side: the coarse level's difference is the elements' part; the cells' part is the coarse
         # elements' one cell against CELL_ESTIMATE_CELLS (same local root mean square), scaled to the one cell's own error
-        bound = bound + local_rms(coarse["hist"] - cells["hist"]) * CELL_ESTIMATE_FACTOR
+        part = local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR)
+        bound = bound + part
+        if parts is not None:
+            parts["cells"] = part
         tot_bound = tot_bound + np.abs(coarse["steady"] - cells["steady"]) * CELL_ESTIMATE_FACTOR
     # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)
     wr = setup.wall_return
@@ -397,6 +413,9 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     for gi in range(G_out):
         hk = _clear_rounding_residue(apply_kernel(hist[gi], g.taps) if g.pad else hist[gi])
         ek = _clear_rounding_residue(apply_kernel(bound[gi], g.taps) if g.pad else bound[gi], hk)
+        ep = None if parts is None else {
+            name: _clear_rounding_residue(apply_kernel(a[gi], g.taps) if g.pad else a[gi], hk).astype(
+                np.float32).reshape(g.H, g.W, g.n_bins) for name, a in parts.items()}
         in_hist = float(hk.sum())
         tot = float(steady[gi].sum())
         frac = max(0.0, 1.0 - in_hist / tot) if tot > 0 else 0.0
@@ -412,6 +431,7 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
             error_bound=ek.astype(np.float32).reshape(g.H, g.W, g.n_bins),
             total_error_bound=tot_bound[gi].astype(np.float32).reshape(g.H, g.W),
             estimator_info=dict(info),
+            error_parts=ep,
         ))
     return results
 
