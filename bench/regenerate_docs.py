@@ -50,9 +50,9 @@ from docgen.recon import (  # noqa: E402
     completion_limit_inline, completion_aspect_para, recon_quality_para, methods_trend_para,
 )
 from docgen.quadrature import (  # noqa: E402
-    PAPER_ESTIMATORS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, SCENE_SETTINGS, paper_estimators_table,
-    quadrature_settings_table, quadrature_cost_inline, quadrature_inline, quadrature_profile_inline, quadrature_table,
-    scene_settings_table,
+    PAPER_ESTIMATORS, QUADRATURE_PARTS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, SCENE_SETTINGS,
+    paper_estimators_table, quadrature_parts_table, quadrature_settings_table, quadrature_cost_inline,
+    quadrature_inline, quadrature_profile_inline, quadrature_table, scene_settings_table,
 )
 from docgen.nlos_quadrature import nlos_quadrature_table  # noqa: E402
 from docgen.fit_mesh import fit_mesh_plane_table, fit_mesh_table, fit_mesh_topology_table  # noqa: E402
@@ -113,6 +113,7 @@ GENERATORS = {
     "quadrature_profile": (quadrature_profile_inline, list(QUADRATURE_PROFILES), True),
     "paper_estimators": (paper_estimators_table, list(PAPER_ESTIMATORS), False),
     "quadrature_settings": (quadrature_settings_table, [QUADRATURE_SETTINGS], False),
+    "quadrature_parts": (quadrature_parts_table, [QUADRATURE_PARTS], False),
     "quadrature_scene_settings": (scene_settings_table, list(SCENE_SETTINGS), False),
     "nlos_quadrature_table": (nlos_quadrature_table, ["nlos_quadrature", "nlos_quadrature_64x64",
                                                       "nlos_quadrature_confocal"], False),

@@ -87,7 +87,8 @@ def demo_exposures_table(R) -> str:
     the quadrature's settings and the worst rendering / photon noise ratio of its table."""
     from .common import Missing
 
-    head = ("| exposure per spot | demo wall (s) | render (s) | elements, cells per patch | worst rendering / photon "
+    head = ("| exposure per spot | demo wall (s) | render (s) | elements, cells per patch[, visibility levels] | "
+            "worst rendering / photon "
             "noise (bins) | within 3 min | 1-min load (start -> end) | record |\n|---|---|---|---|---|---|---|---|\n")
     rows = []
     for name, ms in DEMO_EXPOSURES:
@@ -97,9 +98,11 @@ def demo_exposures_table(R) -> str:
             rows.append(f"| {ms:g} ms | not measured | | | | | | `bench/results/{name}.json` missing |")
             continue
         run = min((r for r in rec["result"]["runs"] if r["status"] == "ok"), key=lambda r: r["wall_s"])  # (fastest)
-        sizes = sorted({(round(1000 * r["quadrature_element_size_m"], 1), r["quadrature_patch_cells"])
-                        for r in run["rows"] if r.get("estimator") == "quadrature"})
-        settings = "; ".join(f"{s:g} mm, {c}" for s, c in sizes) if sizes else "Monte Carlo"
+        sizes = sorted({(round(1000 * r["quadrature_element_size_m"], 1), r["quadrature_patch_cells"],
+                         r.get("quadrature_refine_levels"))
+                        for r in run["rows"] if r.get("estimator") == "quadrature"}, key=lambda t: t[:2])
+        settings = "; ".join(f"{s:g} mm, {c}" + ("" if lv is None else f", {lv}") for s, c, lv in sizes) \
+            if sizes else "Monte Carlo"
         worst = max(r["render_noise_ratio"] for r in run["rows"])
         m = rec["machine"]
         rows.append(f"| {ms:g} ms | {run['wall_s']:.0f} | {run['step_sums_s']['render']:.0f} | {settings} | "

@@ -198,3 +198,24 @@ def quadrature_profile_inline(R) -> str:
                      f"and their refinement {share('elements and visibility refinement'):.0f} %, the error estimate "
                      f"{share('error estimate'):.0f} % (by level: {levels}) ({provenance(rec, short=True)})")
     return "; ".join(parts)
+
+
+QUADRATURE_PARTS = "quadrature_parts_a8_e1000ms"
+
+
+def quadrature_parts_table(R) -> str:
+    """The parts of the quadrature's error on the demo's 8 x 8 capture at 1 s per spot, at several settings: what
+    the noise target's refinement reads to choose what to refine."""
+    rec = R(QUADRATURE_PARTS)
+    res = rec["result"]
+    rows = ["| elements | cells per patch side | visibility levels | ratio | visibility part | elements part | "
+            "cells part | pairs | render (s) |", "|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in res["rows"]:
+        p = r["parts"] or {}
+        rows.append(f"| {1000 * r['element_size_m']:g} mm | {r['patch_cells']} | {r['refine_levels']} | "
+                    f"{_r(r['ratio'])} | {_r(p.get('visibility'))} | {_r(p.get('elements'))} | "
+                    f"{_r(p.get('cells')) if 'cells' in p else 'in the elements part'} | {r['pairs']:,} | "
+                    f"{r['render_s']:.1f} |")
+    return ("\n".join(rows) + "\n\n"
+            f"({res['config']}, {res['exposure_ms']:g} ms per spot, the demo's target {res['target']:g}; "
+            f"{res['ratio']}. {provenance(rec)})\n")
