@@ -488,13 +488,15 @@ def render_group_quadrature(job, run: TargetRun, group: list[int], log=None):
             ratios = [quadrature_ratio(run, j, r) for j, r in zip(group, res)]
             worst = max(ratios)
             g_worst = ratios.index(worst)
-            parts = quadrature_part_ratios(run, group[g_worst], res[g_worst])
+            last = worst <= run.spec.target or rnd == QUADRATURE_MAX_ROUNDS
+            # (the parts plan the next round: the worst spot's, and only where there is one)
+            parts = None if last else quadrature_part_ratios(run, group[g_worst], res[g_worst])
             for r in res:
                 r.error_parts = None  # (the capture keeps their sum only)
             said = "" if not parts else " (" + ", ".join(f"{k} {v:.3g}" for k, v in parts.items()) + ")"
             say(f"{name}: quadrature, element_size_m {h:.4g}, patch_cells {m}, refine_levels {rl}: error ratio "
                 f"{worst:.3g}{said} (target {run.spec.target:g}), {time.perf_counter() - t0:.0f} s")
-            if worst <= run.spec.target or rnd == QUADRATURE_MAX_ROUNDS:
+            if last:
                 break
             h, m, rl = plan_quadrature_level(tri, float(setup.footprint_m), h, m, rl, worst, parts, run.spec.target)
     finally:

@@ -24,7 +24,8 @@ def render(
     noise_target: Optional[float] = typer.Option(
         None, "--noise-target", help="Render each laser spot until its rendering variance is at most this share of "
         "the photon variance at the budget (--pulses/--exposure-s, else the scene's spad_film, else 1e6 pulses), "
-        "e.g. 0.1. NLOS captures only; with estimator=quadrature the elements and cells are refined instead."),
+        "e.g. 0.1. NLOS captures only; with estimator=quadrature the part of its error that sets the ratio is "
+        "refined instead (elements, cells per patch or visibility refinement levels)."),
     pulses: Optional[float] = typer.Option(None, "--pulses", help="With --noise-target: laser pulses per spot."),
     exposure_s: Optional[float] = typer.Option(None, "--exposure-s",
                                                help="With --noise-target: exposure per spot, seconds."),

@@ -58,7 +58,7 @@ class TransientResult:
         The most negative raw dropped fraction seen (0 when none was below
         ``-1e-5``): more light in the histogram than recorded, a bug.
     error_parts : dict of str to ndarray, or None
-        The quadrature's ``error_bound`` by part (``visibility``, ``elements``, ``cells``; float32, each shaped as
+        The quadrature's ``error_bound`` by part (``visibility``, ``elements``, ``cells``; float64, each shaped as
         ``error_bound``, summing to it), when the render was asked for them (``render --noise-target``'s
         refinement, :func:`transient_mi.integrators._nlos_quadrature.error_parts`).
     """

@@ -114,7 +114,8 @@ def error_parts(options: dict) -> bool:
     ``render --noise-target``'s refinement, :func:`transient_mi.noise_target.render_group_quadrature`, not a scene
     parameter): ``TransientResult.error_parts`` then maps ``visibility`` (the mixed-visibility bound),
     ``elements`` (the elements' discretisation estimate, with its cells' where the coarse level halves them) and,
-    with one cell per patch side, ``cells`` to arrays shaped as ``error_bound``, which is their sum."""
+    with one cell per patch side, ``cells`` to float64 arrays shaped as ``error_bound``, which is their sum (up to
+    its float32 rounding and the rounding residue it clears)."""
     return bool(options.get("error_parts", False))
 
 
@@ -413,9 +414,10 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     for gi in range(G_out):
         hk = _clear_rounding_residue(apply_kernel(hist[gi], g.taps) if g.pad else hist[gi])
         ek = _clear_rounding_residue(apply_kernel(bound[gi], g.taps) if g.pad else bound[gi], hk)
+        # (the parts as they are, float64 views where the film has no kernel: they only plan a refinement)
         ep = None if parts is None else {
-            name: _clear_rounding_residue(apply_kernel(a[gi], g.taps) if g.pad else a[gi], hk).astype(
-                np.float32).reshape(g.H, g.W, g.n_bins) for name, a in parts.items()}
+            name: (apply_kernel(a[gi], g.taps) if g.pad else a[gi]).reshape(g.H, g.W, g.n_bins)
+            for name, a in parts.items()}
         in_hist = float(hk.sum())
         tot = float(steady[gi].sum())
         frac = max(0.0, 1.0 - in_hist / tot) if tot > 0 else 0.0
