@@ -75,7 +75,7 @@ def _check_output(out: Path, ideal: Path, overwrite: bool) -> None:
 def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pulses: int | None = None,
                  exposure_s: float | None = None, seed: int = 0, engine: str = "auto", progress: bool = True,
                  overwrite: bool = False, noise_threshold: float = DEFAULT_THRESHOLD, warn=None,
-                 force: bool = False) -> Path:
+                 force: bool = False, on_spot=None) -> Path:
     """Detect a whole ideal capture and write the counts capture.
 
     Parameters
@@ -107,6 +107,10 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
     force : bool
         With ``engine="exact"``, run even when the estimated work exceeds
         :data:`EXACT_MAX_EVENTS` (otherwise refused before any work).
+    on_spot : callable, optional
+        ``on_spot(j, ideal, counts)`` after spot ``j`` is detected, with its ideal histograms as read (one
+        intensity per bin, photons per pulse, float32 ``[height, width, n_bins]``) and its counts (uint32, same
+        shape), so a caller can use both without reading the files back (the demo's summed histograms).
 
     Returns
     -------
@@ -193,11 +197,11 @@ def detect_stack(ideal_dir, out_dir, params: DetectorParams | None = None, *, pu
         _check_output(out, ideal, overwrite)  # again under the lock: another run may have written OUT meanwhile
         if engine == "exact":
             _check_exact_work(ideal, m, model, budget, spot_gates, run_params, force, progress)
-        return _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_params, resolved, seed,
+        return _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_params, resolved, seed, on_spot,
                               engine, progress, noise_threshold, warn)
 
 
-def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_params, resolved, seed, engine,
+def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_params, resolved, seed, on_spot, engine,
                    progress, noise_threshold, warn) -> Path:
     t = m["time"]
     H, W, T = m["height"], m["width"], t["n_bins"]
@@ -244,7 +248,10 @@ def _detect_locked(ideal, out, m, manifest, model, budget, spot_gates, run_param
                     del var, tvar, bnd, tbnd
                 counts, info = run_spot(spot_model, arr.reshape(H * W, T), N, spot_rng(seed, j), engine, (H, W),
                                         advance=advance)
-                write_spot(tmp, j, to_uint32(counts, where=spot_filename(j)).reshape(H, W, T), manifest)
+                counts = to_uint32(counts, where=spot_filename(j)).reshape(H, W, T)
+                write_spot(tmp, j, counts, manifest)
+                if on_spot is not None:
+                    on_spot(j, data, counts)
                 engines_used.append(info["engine"])
                 exact = exact and bool(info["exact"])
                 for k, v in info.get("pixels_by_regime", {}).items():

@@ -61,6 +61,22 @@ def test_same_seed_same_bytes_on_disk(tmp_path):
     assert not np.array_equal(read_spot(a, 0), read_spot(a, 1))
 
 
+def test_on_spot_gets_each_spots_ideal_and_counts_as_written(tmp_path):
+    """``on_spot(j, ideal, counts)`` is called once per spot, in order, with the ideal histograms as the capture
+    holds them and the counts as written (the demo sums both without reading the files back); the counts are the
+    same bytes as without it."""
+    src, _ = _ideal(tmp_path)
+    seen = []
+    out = detect_stack(src, tmp_path / "counts", DetectorParams(), pulses=5000, seed=1, progress=False,
+                       on_spot=lambda j, ideal, counts: seen.append((j, ideal.copy(), counts.copy())))
+    plain = detect_stack(src, tmp_path / "plain", DetectorParams(), pulses=5000, seed=1, progress=False)
+    assert [j for j, _, _ in seen] == [0, 1]
+    for j, ideal, counts in seen:
+        assert ideal.dtype == np.float32 and np.array_equal(ideal, read_spot(src, j))
+        assert counts.dtype == np.uint32 and np.array_equal(counts, read_spot(out, j))
+        assert (out / f"spot_{j:05d}.exr").read_bytes() == (plain / f"spot_{j:05d}.exr").read_bytes()
+
+
 def test_bad_spot_data_leaves_nothing_behind(tmp_path):
     src, m = _ideal(tmp_path)
     poison_spot(src, 1, m, float("nan"))

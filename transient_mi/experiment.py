@@ -64,12 +64,13 @@ def render_ideal(cfg: PaperConfig, out_dir, *, seed: int = 0, resume: bool = Fal
 
 
 def detect_counts(ideal_dir, out_dir, *, params=None, pulses: int | None = None, exposure_s: float | None = None,
-                  seed: int = 0, progress: bool = True) -> Path:
-    """Counts capture of ``ideal_dir`` for a photon budget (``pulses`` or ``exposure_s`` per spot)."""
+                  seed: int = 0, progress: bool = True, on_spot=None) -> Path:
+    """Counts capture of ``ideal_dir`` for a photon budget (``pulses`` or ``exposure_s`` per spot); ``on_spot(j,
+    ideal, counts)``: :func:`spad_detector.detect_stack`'s."""
     from spad_detector import detect_stack
 
     return detect_stack(ideal_dir, out_dir, params if params is not None else paper_detector(), pulses=pulses,
-                        exposure_s=exposure_s, seed=seed, progress=progress)
+                        exposure_s=exposure_s, seed=seed, progress=progress, on_spot=on_spot)
 
 
 def reconstruct(capture_dir, *, voxels=(64, 64, 32), bounds=PAPER_BOUNDS_M, method: str = "bp",
@@ -107,15 +108,17 @@ def reconstruct(capture_dir, *, voxels=(64, 64, 32), bounds=PAPER_BOUNDS_M, meth
     return rec, metrics
 
 
-def summed_histogram(capture_dir) -> tuple[np.ndarray, np.ndarray]:
-    """``(t_ns, values)``: a capture's histograms summed over spots and pixels."""
-    from transient_core.stack import intensity, iter_spots, read_manifest
+class HistogramSum:
+    """Histograms summed over spots and pixels as they come (``add(data [..., n_bins])``, float64, one intensity
+    per bin), from arrays already in memory: the demo sums its ideal and counts captures spot by spot as
+    ``detect`` makes them (``detect_stack``'s ``on_spot``) instead of reading the files back. ``t_ns``: the bins'
+    centres (ns)."""
 
-    m = read_manifest(capture_dir)
-    t = m["time"]
-    total = np.zeros(t["n_bins"], dtype=np.float64)
-    for _, data in iter_spots(capture_dir):
-        data = intensity(data, m)
-        total += data.reshape(-1, t["n_bins"]).sum(axis=0, dtype=np.float64)
-    t_ns = (t["t0_ps"] + (np.arange(t["n_bins"]) + 0.5) * t["bin_width_ps"]) / 1000.0
-    return t_ns, total
+    def __init__(self, time_axis: dict):
+        t = time_axis
+        self.n_bins = int(t["n_bins"])
+        self.total = np.zeros(self.n_bins, dtype=np.float64)
+        self.t_ns = (t["t0_ps"] + (np.arange(self.n_bins) + 0.5) * t["bin_width_ps"]) / 1000.0
+
+    def add(self, data: np.ndarray) -> None:
+        self.total += np.asarray(data).reshape(-1, self.n_bins).sum(axis=0, dtype=np.float64)
