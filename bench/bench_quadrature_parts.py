@@ -5,7 +5,7 @@ each part's ratio alone beside the whole, and the render time.
 The quadrature's error is the sum of three parts (:func:`transient_mi.integrators._nlos_quadrature.error_parts`):
 the light of elements whose visibility samples disagree (``visibility``), the elements' discretisation estimate
 (``elements``) and, with one cell per patch side, the cells' estimate (``cells``). ``render --noise-target``
-refines the part with the largest share (:func:`transient_mi.noise_target.plan_quadrature_level`); this benchmark
+refines the part with the largest share (:func:`transient_mi.noise_target_quadrature.plan_quadrature_level`); this benchmark
 shows what each part gives alone (the ratio ``detect`` would state if the error were that part only: rendering
 error over photon noise, squared, headline over the bin classes, the worst spot) at the demo's detector and
 ``--exposure-ms`` per spot, for each ``--settings`` entry ``element_size_m,patch_cells,refine_levels``.
@@ -31,7 +31,8 @@ DEFAULT_SETTINGS = ("0.04,1,1", "0.04,2,1", "0.04,1,2", "0.04,1,3", "0.028,1,1",
 
 def measure(array: int, exposure_s: float, settings: list[tuple[float, int, int]]) -> dict:
     import transient_mi  # noqa: F401
-    from transient_mi.noise_target import NoiseTargetSpec, TargetRun, quadrature_part_ratios, quadrature_ratio
+    from transient_mi.noise_target import NoiseTargetSpec, TargetRun
+    from transient_mi.noise_target_quadrature import quadrature_part_ratios, quadrature_ratio
     from transient_mi.paper import DemoSettings, paper_detector, scene_file
     from transient_mi.render_capture import prepare_render
 

@@ -2,7 +2,7 @@
 
 Renders a scene with ``estimator=quadrature`` once per setting, in one process (JIT compiled by a first, untimed
 render), and records per setting the render time and the rendering-error ratio the capture states at
-``--exposure-ms`` per spot (``transient_mi.noise_target.quadrature_ratio``, as ``render --noise-target`` and
+``--exposure-ms`` per spot (``transient_mi.noise_target_quadrature.quadrature_ratio``, as ``render --noise-target`` and
 ``detect`` compute it). The scenes' defaults are chosen from it:
 
 * ``--scene paper`` (the default): ``scenes/paper_mannequin.xml``, ``--array`` pixels, 2 x 2 spots,
@@ -63,7 +63,8 @@ def main(argv=None) -> int:
     load_start = list(os.getloadavg())
     import transient_mi  # noqa: F401
     from spad_detector import DetectorParams
-    from transient_mi.noise_target import NoiseTargetSpec, TargetRun, quadrature_ratio
+    from transient_mi.noise_target import NoiseTargetSpec, TargetRun
+    from transient_mi.noise_target_quadrature import quadrature_ratio
     from transient_mi.paper import paper_detector
     from transient_mi.render_capture import prepare_render
 

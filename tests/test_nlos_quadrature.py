@@ -553,7 +553,7 @@ def test_noise_target_refinement_shrinks_the_elements_that_set_the_error():
     small ones (the mannequin's case: ``h f`` suffices, where a count ``1 / f^2`` times larger splits far more); it
     refines the cells only where they are larger than the elements."""
     from transient_mi.integrators._nlos_elements import element_scale_m, fine_count, split4, subdivide
-    from transient_mi.noise_target import _next_quadrature_level
+    from transient_mi.noise_target_quadrature import _next_quadrature_level
 
     rng = np.random.default_rng(3)
     # many small triangles (edges ~1 cm, as the mannequin's): h = 4 cm leaves them whole at the coarse level
@@ -579,13 +579,14 @@ def test_noise_target_refinement_shrinks_the_elements_that_set_the_error():
 
 
 def test_noise_target_refines_the_part_of_the_error_that_sets_it():
-    """The refinement plan (:func:`~transient_mi.noise_target.plan_quadrature_level`) refines the part of the error
+    """The refinement plan (:func:`~transient_mi.noise_target_quadrature.plan_quadrature_level`) refines the part of the error
     that sets the ratio: a visibility refinement level where the mixed-visibility bound dominates (elements and
     cells kept), one more cell per side where the one-cell estimate dominates, smaller elements where theirs does
     (cells kept with one per side); the planned shares meet ``PLAN_MARGIN`` x the target."""
     from transient_mi.integrators._nlos_elements import element_scale_m
-    from transient_mi.noise_target import (ELEMENTS_ORDER, PLAN_MARGIN, QUADRATURE_ELEMENT_STEP,
-                                           QUADRATURE_MAX_REFINE_LEVELS, plan_quadrature_level)
+    from transient_mi.noise_target import PLAN_MARGIN
+    from transient_mi.noise_target_quadrature import (ELEMENTS_ORDER, QUADRATURE_ELEMENT_STEP,
+                                                      QUADRATURE_MAX_REFINE_LEVELS, plan_quadrature_level)
 
     sq = np.array([[[0, 0, 0.5], [0.2, 0, 0.5], [0.2, 0.2, 0.5]], [[0, 0, 0.5], [0.2, 0.2, 0.5], [0, 0.2, 0.5]]])
     # visibility 0.2 of a ratio 0.3 (target 0.1): two levels halve its share twice

@@ -90,7 +90,7 @@ PAPER_ELEMENT_SIZE_M = 0.04
 PAPER_PATCH_CELLS = 1
 #: The quadrature's visibility refinement levels on the paper scene (the integrator's default): elements whose
 #: visibility samples disagree are split in four this many times; ``render --noise-target`` adds levels where the
-#: light of such elements sets the error (transient_mi.noise_target.plan_quadrature_level).
+#: light of such elements sets the error (transient_mi.noise_target_quadrature.plan_quadrature_level).
 PAPER_REFINE_LEVELS = 1
 #: Array sizes compared in the paper (Fig. 4 and Fig. 5).
 PAPER_ARRAY_SIZES = (4, 8, 16, 32)

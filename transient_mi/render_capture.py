@@ -353,7 +353,7 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
             ckpt = None
             info = [None] * len(group)
             if job.noise_target is not None and stack.is_error_bound(m):  # refine the quadrature
-                from .noise_target import render_group_quadrature
+                from .noise_target_quadrature import render_group_quadrature
 
                 results, info = render_group_quadrature(job, target_run, group, log=log)
                 advance(len(group) * paths_per_spot)

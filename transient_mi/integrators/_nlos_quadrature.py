@@ -111,7 +111,7 @@ def error_estimate(options: dict) -> bool:
 
 def error_parts(options: dict) -> bool:
     """Whether a render returns its error's parts beside their sum (``options["error_parts"] = True``, set by
-    ``render --noise-target``'s refinement, :func:`transient_mi.noise_target.render_group_quadrature`, not a scene
+    ``render --noise-target``'s refinement, :func:`transient_mi.noise_target_quadrature.render_group_quadrature`, not a scene
     parameter): ``TransientResult.error_parts`` then maps ``visibility`` (the mixed-visibility bound),
     ``elements`` (the elements' discretisation estimate, with its cells' where the coarse level halves them) and,
     with one cell per patch side, ``cells`` to float64 arrays shaped as ``error_bound``, which is their sum (up to
