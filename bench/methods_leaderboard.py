@@ -41,11 +41,14 @@ RUNS = {
                             defines={"spp": 16384, "bin_width_ps": 4, "n_bins": 2875}),
     # the NLOS scenes: a 16x16 array of 5 cm patches (0.8 m of wall) and 4x4 laser spots 0.2 m apart (a wider
     # array and scan than the scenes' defaults, 3 cm patches and 0.1 m); volume around the objects at 0.5 m.
-    # 0.1 ms per spot: their 100 mW laser gives ~1.7e5 counts per pixel per spot in 10 ms, where photon noise is so
-    # small that even 2^20 spp leaves rendering noise 2-7 x above it; at 0.1 ms the noise target is reachable.
-    "nlos_letter": dict(arrays=(8, 16), exposures_s=(1e-4,), complete="auto", bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
+    # 0.1 ms and the paper's 10 ms per spot: their 100 mW laser gives ~1.7e5 counts per pixel per spot in 10 ms,
+    # where Monte Carlo at 2^20 spp left rendering noise 2-7 x above the photon noise (the leaderboard of
+    # 2026-12-02 stopped at 0.1 ms); the scenes' default estimator is now the quadrature, which meets the noise
+    # target at any budget by refinement.
+    "nlos_letter": dict(arrays=(8, 16), exposures_s=(1e-4, 1e-2), complete="auto",
+                        bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
                         defines={"spp": 4096, "pixel_footprint_m": 0.05, "spot_spacing_m": 0.2}),
-    "nlos_tilted_plane": dict(arrays=(8, 16), exposures_s=(1e-4,), complete="auto",
+    "nlos_tilted_plane": dict(arrays=(8, 16), exposures_s=(1e-4, 1e-2), complete="auto",
                               bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
                               defines={"spp": 4096, "pixel_footprint_m": 0.05, "spot_spacing_m": 0.2}),
 }
@@ -81,6 +84,11 @@ def render_note(doc: dict, rows: list[dict]) -> str:
     st = doc["settings"]
     pilot = st["defines"].get("spp")
     r = rows[0] if rows else {}
+    if set((st.get("estimators") or {}).values()) == {"quadrature"}:
+        ratio = "" if r.get("render_noise_ratio") is None else \
+            f", rendering error {r['render_noise_ratio']:.2g} x the photon noise"
+        target = "" if st.get("noise_target") is None else f" to a noise target of {st['noise_target']:g}"
+        return f"rendered by the quadrature{target}{ratio}"
     if r.get("render_spp") is None:
         return f"{pilot} spp"
     ratio = "" if r.get("render_noise_ratio") is None else f", rendering noise {r['render_noise_ratio']:.2g} x the photon noise"
