@@ -12,6 +12,8 @@ the totals within Monte Carlo's interval plus the stated total error.
 
 from __future__ import annotations
 
+import pytest
+
 import transient_mi  # noqa: F401  (LLVM + variant + plug-ins)
 from stats_helpers import t_bound
 from test_nlos_quadrature import ALPHA, _mc_vs_quadrature, _render
@@ -41,3 +43,17 @@ def test_paper_mannequin_agrees_with_monte_carlo():
                                            load_scene("scenes/paper_mannequin.xml", MANNEQUIN), 2048, [0],
                                            dict(element_size_m=0.02, patch_cells=PAPER_PATCH_CELLS), full=True)
     assert abs(tq - tm_) <= t_bound(8, ALPHA) * se + bound, (tq, tm_, se, bound)
+
+
+@pytest.mark.parametrize("scene", ["nlos_letter", "nlos_tilted_plane", "nlos_point_targets", "paper_mannequin"])
+def test_every_embedded_nlos_scene_takes_the_quadratures_settings(scene):
+    """Every embedded NLOS scene passes ``element_size_m``, ``patch_cells`` and ``refine_levels`` (-D) to its
+    integrator, with the integrator's default of one visibility refinement level (``render --noise-target`` adds
+    levels by itself; a user sets them here)."""
+    from transient_mi.integrators._nlos_quadrature import DEFAULT_REFINE_LEVELS
+
+    default = load_scene(f"scenes/{scene}.xml").integrator().nlos_options
+    assert default["refine_levels"] == DEFAULT_REFINE_LEVELS
+    opts = load_scene(f"scenes/{scene}.xml", {"element_size_m": "0.03", "patch_cells": "3",
+                                              "refine_levels": "2"}).integrator().nlos_options
+    assert (opts["element_size_m"], opts["patch_cells"], opts["refine_levels"]) == (0.03, 3, 2)
