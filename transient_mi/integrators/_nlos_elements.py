@@ -38,12 +38,21 @@ def mesh_triangles(shapes) -> Faces:
     return Faces(np.concatenate(tris), np.concatenate(idx), np.concatenate(face))
 
 
+def _longest_edges(tri: np.ndarray) -> np.ndarray:
+    """Per triangle ``[F, 3, 3]``, its longest edge (m, ``[F]``)."""
+    return np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
+                     np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
+
+
+def _areas(tri: np.ndarray) -> np.ndarray:
+    """Per triangle ``[F, 3, 3]``, its area (m^2, ``[F]``)."""
+    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+
+
 def _divisions(tri: np.ndarray, max_edge_m: float) -> np.ndarray:
     """Per triangle ``[F, 3, 3]``, the divisions ``n`` of :func:`subdivide`: ``ceil(longest edge / max_edge_m)``,
     at least 1 (int64 ``[F]``)."""
-    edges = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
-                      np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
-    return np.maximum(1, np.ceil(edges / max_edge_m - 1e-9)).astype(np.int64)
+    return np.maximum(1, np.ceil(_longest_edges(tri) / max_edge_m - 1e-9)).astype(np.int64)
 
 
 def _subdivision(tri: np.ndarray, max_edge_m: float):
@@ -75,19 +84,17 @@ def element_scale_m(tri: np.ndarray, element_size_m: float) -> float:
     A second-order error is a sum over the surface of area times the squared size, so where a mesh has many small
     triangles and a few large ones (the mannequin: median edge 1.2 cm, 5 % above 14 cm) the large ones set it,
     which the mean element area (:func:`effective_edge_m`, dominated by the count of small ones) hides."""
-    e = np.stack([np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1), np.linalg.norm(tri[:, 2] - tri[:, 1], axis=1),
-                  np.linalg.norm(tri[:, 0] - tri[:, 2], axis=1)], axis=1).max(axis=1)
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = _areas(tri)
     if len(tri) == 0 or area.sum() <= 0.0:
         return float(element_size_m)
-    size = e / (2.0 * _divisions(tri, 2.0 * element_size_m))
+    size = _longest_edges(tri) / (2.0 * _divisions(tri, 2.0 * element_size_m))
     return float(np.sqrt((area * size * size).sum() / area.sum()))
 
 
 def effective_edge_m(tri: np.ndarray, n_elements: int) -> float:
     """The edge of an equilateral triangle of the mean element area (m): the elements' size where the meshes'
     own triangles, not ``element_size_m``, set it."""
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    area = _areas(tri).sum()
     return float(np.sqrt(4.0 * area / (np.sqrt(3.0) * max(1, n_elements))))
 
 
