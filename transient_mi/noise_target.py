@@ -193,17 +193,30 @@ class TargetRun:
         return self.models[j]
 
     def ratio(self, j: int, stats) -> float:
-        from spad_detector.render_noise import NoiseRatio
-
         var = stats.variance()
         if var is None:
             return math.inf
-        T = stats.mean.shape[-1]
+        return self.headline(j, stats.mean, var, stats.total_variance())
+
+    def headline(self, j: int, histogram: np.ndarray, error: np.ndarray, total_error: np.ndarray | None = None,
+                 error_bound: bool = False) -> float:
+        """The headline ratio of spot ``j`` (as ``detect`` states it) for ``histogram`` (photons per pulse) and its
+        ``error``: a Monte Carlo variance, or with ``error_bound`` a deterministic bound (scaled by the photon
+        scale, not its square); ``total_error`` the pixel totals' (optional for a bound)."""
+        from spad_detector.render_noise import NoiseRatio
+
+        T = histogram.shape[-1]
         s = self.budget.photon_scale
+
+        def scaled(a):  # a bound scales with the photons, a variance with their square
+            return a * s if error_bound else a * s * s
+
         nr = NoiseRatio(threshold=self.spec.target)
-        nr.add_spot(self.model(j), stats.mean.reshape(-1, T).astype(np.float64) * s,
-                    var.reshape(-1, T).astype(np.float64) * s * s, self.budget.n_pulses,
-                    total_variance=stats.total_variance() * s * s)
+        nr.add_spot(self.model(j), histogram.reshape(-1, T).astype(np.float64) * s,
+                    scaled(error.reshape(-1, T).astype(np.float64)), self.budget.n_pulses,
+                    total_variance=None if total_error is None else scaled(
+                        np.reshape(total_error, -1).astype(np.float64)),
+                    error_bound=error_bound)
         return float(nr.report()["ratio"])
 
 

@@ -9,8 +9,6 @@ from __future__ import annotations
 import math
 import time
 
-import numpy as np
-
 from .noise_target import PLAN_MARGIN, TargetRun
 
 #: Refinements a quadrature render may take to meet its target.
@@ -30,24 +28,9 @@ QUADRATURE_ELEMENT_STEP = 0.9
 ELEMENTS_ORDER = 2.5
 
 
-def _bound_ratio(run: TargetRun, j: int, histogram: np.ndarray, bound: np.ndarray,
-                 total_bound: np.ndarray | None = None) -> float:
-    """The headline ratio of spot ``j`` for the error ``bound`` of ``histogram`` (carried like ``detect`` does)."""
-    from spad_detector.render_noise import NoiseRatio
-
-    T = histogram.shape[-1]
-    s = run.budget.photon_scale
-    nr = NoiseRatio(threshold=run.spec.target)
-    nr.add_spot(run.model(j), histogram.reshape(-1, T).astype(np.float64) * s,
-                bound.reshape(-1, T).astype(np.float64) * s, run.budget.n_pulses,
-                total_variance=None if total_bound is None else total_bound.reshape(-1).astype(np.float64) * s,
-                error_bound=True)
-    return float(nr.report()["ratio"])
-
-
 def quadrature_ratio(run: TargetRun, j: int, result) -> float:
     """The rendering-error ratio of a quadrature result (its error estimate carried like ``detect`` does)."""
-    return _bound_ratio(run, j, result.histogram, result.error_bound, result.total_error_bound)
+    return run.headline(j, result.histogram, result.error_bound, result.total_error_bound, error_bound=True)
 
 
 def quadrature_part_ratios(run: TargetRun, j: int, result) -> dict | None:
@@ -56,7 +39,7 @@ def quadrature_part_ratios(run: TargetRun, j: int, result) -> dict | None:
     parts = getattr(result, "error_parts", None)
     if not parts:
         return None
-    return {name: _bound_ratio(run, j, result.histogram, a) for name, a in parts.items()}
+    return {name: run.headline(j, result.histogram, a, error_bound=True) for name, a in parts.items()}
 
 
 def _next_quadrature_level(tri, footprint_m: float, h: float, m: int, f: float) -> tuple[float, int]:
