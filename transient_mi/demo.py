@@ -148,14 +148,23 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
     return results, hists
 
 
+#: The quadrature's settings a capture records per spot (``variance.settings_per_spot``, else ``settings``).
+_QUADRATURE_SETTINGS = ("element_size_m", "patch_cells", "refine_levels")
+
+
+def _spot_settings(m: dict) -> list[dict]:
+    """The quadrature's settings of each spot of a capture's manifest ``m`` (refined ones with a noise target;
+    else the capture's settings, once)."""
+    var = m.get("variance") or {}
+    return var.get("settings_per_spot") or [var.get("settings") or {}]
+
+
 def _finest_settings(ideal: Path) -> dict:
     """The finest quadrature settings any spot of a rendered ideal capture needed (smallest ``element_size_m``,
-    most ``patch_cells`` and ``refine_levels``; its manifest's ``variance.settings_per_spot``, else the capture's
-    settings), as :class:`~transient_mi.paper.PaperConfig` fields; empty for a capture without them."""
-    m = json.loads((Path(ideal) / "manifest.json").read_text())
-    var = m.get("variance") or {}
-    per = var.get("settings_per_spot") or [var.get("settings") or {}]
-    if not all(k in p for p in per for k in ("element_size_m", "patch_cells", "refine_levels")):
+    most ``patch_cells`` and ``refine_levels``), as :class:`~transient_mi.paper.PaperConfig` fields; empty for a
+    capture without them."""
+    per = _spot_settings(json.loads((Path(ideal) / "manifest.json").read_text()))
+    if not all(k in p for p in per for k in _QUADRATURE_SETTINGS):
         return {}
     return {"element_size_m": min(p["element_size_m"] for p in per),
             "patch_cells": max(p["patch_cells"] for p in per),
@@ -164,20 +173,14 @@ def _finest_settings(ideal: Path) -> dict:
 
 def _estimator_of(ideal: Path) -> tuple[str, dict]:
     """``(estimator, settings)`` of a rendered ideal capture (its manifest): for the quadrature, the coarsest
-    element size and cells per patch side over its spots (refined ones with a noise target)."""
+    element size, cells per patch side and visibility levels over its spots (refined ones with a noise target)."""
     m = json.loads((Path(ideal) / "manifest.json").read_text())
     est = (m.get("render") or {}).get("estimator", "monte_carlo")
     if est != "quadrature":
         return est, {}
-    per = (m.get("variance") or {}).get("settings_per_spot")
-    if per:
-        out = {"element_size_m": max(p["element_size_m"] for p in per),
-               "patch_cells": min(p["patch_cells"] for p in per)}
-        if all("refine_levels" in p for p in per):
-            out["refine_levels"] = min(p["refine_levels"] for p in per)
-        return est, out
-    st = (m.get("variance") or {}).get("settings") or {}
-    return est, {k: st[k] for k in ("element_size_m", "patch_cells", "refine_levels") if k in st}
+    per = _spot_settings(m)
+    coarsest = {"element_size_m": max, "patch_cells": min, "refine_levels": min}
+    return est, {k: pick(p[k] for p in per) for k, pick in coarsest.items() if all(k in p for p in per)}
 
 
 # ------------------------------------------------------------------ figures
