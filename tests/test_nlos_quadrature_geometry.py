@@ -83,6 +83,37 @@ def test_mass_derivatives_equal_central_differences():
             assert abs(out[q + 1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, q, fd, out[q + 1])
 
 
+def test_tilted_mass_sum_and_shift_derivative_equal_the_primal():
+    """With the cell's amplitude tilts (both widths finite: the fused path of ``mass_adjoint``, and one width
+    infinitesimal), ``sum_j r_j m_j`` equals the primal's and its ``t_lo`` derivative equals central differences of
+    the primal (the tilts' own knot and width derivatives are not taken, as documented)."""
+    from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
+    from transient_mi.integrators._nlos_time_spread import _masses
+
+    rng = np.random.default_rng(2)
+    n_ext, h = 60, 1e-6
+    for trial in range(400):
+        a0, b0 = sorted(rng.uniform(0, 6, 2))
+        a0 = {1: 0.0, 2: b0}.get(trial % 4, a0)
+        u1, u2 = rng.uniform(0.05, 5, 2)
+        if trial % 5 == 4:
+            u1 = 0.0
+        t1, t2 = rng.uniform(-1.0, 1.0, 2)
+        p0 = np.array([rng.uniform(5, 40), a0, b0, u1, u2])
+        row = rng.normal(size=n_ext)
+
+        def loss(p):
+            buf = np.zeros(n_ext)
+            f, last, _ = _masses(buf, *p, t1, t2, n_ext)
+            return float(np.dot(row[f:last + 1], buf[f:last + 1]))
+
+        out = mass_adjoint(row, *p0, t1, t2, n_ext)
+        assert out[0] == pytest.approx(loss(p0), abs=1e-11)
+        dp = np.array([h, 0, 0, 0, 0])
+        fd = (loss(p0 + dp) - loss(p0 - dp)) / (2 * h)
+        assert abs(out[1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, fd, out[1])
+
+
 def _rigid(scene, params, key, x0, t):
     T = mi.Transform4f
     params[key] = T().translate([t[0], t[1], t[2]]) @ T().rotate([1, 0, 0], t[3]) @ T().rotate([0, 1, 0], t[4]) @ x0

@@ -202,6 +202,68 @@ def _tilt_dx(x, w, w_other, a, b, mu, var, mu3, small_other):
                          + _hk(0, hi, a, b, mu, var, mu3, w_other, small_other))) / (w * w)
 
 
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _point(y, a, b, mu, var, mu3):
+    """``(G_1, G_2, G_3, dG_2/da, dG_2/db)`` at ``y`` in one pass through the pieces (the values of :func:`_gk` and
+    :func:`_gk_knots`, same expressions): what :func:`mass_adjoint` reads at each of an edge's four points when both
+    widths are finite."""
+    if y <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0
+    if b <= 0.0:  # point mass at 0 (mu = 0)
+        return y, 0.5 * y * y, y * y * y / 6.0, -y / 3.0 + (2.0 * a - b) / 36.0, -y / 3.0 + (2.0 * b - a) / 36.0
+    if y >= b:
+        d = y - mu
+        return (d, 0.5 * (d * d + var), (d * d * d + 3.0 * d * var - mu3) / 6.0,
+                -d / 3.0 + (2.0 * a - b) / 36.0, -d / 3.0 + (2.0 * b - a) / 36.0)
+    if y <= a:  # (a > 0 here)
+        c = 2.0 / (b * a)
+        y3 = y * y * y
+        g2 = c * y3 * y / 24.0
+        return c * y3 / 6.0, g2, c * y3 * y * y / 120.0, -g2 / a, -g2 / b
+    z = b - y
+    c = 2.0 / (b * (b - a))
+    d = y - mu
+    K = b * (b - a)
+    z3 = z * z * z
+    z4 = z3 * z
+    base = -d / 3.0
+    return (d + c * z3 / 6.0, 0.5 * (d * d + var) - c * z4 / 24.0,
+            (d * d * d + 3.0 * d * var - mu3) / 6.0 + c * z4 * z / 120.0,
+            base + (2.0 * a - b) / 36.0 + z4 * (-b) / (12.0 * K * K),
+            base + (2.0 * b - a) / 36.0 - z3 / (3.0 * K) + z4 * (2.0 * b - a) / (12.0 * K * K))
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3):
+    """``(C, dC/dx, dC/da, dC/db, dC/dw1, dC/dw2)`` at edge ``x`` with both widths finite, the tilts' terms added to
+    ``C`` and ``dC/dx`` (as :func:`cdf_derivatives` plus ``t_i`` :func:`_tilt` and :func:`_tilt_dx`): every term is
+    a second difference over the same four points ``y``, ``y - w1``, ``y - w2``, ``y - w1 - w2`` (``y = x + (w1 +
+    w2) / 2``), so ``G_1 .. G_3`` and the knot derivatives are evaluated once per point (:func:`_point`)."""
+    y = x + 0.5 * (w1 + w2)
+    p1, p2, p3, pa, pb = _point(y, a, b, mu, var, mu3)
+    q1, q2, q3, qa, qb = _point(y - w1, a, b, mu, var, mu3)
+    r1, r2, r3, ra, rb = _point(y - w2, a, b, mu, var, mu3)
+    s1, s2, s3, sa, sb = _point(y - w1 - w2, a, b, mu, var, mu3)
+    ww = w1 * w2
+    c = (p2 - q2 - r2 + s2) / ww
+    cx = (p1 - q1 - r1 + s1) / ww
+    ca = (pa - qa - ra + sa) / ww
+    cb = (pb - qb - rb + sb) / ww
+    cw1 = 0.5 * (p1 + q1 - r1 - s1) / ww - c / w1
+    cw2 = 0.5 * (p1 - q1 + r1 - s1) / ww - c / w2
+    if t1 != 0.0:  # _tilt(x, w1, other w2): lo = x - w1/2 (points y - w1, y - w1 - w2), hi = x + w1/2 (y, y - w2)
+        k_lo = (q2 - s2) / w2
+        k_hi = (p2 - r2) / w2
+        c += t1 * (((p3 - r3) - (q3 - s3)) / w2 - 0.5 * w1 * (k_lo + k_hi)) / (w1 * w1)
+        cx += t1 * (k_hi - k_lo - 0.5 * w1 * ((q1 - s1) / w2 + (p1 - r1) / w2)) / (w1 * w1)
+    if t2 != 0.0:  # _tilt(x, w2, other w1): lo = x - w2/2 (y - w2, y - w1 - w2), hi = x + w2/2 (y, y - w1)
+        k_lo = (r2 - s2) / w1
+        k_hi = (p2 - q2) / w1
+        c += t2 * (((p3 - q3) - (r3 - s3)) / w1 - 0.5 * w2 * (k_lo + k_hi)) / (w2 * w2)
+        cx += t2 * (k_hi - k_lo - 0.5 * w2 * ((r1 - s1) / w1 + (p1 - q1) / w1)) / (w2 * w2)
+    return c, cx, ca, cb, cw1, cw2
+
+
 @numba.njit(cache=True, fastmath=False)
 def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext):
     """For one pair (as ``_masses``: knots ``tlo``, ``tlo + a``, ``tlo + b``, widths ``u1``, ``u2``, the cell's
@@ -216,6 +278,7 @@ def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext):
     small2 = u2 <= eps
     tilt1 = t1 != 0.0 and not small1
     tilt2 = t2 != 0.0 and not small2
+    both = not small1 and not small2  # (the common case: one fused evaluation per edge point)
     mu = (a + b) / 3.0
     var = (a * a + b * b - a * b) / 18.0
     mu3 = (b - 2.0 * a) * (a + b) * (2.0 * b - a) / 270.0
@@ -229,6 +292,9 @@ def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext):
         edge = float(bin_ + 1) - tlo
         if edge + tlo >= hi:
             c0, c1, c2, c3, c4, c5 = 1.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        elif both:
+            c0, cx, c2, c3, c4, c5 = _edge_both_widths(edge, a, b, u1, u2, t1, t2, mu, var, mu3)
+            c1 = -cx
         else:
             c0, cx, c2, c3, c4, c5 = cdf_derivatives(edge, a, b, u1, u2, mu, var, small1, small2)
             if tilt1:

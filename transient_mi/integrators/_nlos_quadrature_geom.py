@@ -37,8 +37,9 @@ knot, width or tilt derivatives; measured up to 4e-3 of the gradient on the test
 (coarse level), nor a branch switch of the primal
 (a cell width crossing ``REL_WIDTH_EPS`` of the spread: the primal's truncation there is below 1e-6).
 
-Numba, float64, one thread per element looping over its pairs in cell order, jobs (spots) in order: the
-same inputs give the same bytes.
+Numba, float64, tiles of cells x elements in parallel (:func:`geometry_adjoint`), each adding into its own
+accumulators, summed in a fixed order; jobs (spots) in order: the same inputs give the same bytes on any number of
+threads.
 """
 
 from __future__ import annotations
@@ -145,6 +146,17 @@ def pair_lengths(cell_p, X0, tri, e0, e1, D, ax, ay, fl, has_cells):
     return r_pv, r_px, opl_d, cell_shift
 
 
+#: Cells per block of :func:`geometry_adjoint` (at most): the pairs are walked cell by cell, each cell's elements in
+#: order, so the pair arrays are read in memory order and a pixel's adjoint row stays in cache; every block adds into
+#: its own accumulators, which are summed in block order (fixed by the cell count: the same bytes on any threads).
+GEOM_CELL_BLOCKS = 8
+#: Elements per block of :func:`geometry_adjoint` (blocks of cells x blocks of elements run in parallel).
+GEOM_ELEMENT_BLOCK = 64
+# accumulator layout per (cell block, element): adjoints of the centroid (0:3), the unit normal (3:6), the area (6)
+# and of the vertices directly (7:16, vertex-major)
+_ACC = 16
+
+
 @numba.njit(cache=True, parallel=True, fastmath=False)
 def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, ay, D, fl, has_cells, wall_n,
                      tri, X0, nrm, area, base, f_x, vis_p, r_pv, r_px, opl_d, cell_shift, w1, w2, tilt, vis_s,
@@ -160,124 +172,167 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
     ``ay``: the cell's edge vectors (m); ``wall_n``: the relay wall's unit normal; ``D``: the detector; ``fl``: 1
     when the detector leg is in the path length. Lengths in metres, ``spot_opl`` the laser leg,
     ``t_origin_bins`` the padded axis's origin in path-length bins.
+
+    Tiles of (:data:`GEOM_CELL_BLOCKS` blocks of cells) x (blocks of :data:`GEOM_ELEMENT_BLOCK` elements) run in
+    parallel, each walking its cells in order and each cell's elements in order.
     """
-    # (per pair, every vector expression is written out per component into arrays allocated once per element: the
-    # same floating-point operations in the same order as the vector form, without a heap allocation per pair)
+    # (per pair, every vector expression is written out per component: no heap allocation per pair)
+    nc = c_hi - c_lo
+    if nc <= 0 or ne <= 0:
+        return
+    n_cb = min(GEOM_CELL_BLOCKS, nc)
+    n_eb = (ne + GEOM_ELEMENT_BLOCK - 1) // GEOM_ELEMENT_BLOCK
+    acc = np.zeros((n_cb, ne, _ACC))
+    # the element's side towards the spot, once per element: unit direction, distance, the two cosines
+    us_e = np.empty((ne, 3))
+    rs_e = np.empty(ne)
+    cx_e = np.empty(ne)
+    cs_e = np.empty(ne)
     for j in numba.prange(ne):
         e = e0 + j
-        xb = np.zeros(3)  # adjoint of the centroid
-        nb = np.zeros(3)  # of the unit normal
-        ab = 0.0  # of the area
-        vb = np.zeros((3, 3))  # of the vertices directly (the knots' path lengths)
         x0 = X0[e]
-        nn = nrm[e]
-        us = np.empty(3)
-        for q in range(3):
-            us[q] = S[q] - x0[q]
-        rs = np.sqrt(_dot(us, us))
-        for q in range(3):
-            us[q] = us[q] / rs  # element -> spot
-        c_x = _dot(nn, us)
-        c_s = -_dot(wall_n, us)
+        u0 = S[0] - x0[0]
+        u1 = S[1] - x0[1]
+        u2 = S[2] - x0[2]
+        rs = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+        u0 = u0 / rs
+        u1 = u1 / rs
+        u2 = u2 / rs
+        us_e[j, 0] = u0
+        us_e[j, 1] = u1
+        us_e[j, 2] = u2
+        rs_e[j] = rs
+        cx_e[j] = nrm[e, 0] * u0 + nrm[e, 1] * u1 + nrm[e, 2] * u2
+        cs_e[j] = -(wall_n[0] * u0 + wall_n[1] * u1 + wall_n[2] * u2)
+    n_ext = grad_ext.shape[1]
+    for tile in numba.prange(n_cb * n_eb):
+        cb = tile // n_eb
+        eb = tile - cb * n_eb
+        ca = c_lo + (cb * nc) // n_cb
+        cz = c_lo + ((cb + 1) * nc) // n_cb
+        ja = eb * GEOM_ELEMENT_BLOCK
+        jz = min(ne, ja + GEOM_ELEMENT_BLOCK)
         perm = np.empty(3, dtype=np.int64)
         tk = np.empty(3)
         tb = np.empty(3)
         d = np.empty(3)
         g = np.empty(3)
         gv = np.empty(3)
-        for c in range(c_lo, c_hi):
-            i = c * ne + j
-            full = base[i] * f_x[i] * spot_weight[e]
-            if full == 0.0:
-                continue
-            nvis, frac = _visible_share(vis_p, vis_s, i, e)
-            if nvis == 0:
-                continue
-            f = full * frac
+        for c in range(ca, cz):
             k = cell_pixel[c]
-            tlo, a, b = _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins)
-            acc, s_t, s_a, s_b, s_w1, s_w2 = mass_adjoint(grad_ext[k], tlo, a, b, w1[i], w2[i], tilt[i, 0], tilt[i, 1],
-                                                        grad_ext.shape[1])
-            if acc == 0.0 and s_t == 0.0 and s_a == 0.0 and s_b == 0.0 and s_w1 == 0.0 and s_w2 == 0.0:
-                continue
+            row = grad_ext[k]
             p = cell_p[c]
-            for q in range(3):
-                d[q] = x0[q] - p[q]
-            r = np.sqrt(_dot(d, d))
-            for q in range(3):
-                d[q] = d[q] / r  # cell -> centroid
-            # --- the light F (log-derivative of each factor, times F * acc)
-            fa = f * acc
-            ab += fa / area[e]
-            cx = _dot(nn, d)
-            if abs(cx) > _TINY:
+            for j in range(ja, jz):
+                e = e0 + j
+                i = c * ne + j
+                full = base[i] * f_x[i] * spot_weight[e]
+                if full == 0.0:
+                    continue
+                nvis, frac = _visible_share(vis_p, vis_s, i, e)
+                if nvis == 0:
+                    continue
+                f = full * frac
+                tlo, a, b = _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m,
+                                        t_origin_bins)
+                m_acc, s_t, s_a, s_b, s_w1, s_w2 = mass_adjoint(row, tlo, a, b, w1[i], w2[i], tilt[i, 0], tilt[i, 1],
+                                                              n_ext)
+                if m_acc == 0.0 and s_t == 0.0 and s_a == 0.0 and s_b == 0.0 and s_w1 == 0.0 and s_w2 == 0.0:
+                    continue
+                A = acc[cb, j]
+                x0 = X0[e]
+                nn = nrm[e]
+                us = us_e[j]
+                rs = rs_e[j]
+                c_x = cx_e[j]
+                c_s = cs_e[j]
                 for q in range(3):
-                    nb[q] += fa * d[q] / cx
+                    d[q] = x0[q] - p[q]
+                r = np.sqrt(_dot(d, d))
                 for q in range(3):
-                    xb[q] += fa * (nn[q] - cx * d[q]) / (r * cx)
-            m2r = fa * (-2.0 / r)
-            for q in range(3):
-                xb[q] += m2r * d[q]
-            cp = _dot(wall_n, d)
-            if abs(cp) > _TINY:
+                    d[q] = d[q] / r  # cell -> centroid
+                # --- the light F (log-derivative of each factor, times F * m_acc)
+                fa = f * m_acc
+                A[6] += fa / area[e]
+                cx = _dot(nn, d)
+                if abs(cx) > _TINY:
+                    for q in range(3):
+                        A[3 + q] += fa * d[q] / cx
+                    for q in range(3):
+                        A[q] += fa * (nn[q] - cx * d[q]) / (r * cx)
+                m2r = fa * (-2.0 / r)
                 for q in range(3):
-                    xb[q] += fa * (wall_n[q] - cp * d[q]) / (r * cp)
-            if abs(c_x) > _TINY:
+                    A[q] += m2r * d[q]
+                cp = _dot(wall_n, d)
+                if abs(cp) > _TINY:
+                    for q in range(3):
+                        A[q] += fa * (wall_n[q] - cp * d[q]) / (r * cp)
+                if abs(c_x) > _TINY:
+                    for q in range(3):
+                        A[3 + q] += fa * us[q] / c_x
+                    for q in range(3):
+                        A[q] -= fa * (nn[q] - c_x * us[q]) / (rs * c_x)
+                if abs(c_s) > _TINY:
+                    for q in range(3):
+                        A[q] += fa * (wall_n[q] + c_s * us[q]) / (rs * c_s)  # d/dX0 of wall_n . (-us)
+                p2r = fa * (2.0 / rs)
                 for q in range(3):
-                    nb[q] += fa * us[q] / c_x
+                    A[q] += p2r * us[q]
+                # --- the masses: knots (sorted as _pair_knots sorts them) and widths
+                for v in range(3):
+                    tk[v] = r_pv[i, v] + r_sv[e, v]
+                    perm[v] = v
+                for (u, w) in ((0, 1), (1, 2), (0, 1)):
+                    if tk[perm[u]] > tk[perm[w]] or (tk[perm[u]] == tk[perm[w]] and perm[u] > perm[w]):
+                        perm[u], perm[w] = perm[w], perm[u]
+                tb[perm[0]] = s_t - s_a - s_b
+                tb[perm[1]] = s_a
+                tb[perm[2]] = s_b
+                fb = f / bin_m
+                for v in range(3):
+                    lb = fb * (tb[v] - 0.25 * s_t)  # knot v = (l_v + 0.75 (l_c - mean l) + shift) / bin_m - origin
+                    for q in range(3):
+                        A[7 + 3 * v + q] += lb * ((tri[e, v, q] - p[q]) / r_pv[i, v] + (tri[e, v, q] - S[q])
+                                                  / r_sv[e, v])
+                cs = 0.75 * fb * s_t
                 for q in range(3):
-                    xb[q] -= fa * (nn[q] - c_x * us[q]) / (rs * c_x)
-            if abs(c_s) > _TINY:
-                for q in range(3):
-                    xb[q] += fa * (wall_n[q] + c_s * us[q]) / (rs * c_s)  # d/dX0 of wall_n . (-us)
-            p2r = fa * (2.0 / rs)
-            for q in range(3):
-                xb[q] += p2r * us[q]
-            # --- the masses: knots (sorted as _pair_knots sorts them) and widths
-            for v in range(3):
-                tk[v] = r_pv[i, v] + r_sv[e, v]
-                perm[v] = v
-            for (u, w) in ((0, 1), (1, 2), (0, 1)):
-                if tk[perm[u]] > tk[perm[w]] or (tk[perm[u]] == tk[perm[w]] and perm[u] > perm[w]):
-                    perm[u], perm[w] = perm[w], perm[u]
-            tb[perm[0]] = s_t - s_a - s_b
-            tb[perm[1]] = s_a
-            tb[perm[2]] = s_b
-            fb = f / bin_m
-            for v in range(3):
-                lb = fb * (tb[v] - 0.25 * s_t)  # knot v = (l_v + 0.75 (l_c - mean l) + cell_shift) / bin_m - origin
-                for q in range(3):
-                    vb[v, q] += lb * ((tri[e, v, q] - p[q]) / r_pv[i, v] + (tri[e, v, q] - S[q]) / r_sv[e, v])
-            cs = 0.75 * fb * s_t
-            for q in range(3):
-                xb[q] += cs * (d[q] - us[q])  # the centroid's path length r_pX + r_SX
-            if has_cells:
-                for q in range(3):
-                    g[q] = 0.0
-                for cu in (-0.5, 0.5):
-                    for cv in (-0.5, 0.5):
-                        for q in range(3):
-                            gv[q] = x0[q] - (p[q] + cu * ax[q] + cv * ay[q])
-                        nq = np.sqrt(_dot(gv, gv))
-                        for q in range(3):
-                            g[q] += gv[q] / nq
-                c3 = fb * s_t / 3.0
-                for q in range(3):
-                    xb[q] += c3 * (0.25 * g[q] - d[q])
-            if s_w1 != 0.0 or s_w2 != 0.0:
-                for q in range(3):
-                    gv[q] = p[q] - D[q]
-                nd = np.sqrt(_dot(gv, gv))
-                for q in range(3):
-                    gv[q] = fl * gv[q] / nd - d[q]
-                for (wv, sw) in ((ax, s_w1), (ay, s_w2)):
-                    if sw != 0.0:
-                        sg = 1.0 if _dot(gv, wv) > 0.0 else -1.0
-                        cw = f * sw * sg / bin_m
-                        wd = _dot(wv, d)
-                        for q in range(3):
-                            xb[q] -= cw * (wv[q] - wd * d[q]) / r
-        # --- centroid, unit normal and area to the vertices
+                    A[q] += cs * (d[q] - us[q])  # the centroid's path length r_pX + r_SX
+                if has_cells:
+                    for q in range(3):
+                        g[q] = 0.0
+                    for cu in (-0.5, 0.5):
+                        for cv in (-0.5, 0.5):
+                            for q in range(3):
+                                gv[q] = x0[q] - (p[q] + cu * ax[q] + cv * ay[q])
+                            nq = np.sqrt(_dot(gv, gv))
+                            for q in range(3):
+                                g[q] += gv[q] / nq
+                    c3 = fb * s_t / 3.0
+                    for q in range(3):
+                        A[q] += c3 * (0.25 * g[q] - d[q])
+                if s_w1 != 0.0 or s_w2 != 0.0:
+                    for q in range(3):
+                        gv[q] = p[q] - D[q]
+                    nd = np.sqrt(_dot(gv, gv))
+                    for q in range(3):
+                        gv[q] = fl * gv[q] / nd - d[q]
+                    for (wv, sw) in ((ax, s_w1), (ay, s_w2)):
+                        if sw != 0.0:
+                            sg = 1.0 if _dot(gv, wv) > 0.0 else -1.0
+                            cw = f * sw * sg / bin_m
+                            wd = _dot(wv, d)
+                            for q in range(3):
+                                A[q] -= cw * (wv[q] - wd * d[q]) / r
+    # --- per element: the blocks' sums in block order, then centroid, unit normal and area to the vertices
+    for j in numba.prange(ne):
+        e = e0 + j
+        t = np.zeros(_ACC)
+        for cb in range(n_cb):
+            for q in range(_ACC):
+                t[q] += acc[cb, j, q]
+        nn = nrm[e]
+        xb = t[0:3]
+        nb = t[3:6]
+        ab = t[6]
         e1 = tri[e, 1] - tri[e, 0]
         e2 = tri[e, 2] - tri[e, 0]
         nr = _cross(e1, e2)
@@ -287,7 +342,7 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
         e2b = _cross(nrb, e1)
         for v in range(3):
             for q in range(3):
-                out[e, v, q] += vb[v, q] + xb[q] / 3.0
+                out[e, v, q] += t[7 + 3 * v + q] + xb[q] / 3.0
         for q in range(3):
             out[e, 1, q] += e1b[q]
             out[e, 2, q] += e2b[q]
