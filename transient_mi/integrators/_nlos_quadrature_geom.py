@@ -220,7 +220,7 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
         gv = np.empty(3)
         for c in range(ca, cz):
             k = cell_pixel[c]
-            row = grad_ext[k]
+            row = grad_ext[k]  # (views once per cell, not per pair: a view's reference count is shared by the threads)
             p = cell_p[c]
             for j in range(ja, jz):
                 e = e0 + j
@@ -238,45 +238,41 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
                                                               n_ext)
                 if m_acc == 0.0 and s_t == 0.0 and s_a == 0.0 and s_b == 0.0 and s_w1 == 0.0 and s_w2 == 0.0:
                     continue
-                A = acc[cb, j]
-                x0 = X0[e]
-                nn = nrm[e]
-                us = us_e[j]
                 rs = rs_e[j]
                 c_x = cx_e[j]
                 c_s = cs_e[j]
                 for q in range(3):
-                    d[q] = x0[q] - p[q]
+                    d[q] = X0[e, q] - p[q]
                 r = np.sqrt(_dot(d, d))
                 for q in range(3):
                     d[q] = d[q] / r  # cell -> centroid
                 # --- the light F (log-derivative of each factor, times F * m_acc)
                 fa = f * m_acc
-                A[6] += fa / area[e]
-                cx = _dot(nn, d)
+                acc[cb, j, 6] += fa / area[e]
+                cx = nrm[e, 0] * d[0] + nrm[e, 1] * d[1] + nrm[e, 2] * d[2]
                 if abs(cx) > _TINY:
                     for q in range(3):
-                        A[3 + q] += fa * d[q] / cx
+                        acc[cb, j, 3 + q] += fa * d[q] / cx
                     for q in range(3):
-                        A[q] += fa * (nn[q] - cx * d[q]) / (r * cx)
+                        acc[cb, j, q] += fa * (nrm[e, q] - cx * d[q]) / (r * cx)
                 m2r = fa * (-2.0 / r)
                 for q in range(3):
-                    A[q] += m2r * d[q]
+                    acc[cb, j, q] += m2r * d[q]
                 cp = _dot(wall_n, d)
                 if abs(cp) > _TINY:
                     for q in range(3):
-                        A[q] += fa * (wall_n[q] - cp * d[q]) / (r * cp)
+                        acc[cb, j, q] += fa * (wall_n[q] - cp * d[q]) / (r * cp)
                 if abs(c_x) > _TINY:
                     for q in range(3):
-                        A[3 + q] += fa * us[q] / c_x
+                        acc[cb, j, 3 + q] += fa * us_e[j, q] / c_x
                     for q in range(3):
-                        A[q] -= fa * (nn[q] - c_x * us[q]) / (rs * c_x)
+                        acc[cb, j, q] -= fa * (nrm[e, q] - c_x * us_e[j, q]) / (rs * c_x)
                 if abs(c_s) > _TINY:
                     for q in range(3):
-                        A[q] += fa * (wall_n[q] + c_s * us[q]) / (rs * c_s)  # d/dX0 of wall_n . (-us)
+                        acc[cb, j, q] += fa * (wall_n[q] + c_s * us_e[j, q]) / (rs * c_s)  # d/dX0 of wall_n . (-us)
                 p2r = fa * (2.0 / rs)
                 for q in range(3):
-                    A[q] += p2r * us[q]
+                    acc[cb, j, q] += p2r * us_e[j, q]
                 # --- the masses: knots (sorted as _pair_knots sorts them) and widths
                 for v in range(3):
                     tk[v] = r_pv[i, v] + r_sv[e, v]
@@ -291,37 +287,44 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
                 for v in range(3):
                     lb = fb * (tb[v] - 0.25 * s_t)  # knot v = (l_v + 0.75 (l_c - mean l) + shift) / bin_m - origin
                     for q in range(3):
-                        A[7 + 3 * v + q] += lb * ((tri[e, v, q] - p[q]) / r_pv[i, v] + (tri[e, v, q] - S[q])
+                        acc[cb, j, 7 + 3 * v + q] += lb * ((tri[e, v, q] - p[q]) / r_pv[i, v] + (tri[e, v, q] - S[q])
                                                   / r_sv[e, v])
                 cs = 0.75 * fb * s_t
                 for q in range(3):
-                    A[q] += cs * (d[q] - us[q])  # the centroid's path length r_pX + r_SX
+                    acc[cb, j, q] += cs * (d[q] - us_e[j, q])  # the centroid's path length r_pX + r_SX
                 if has_cells:
                     for q in range(3):
                         g[q] = 0.0
                     for cu in (-0.5, 0.5):
                         for cv in (-0.5, 0.5):
                             for q in range(3):
-                                gv[q] = x0[q] - (p[q] + cu * ax[q] + cv * ay[q])
+                                gv[q] = X0[e, q] - (p[q] + cu * ax[q] + cv * ay[q])
                             nq = np.sqrt(_dot(gv, gv))
                             for q in range(3):
                                 g[q] += gv[q] / nq
                     c3 = fb * s_t / 3.0
                     for q in range(3):
-                        A[q] += c3 * (0.25 * g[q] - d[q])
+                        acc[cb, j, q] += c3 * (0.25 * g[q] - d[q])
                 if s_w1 != 0.0 or s_w2 != 0.0:
                     for q in range(3):
                         gv[q] = p[q] - D[q]
                     nd = np.sqrt(_dot(gv, gv))
                     for q in range(3):
                         gv[q] = fl * gv[q] / nd - d[q]
-                    for (wv, sw) in ((ax, s_w1), (ay, s_w2)):
+                    for side in range(2):  # (the cell's two edge vectors, ax then ay)
+                        sw = s_w1 if side == 0 else s_w2
                         if sw != 0.0:
-                            sg = 1.0 if _dot(gv, wv) > 0.0 else -1.0
-                            cw = f * sw * sg / bin_m
-                            wd = _dot(wv, d)
+                            gw = 0.0
+                            wd = 0.0
                             for q in range(3):
-                                A[q] -= cw * (wv[q] - wd * d[q]) / r
+                                wq = ax[q] if side == 0 else ay[q]
+                                gw += gv[q] * wq
+                                wd += wq * d[q]
+                            sg = 1.0 if gw > 0.0 else -1.0
+                            cw = f * sw * sg / bin_m
+                            for q in range(3):
+                                wq = ax[q] if side == 0 else ay[q]
+                                acc[cb, j, q] -= cw * (wq - wd * d[q]) / r
     # --- per element: the blocks' sums in block order, then centroid, unit normal and area to the vertices
     for j in numba.prange(ne):
         e = e0 + j
