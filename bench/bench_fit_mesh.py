@@ -2,14 +2,18 @@
 against the scene's hidden shapes, beside its start (the backprojection's front surface) and the
 backprojection, on the same grid.
 
-The capture is rendered by the quadrature (deterministic) and detected with the paper's detector for
-``--exposure-ms`` per spot; the fit runs with the given iterations and stages. Defaults are a small
-configuration (8 x 8 pixels of 4 cm, 2 x 2 laser spots), not the issue's full-size targets (16 x 16, 4 x 4 spots).
+The capture is rendered by the quadrature (deterministic) to the noise standard (``--noise-target``, 0.1: its
+stated error at most 0.1 of the photon variance at that budget; until 2026-12-05 it was rendered at fixed settings,
+2 cm and 2 cells) and detected with the paper's detector for ``--exposure-ms`` per spot. The generated shapes run
+with ``--noise-target none`` (those fixed settings): the chair's self-occlusion keeps the mixed-visibility bound
+above the target even at the refinement cap (the worst spot stated 24 at 2 cm, 0.93 at 7 mm, 6 cells and 4 levels, 107 s; a third
+round did not finish in 5 minutes), so the record states the capture's ratio instead. The fit runs with the given
+iterations and stages. Defaults are a small configuration (8 x 8 pixels of 4 cm, 2 x 2 laser spots), not the issue's full-size targets (16 x 16, 4 x 4 spots).
 
     python bench/bench_fit_mesh.py --save --figure docs/img/fit_mesh_letter_views.png   # fit_mesh_letter.json
     python bench/bench_fit_mesh.py --scene nlos_tilted_plane --save
-    python bench/bench_fit_mesh.py --scene chair --save         # generated (transient_mi.scenes.topology)
-    python bench/bench_fit_mesh.py --scene holed_plate --save
+    python bench/bench_fit_mesh.py --scene chair --noise-target none --save   # generated (scenes.topology)
+    python bench/bench_fit_mesh.py --scene holed_plate --noise-target none --save
 
 ``--scene`` takes an embedded scene or one of the generated shapes of other topology
 (:data:`transient_mi.scenes.topology.TOPOLOGY_SHAPES`), whose scene is written into the work folder.
@@ -31,25 +35,39 @@ TARGETS = {"chamfer_mesh_m": 0.005, "silhouette_iou": 0.8}
 IOU_OTHER_TOPOLOGY = 0.6  # the issue's target for the generated shapes of other topology
 
 
-def _capture(work: Path, scene: str, width: int, spots: int, exposure_s: float) -> Path:
+def _capture(work: Path, scene: str, width: int, spots: int, exposure_s: float, noise_target: float) -> Path:
     from spad_detector import detect_stack
+    from transient_mi.noise_target import NoiseTargetSpec
     from transient_mi.paper import paper_detector
     from transient_mi.render_capture import render
     from transient_mi.scenes import scene_path
     from transient_mi.scenes.topology import TOPOLOGY_SHAPES, write_topology_scene
 
-    d = work / f"{scene}_{width}_{spots}"
+    d = work / f"{scene}_{width}_{spots}" / ("fixed" if noise_target is None else f"nt{noise_target:g}")
     if (d / "counts" / "manifest.json").is_file():
         return d / "counts"
     pix = 0.32 / width
     xml = write_topology_scene(scene, d / "scene") if scene in TOPOLOGY_SHAPES else scene_path(scene)
-    ideal = render(xml, d / "ideal", progress=False, resume=True,
+    spec = None if noise_target is None else NoiseTargetSpec(target=noise_target, params=paper_detector(),
+                                                             exposure_s=exposure_s)
+    ideal = render(xml, d / "ideal", progress=False, resume=True, noise_target=spec,
                    defines={"width": str(width), "height": str(width), "spots_x": str(spots), "spots_y": str(spots),
                             "spot_spacing_m": "0.2", "pixel_footprint_m": repr(pix), "aperture_diameter_m": "0.005",
                             "n_bins": "400", "bin_width_ps": "16", "t0_ps": "9000", "estimator": "quadrature",
                             "element_size_m": "0.02", "patch_cells": "2"})
     return detect_stack(ideal, d / "counts", paper_detector(), exposure_s=exposure_s, seed=0, progress=False,
                         overwrite=True)
+
+
+def _capture_note(counts: Path, noise_target: float) -> dict:
+    """The capture's quadrature settings per spot and the rendering-error ratio its detection states."""
+    from transient_core.stack import read_manifest
+
+    det = read_manifest(counts)["detector"]["resolved"].get("render_noise") or {}
+    ideal = read_manifest(counts.parent / "ideal")
+    return {"noise_target": noise_target, "render_noise_ratio": det.get("ratio"),
+            "settings_per_spot": (ideal.get("variance") or {}).get("settings_per_spot")
+            or [(ideal.get("variance") or {}).get("settings")]}
 
 
 def _closed_hole_bound(counts: Path) -> dict:
@@ -115,6 +133,10 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=8, help="pixels per side")
     ap.add_argument("--spots", type=int, default=2, help="laser spots per side")
     ap.add_argument("--exposure-ms", type=float, default=10.0)
+    ap.add_argument("--noise-target", type=lambda v: None if v == "none" else float(v), default=0.1,
+                    help="the capture is rendered until its error is at most this share of the photon noise "
+                         "(squared) at --exposure-ms, refining from 2 cm elements and 2 cells per patch side; "
+                         "'none': at those settings")
     ap.add_argument("--iterations", type=int, default=40)
     ap.add_argument("--stages", type=int, default=2)
     ap.add_argument("--cell-m", type=float, default=0.04)
@@ -132,7 +154,7 @@ def main() -> None:
     from transient_mi.fit.mesh_fit import MeshSettings
 
     t0 = time.perf_counter()
-    counts = _capture(a.work, a.scene, a.width, a.spots, 1e-3 * a.exposure_ms)
+    counts = _capture(a.work, a.scene, a.width, a.spots, 1e-3 * a.exposure_ms, a.noise_target)
     t_cap = time.perf_counter() - t0
     dead_time = dead_time_check(counts)
     t1 = time.perf_counter()
@@ -153,6 +175,7 @@ def main() -> None:
               "n_faces": {"start": res["parameters"]["start"]["n_faces"], "fit": res["parameters"]["fit"]["n_faces"]},
               "time_s": {"capture": t_cap, "fit_wall": t_fit, "align": res["time_s"]["align"],
                          "optimisation": res["time_s"]["optimisation"]},
+              "capture": _capture_note(counts, a.noise_target),
               "targets": _targets(a.scene, rows["fit"], counts)}
     for k, r in rows.items():
         print(f"{k:15s} " + "  ".join(f"{c}={v:.4g}" for c, v in r.items() if v is not None))

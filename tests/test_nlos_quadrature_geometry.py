@@ -227,6 +227,37 @@ def test_vertex_positions_gradient_equals_central_differences():
     params.update()
 
 
+def test_vertex_gradient_has_the_same_bytes_on_one_thread_and_on_two():
+    """The vertex gradient's tiles (blocks of cells x blocks of elements, ``geometry_adjoint``) add into their own
+    accumulators, summed in block order: one numba thread and two give the same bytes."""
+    import numba
+
+    assert numba.config.NUMBA_NUM_THREADS >= 2, "the test needs two numba threads to compare against one"
+    scene = _mesh_scene()
+    params = mi.traverse(scene)
+    key = [k for k in params.keys() if k.endswith("vertex_positions")][0]
+    v0 = np.asarray(params[key], dtype=np.float64)
+    w = np.random.default_rng(7).random((2, 2, 128)).astype(np.float32)
+    before = numba.get_num_threads()
+    grads = []
+    try:
+        for threads in (1, 2):
+            numba.set_num_threads(threads)
+            vf = mi.Float(v0.astype(np.float32))
+            dr.enable_grad(vf)
+            params[key] = vf
+            params.update()
+            img = mi.render(scene, params)
+            dr.backward(dr.sum(img * mi.TensorXf(w), axis=None))
+            grads.append(np.asarray(dr.grad(vf), dtype=np.float32).tobytes())
+            detach_all(params)
+    finally:
+        numba.set_num_threads(before)
+        params[key] = mi.Float(v0.astype(np.float32))
+        params.update()
+    assert grads[0] == grads[1] and np.any(np.frombuffer(grads[0], np.float32) != 0)
+
+
 def test_what_is_not_differentiated_is_refused_in_one_line():
     """The relay wall's geometry, geometry in forward mode and a hidden shape whose BSDF is not diffuse."""
     scene = _scene(occluder=False)

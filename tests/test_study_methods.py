@@ -161,16 +161,35 @@ def test_fit_row_beside_the_methods(tmp_path):
     assert fit_bin_width_ps(4.0, 2875) == 20.0 and fit_bin_width_ps(25.0, 7) == 25.0
 
 
+def test_mesh_fit_row_on_the_chosen_arrays_only(tmp_path):
+    """``fit="mesh", fit_arrays=(4,)``: the free mesh (issue 29) is fitted to the 4x4 array's counts only, one
+    ``fit:mesh`` row per exposure beside the methods, none for the 8x8 array; the settings record the arrays."""
+    from transient_mi.study import run_methods_study
+
+    kw = {**TINY, "methods": ("midpoint-fk",), "complete": None}
+    out, rows = run_methods_study("paper_mannequin", tmp_path / "s", fit="mesh", fit_iterations=2, fit_arrays=(4,),
+                                  **kw)
+    assert [(r["array"], r["method"]) for r in rows] == [(4, "midpoint-fk"), (4, "fit:mesh"), (8, "midpoint-fk")]
+    fit = rows[1]
+    assert fit["fit_iterations"] == 2 and fit["reconstruct_s"] > 0 and fit["chamfer_m"] is not None
+    settings = json.loads((out / "leaderboard.json").read_text())["settings"]["fit"]
+    assert settings["model"] == "mesh" and settings["arrays"] == [4]
+
+
 def test_fit_bad_input(tmp_path):
     from transient_core.errors import UserInputError
     from transient_mi.study import run_methods_study
 
-    with pytest.raises(UserInputError, match="fit='cube': allowed mannequin, patches"):
+    with pytest.raises(UserInputError, match="fit='cube': allowed mannequin, patches, mesh"):
         run_methods_study("paper_mannequin", tmp_path / "x", fit="cube", **TINY)
     with pytest.raises(UserInputError, match="fit_iterations=5: needs fit"):
         run_methods_study("paper_mannequin", tmp_path / "x", fit_iterations=5, **TINY)
     with pytest.raises(UserInputError, match="fit_iterations=0"):
         run_methods_study("paper_mannequin", tmp_path / "x", fit="mannequin", fit_iterations=0, **TINY)
+    with pytest.raises(UserInputError, match="fit_arrays=\\[4\\]: needs fit"):
+        run_methods_study("paper_mannequin", tmp_path / "x", fit_arrays=[4], **TINY)
+    with pytest.raises(UserInputError, match="fit_arrays=\\[16\\]: each must be one of the study's arrays 4, 8"):
+        run_methods_study("paper_mannequin", tmp_path / "x", fit="mesh", fit_arrays=(16,), **TINY)
     assert not (tmp_path / "x").exists()
 
 

@@ -23,6 +23,21 @@ def fit_mesh_plane_table(R) -> str:
     return _table(R("fit_mesh_tilted_plane"))
 
 
+def _capture(r) -> str:
+    """How the capture was rendered: its quadrature settings and the rendering-error ratio its detection states."""
+    c = r.get("capture")
+    if not c or c.get("render_noise_ratio") is None:
+        return "the capture rendered by the quadrature"
+    st = (c.get("settings_per_spot") or [{}])[0] or {}
+    how = (f"to the noise target {c['noise_target']:g}" if c.get("noise_target") is not None
+           else "at fixed settings")
+    where = (f" ({1000 * st['element_size_m']:.1f} mm elements, {st['patch_cells']} cells per patch side, "
+             f"{st['refine_levels']} visibility level{'s' if st['refine_levels'] != 1 else ''})"
+             if st.get("element_size_m") else "")
+    return (f"the capture rendered by the quadrature {how}{where}, its stated rendering error "
+            f"{c['render_noise_ratio']:.2g} x the photon noise")
+
+
 def _table(rec) -> str:
     r = rec["result"]
     m = r["metrics"]
@@ -51,8 +66,8 @@ def _table(rec) -> str:
     align = (f"{r['align']} alignment iterations ({r['time_s']['align']:.0f} s), then "
              if r.get("align") else "")
     head = (f"The {scene} at a small configuration ({r['width']} x {r['width']} pixels of {32 / r['width']:g} cm, "
-            f"{r['spots']} x {r['spots']} laser spots, the paper's detector for {r['exposure_ms']:g} ms per spot, the "
-            f"capture rendered by the quadrature); {align}{r['iterations']} iterations in {r['stages']} stages from "
+            f"{r['spots']} x {r['spots']} laser spots, the paper's detector for {r['exposure_ms']:g} ms per spot, "
+            f"{_capture(r)}); {align}{r['iterations']} iterations in {r['stages']} stages from "
             f"{r['cell_m'] * 100:g} cm cells ({r['n_faces']['start']} -> {r['n_faces']['fit']} triangles){variant}, "
             f"{r['time_s']['fit_wall']:.0f} s (fit, wall):")
     alb = (f"reflectance {r['align_albedo']:.2f} aligned, {r['fit_albedo']:.2f} fitted" if r.get("align")
@@ -82,6 +97,7 @@ def fit_mesh_topology_table(R) -> str:
 
     rows = ["| shape | silhouette IoU | occupancy IoU | Chamfer, surface to surface | triangles | time (fit, wall) "
             "| IoU >= 0.6 |", "|---|---|---|---|---|---|---|"]
+    captures = []
     for rec in recs:
         r = rec["result"]
         m, t = r["metrics"], r["targets"]
@@ -89,6 +105,7 @@ def fit_mesh_topology_table(R) -> str:
         rows.append(f"| {names[r['scene']]} | {arrow(m, 'silhouette_iou', _f)} | {arrow(m, 'iou', _f)} "
                     f"| {arrow(m, 'chamfer_mesh_m', _cm)} | {r['n_faces']['start']} -> {r['n_faces']['fit']} "
                     f"| {r['time_s']['fit_wall']:.0f} s | {met} |")
+        captures.append(f"{names[r['scene']]}: {_capture(r)}")
     r0 = recs[0]["result"]
     head = (f"Start -> aligned -> fit, at the letter's and tilted plane's configuration and defaults ({r0['width']} x "
             f"{r0['width']} pixels of {32 / r0['width']:g} cm, {r0['spots']} x {r0['spots']} laser spots, "
@@ -100,5 +117,5 @@ def fit_mesh_topology_table(R) -> str:
         tail = (f"The plate's square without the hole, placed exactly, scores silhouette IoU "
                 f"{closed['silhouette_iou']:.3f}, occupancy IoU {closed['iou']:.3f} and Chamfer "
                 f"{_cm(closed['chamfer_mesh_m'])} on this grid: the silhouette target needs the hole opened. ")
-    return (head + "\n\n" + "\n".join(rows) + "\n\n" + tail
+    return (head + "\n\n" + "\n".join(rows) + "\n\n" + "; ".join(captures) + ". " + tail
             + " ".join(provenance(rec) for rec in recs))

@@ -191,6 +191,9 @@ def methods(
                             "exposure's counts, as a row fit:<model> (minutes per fit)."),
     fit_iterations: Optional[int] = typer.Option(
         None, "--fit-iterations", parser=whole_number("--fit-iterations"), metavar="<int>", help="The fit's iterations (default the fit command's, 300)."),
+    fit_arrays: Optional[str] = typer.Option(
+        None, "--fit-arrays", help="Fit only these array sides, comma-separated (default every array of --arrays; "
+                                   "a free mesh's fit grows with pixels x spots)."),
     noise_target: Optional[str] = typer.Option(
         None, "--noise-target", help="Render each array until its rendering variance <= this share of the photon "
                                      "variance at the largest exposure; 'none' renders the scene's spp (default 0.1, "
@@ -223,6 +226,8 @@ def methods(
         kw["bounds"] = parse_bounds(bounds)
     if noise_target is not None:
         kw["noise_target"] = _noise_target(noise_target)
+    if fit_arrays is not None:
+        kw["fit_arrays"] = _ints(fit_arrays, "--fit-arrays", "8")
     names = tuple(m.strip() for m in methods.split(",") if m.strip())
     path, rows = run_methods_study(scene, out, arrays=sizes, methods=names, defines=defines, seed=seed, quick=quick,
                                    ground_truth=ground_truth, complete=complete, fit=fit,

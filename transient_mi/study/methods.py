@@ -17,16 +17,18 @@ peak memory measured with :mod:`tracemalloc` (numpy's allocations; FFT
 scratch inside scipy is not traced, so this is a lower bound of the
 process's peak).
 
-With ``fit`` (a model of :mod:`transient_mi.fit`), each array x exposure also
-gets the analysis-by-synthesis fit (what ``transient-mi fit`` runs, with its
+With ``fit`` (a model of :mod:`transient_mi.fit`), each array x exposure (of the
+arrays in ``fit_arrays``, default all) also gets the analysis-by-synthesis fit (what ``transient-mi fit`` runs, with its
 default optimiser settings unless ``fit_iterations`` is given) of the same
 detected counts (written once with ``transient-mi detect``'s writer, the same
 detection seed), as a row ``fit:<model>``: its fitted surface, voxelised on the
 study's grid (the voxels it passes through), is scored like the methods' volumes.
 Its time is the fit's wall clock (backprojection start, optimisation, outputs);
-its traced memory sees numpy only, not Dr.Jit's buffers. A fit is model-based
-(it knows the object's kind), so the targets that name non-fitting methods
-exclude it (:func:`is_fit`).
+its traced memory sees numpy only, not Dr.Jit's buffers. A model fit
+(``mannequin``, ``patches``) knows the object's kind, so the targets that name
+non-fitting methods exclude it (:func:`is_fit`); ``fit:mesh`` (a free mesh
+from the backprojection's front surface, :mod:`transient_mi.fit.mesh_fit`)
+knows no kind, and is marked by the same prefix.
 
 Ground truth: the paper scene knows its mannequin; for other scenes the
 study builds it from the scene itself (every mesh shape except the relay
@@ -114,8 +116,8 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                       exposures_s=DEFAULT_EXPOSURES_S, methods=DEFAULT_METHODS, defines=None, voxels=(64, 64, 32),
                       seed: int = 0, quick: bool = False, progress: bool | None = None, ground_truth=None,
                       bounds=None, threshold: str | None = None, complete=None, fit: str | None = None,
-                      fit_iterations: int | None = None, noise_target: float | None | str = "auto",
-                      overwrite: bool = False, log=None):
+                      fit_iterations: int | None = None, fit_arrays=None,
+                      noise_target: float | None | str = "auto", overwrite: bool = False, log=None):
     """Run the methods study (see the module docstring); returns ``(out_dir, rows)``.
 
     Parameters
@@ -137,11 +139,14 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         Also score every reconstruction closed behind its front under the
         completion prior (:func:`recon.completion.complete_surface`), as rows
         named ``<method>+completion`` whose time includes the completion's.
-    fit : {"mannequin", "patches"}, optional
+    fit : {"mannequin", "patches", "mesh"}, optional
         Also fit this model of :mod:`transient_mi.fit` to every array x exposure's counts (row
         ``fit:<model>``; see the module docstring). Minutes per fit.
     fit_iterations : int, optional
         The fit's iterations (default :class:`transient_mi.fit.FitSettings`'s).
+    fit_arrays : sequence of int, optional
+        The arrays whose counts are fitted (default every one of ``arrays``): a fit's cost grows with pixels x
+        spots, so a free mesh (``fit="mesh"``) may be fitted on the smaller arrays only.
     noise_target : float, None or "auto"
         Render each array's ideal capture until its rendering variance is at most this share of the photon
         variance at the largest exposure (every smaller exposure then has a smaller ratio); the scene's spp is
@@ -170,6 +175,7 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         check_aspect(complete)
     seed = V.integer(seed, "seed", 0, 2**32)
     fit_settings = _fit_settings(fit, fit_iterations)
+    fit_arrays = _fit_arrays(fit, fit_arrays, arrays)
     progress = V.progress(progress)
     quick = V.flag(quick, "quick")
     noise_target = resolve_noise_target(noise_target, quick)
@@ -191,7 +197,7 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
     out = Path(out_dir)
     t_start = time.perf_counter()
     rows, previews = [], []
-    n_steps = len(arrays) * (1 + len(exposures) * (len(methods) + (fit is not None)))
+    n_steps = len(arrays) * (1 + len(exposures) * len(methods)) + len(fit_arrays) * len(exposures)
     with atomic_output_dir(out, V.flag(overwrite, "overwrite")) as tmp, quiet_inner_bars():
         with progress_bar("methods study", total=n_steps, disable=not bar_enabled(progress)) as advance:
             warmed = False
@@ -234,7 +240,7 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                         if complete is not None:
                             rows.append(_completed_row(rows[-1], rec, complete, gt, seed))
                         advance(1)
-                    if fit is not None:
+                    if n in fit_arrays:
                         log(f"{n}x{n}, {e * 1e3:g} ms per spot: fit {fit}")
                         # scored on the grid the methods just used
                         row, frec = _fit_row(tmp / "fit_work", ideal_dir, params, e, seed + 1, fit, fit_settings,
@@ -251,7 +257,8 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                     "threshold": threshold or "each method's default (recon.pipeline.default_threshold)",
                     "completion": None if complete is None else str(complete),
                     "noise_target": noise_target, "estimators": {str(k): v for k, v in estimators.items()},
-                    "fit": None if fit is None else {"model": fit, **asdict(fit_settings)},
+                    "fit": None if fit is None else {"model": fit, "arrays": list(fit_arrays),
+                                                     **asdict(fit_settings)},
                     "render_seed": seed, "detection_seed": seed + 1,
                     "detector": params.to_dict(), "ground_truth": gt_desc,
                     "total_s": time.perf_counter() - t_start}
@@ -307,6 +314,22 @@ def _fit_settings(fit, fit_iterations):
     if fit_iterations is None:
         return FitSettings()
     return FitSettings(iterations=V.integer(fit_iterations, "fit_iterations", 1, 100_000))
+
+
+def _fit_arrays(fit, fit_arrays, arrays) -> tuple:
+    """The arrays to fit (none without ``fit``; default all of ``arrays``); each must be one of ``arrays``."""
+    if fit is None:
+        if fit_arrays is not None:
+            raise UserInputError(f"fit_arrays={fit_arrays!r}: needs fit (a model: {', '.join(FIT_MODELS)})")
+        return ()
+    if fit_arrays is None:
+        return tuple(arrays)
+    chosen = tuple(sorted(V.integers_list(fit_arrays, "fit_arrays", 1, 257)))
+    bad = [n for n in chosen if n not in arrays]
+    if bad or not chosen:
+        raise UserInputError(f"fit_arrays={list(chosen)!r}: each must be one of the study's arrays "
+                             f"{', '.join(str(n) for n in arrays)}")
+    return chosen
 
 
 def is_fit(method: str) -> bool:
