@@ -163,7 +163,8 @@ def test_fit_row_beside_the_methods(tmp_path):
 
 def test_mesh_fit_row_on_the_chosen_arrays_only(tmp_path):
     """``fit="mesh", fit_arrays=(4,)``: the free mesh (issue 29) is fitted to the 4x4 array's counts only, one
-    ``fit:mesh`` row per exposure beside the methods, none for the 8x8 array; the settings record the arrays."""
+    ``fit:mesh`` row per exposure beside the methods, none for the 8x8 array; it starts from midpoint-fk's front
+    surface, and the settings record the arrays and the start."""
     from transient_mi.study import run_methods_study
 
     kw = {**TINY, "methods": ("midpoint-fk",), "complete": None}
@@ -174,6 +175,7 @@ def test_mesh_fit_row_on_the_chosen_arrays_only(tmp_path):
     assert fit["fit_iterations"] == 2 and fit["reconstruct_s"] > 0 and fit["chamfer_m"] is not None
     settings = json.loads((out / "leaderboard.json").read_text())["settings"]["fit"]
     assert settings["model"] == "mesh" and settings["arrays"] == [4]
+    assert settings["start"] == "midpoint-fk's front surface"
 
 
 def test_fit_bad_input(tmp_path):

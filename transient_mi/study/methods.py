@@ -27,8 +27,9 @@ Its time is the fit's wall clock (backprojection start, optimisation, outputs);
 its traced memory sees numpy only, not Dr.Jit's buffers. A model fit
 (``mannequin``, ``patches``) knows the object's kind, so the targets that name
 non-fitting methods exclude it (:func:`is_fit`); ``fit:mesh`` (a free mesh
-from the backprojection's front surface, :mod:`transient_mi.fit.mesh_fit`)
-knows no kind, and is marked by the same prefix.
+from the front surface of :data:`FIT_MESH_START`'s reconstruction of the same counts,
+:mod:`transient_mi.fit.mesh_fit`) knows no kind, and is marked by the same
+prefix.
 
 Ground truth: the paper scene knows its mannequin; for other scenes the
 study builds it from the scene itself (every mesh shape except the relay
@@ -47,7 +48,7 @@ from __future__ import annotations
 import shutil
 import time
 import tracemalloc
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +76,10 @@ COMPLETION_SUFFIX = "+completion"
 FIT_PREFIX = "fit:"
 #: Models ``fit`` accepts (:mod:`transient_mi.fit.models`).
 FIT_MODELS = ("mannequin", "patches", "mesh")
+#: The method whose reconstruction (of the same counts) the free mesh (``fit="mesh"``) starts from, as its front
+#: surface, when the study runs it (the leaderboards' best non-fitting method); else the fit's own start (the
+#: backprojection's front surface, :mod:`transient_mi.fit.mesh_start`).
+FIT_MESH_START = "midpoint-fk"
 #: The fit's time bins reach at least this, ps (:func:`fit_bin_width_ps`).
 FIT_BIN_WIDTH_PS = 10.0
 ROW_COLUMNS = ("scene", "array", "exposure_s", "method", "counts_per_pixel_per_spot", "render_spp",
@@ -229,9 +234,11 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                         for m in methods:
                             _reconstruct(cap, m, bnds, vox, threshold)
                         warmed = True
+                    recs = {}
                     for m in methods:
                         log(f"{n}x{n}, {e * 1e3:g} ms per spot: {m}")
                         rec, dt, peak = _reconstruct(cap, m, bnds, vox, threshold)
+                        recs[m] = rec
                         metrics = _metrics(rec, gt, seed)
                         rows.append({**base, "method": m, **{k: metrics.get(k) for k in LEADERBOARD_METRICS},
                                      "reconstruct_s": dt, "peak_traced_mb": peak / 2**20})
@@ -244,7 +251,7 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                         log(f"{n}x{n}, {e * 1e3:g} ms per spot: fit {fit}")
                         # scored on the grid the methods just used
                         row, frec = _fit_row(tmp / "fit_work", ideal_dir, params, e, seed + 1, fit, fit_settings,
-                                             rec.grid, gt, base)
+                                             rec.grid, gt, base, start=recs.get(FIT_MESH_START))
                         rows.append(row)
                         if n == arrays[-1] and e == exposures[-1]:
                             previews.append((row["method"], front_view(frec)))
@@ -257,8 +264,10 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                     "threshold": threshold or "each method's default (recon.pipeline.default_threshold)",
                     "completion": None if complete is None else str(complete),
                     "noise_target": noise_target, "estimators": {str(k): v for k, v in estimators.items()},
-                    "fit": None if fit is None else {"model": fit, "arrays": list(fit_arrays),
-                                                     **asdict(fit_settings)},
+                    "fit": None if fit is None else {
+                        "model": fit, "arrays": list(fit_arrays), **asdict(fit_settings),
+                        **({"start": f"{FIT_MESH_START}'s front surface" if FIT_MESH_START in methods
+                            else "the backprojection's front surface"} if fit == "mesh" else {})},
                     "render_seed": seed, "detection_seed": seed + 1,
                     "detector": params.to_dict(), "ground_truth": gt_desc,
                     "total_s": time.perf_counter() - t_start}
@@ -349,8 +358,10 @@ def fit_bin_width_ps(capture_bin_width_ps: float, n_bins: int) -> float:
 
 
 def _fit_row(work: Path, ideal_dir: Path, params, exposure_s: float, seed: int, model: str, settings, grid, gt,
-             base: dict):
-    """Detect ``ideal_dir`` to a counts capture, fit ``model`` to it, score the fitted surface on ``grid``.
+             base: dict, start=None):
+    """Detect ``ideal_dir`` to a counts capture, fit ``model`` to it, score the fitted surface on ``grid``
+    (``model="mesh"`` starts from ``start``'s front surface, a :class:`recon.result.Reconstruction` of the same
+    counts, where given).
 
     Returns ``(row, reconstruction)``; the reconstruction's volume marks the voxels the fitted surface passes
     through (:func:`recon.metrics.mesh_occupancy`).
@@ -368,8 +379,9 @@ def _fit_row(work: Path, ideal_dir: Path, params, exposure_s: float, seed: int, 
     tracemalloc.start()
     try:
         t0 = time.perf_counter()
+        mesh = _mesh_start(work, start) if model == "mesh" and start is not None else None
         res = fit_capture(counts, work / "fit", model=model, settings=settings, bin_width_ps=bw, progress=False,
-                          log=lambda *a: None)
+                          log=lambda *a: None, mesh=mesh)
         dt = time.perf_counter() - t0
         peak = tracemalloc.get_traced_memory()[1]
     finally:
@@ -387,6 +399,20 @@ def _fit_row(work: Path, ideal_dir: Path, params, exposure_s: float, seed: int, 
            "fit_joint_error_max_deg": m.get("joint_error_max_deg"), "fit_position_error_m": m.get("position_error_m")}
     shutil.rmtree(work)
     return row, rec
+
+
+def _mesh_start(work: Path, rec):
+    """The free mesh's settings (its defaults) with its start the front surface of ``rec`` at the default cell size,
+    written to ``work / "start_mesh.ply"``."""
+    from recon.surface import write_ply
+    from transient_mi.fit.mesh_fit import MeshSettings
+    from transient_mi.fit.mesh_start import front_surface
+
+    mesh = MeshSettings()
+    v, f = front_surface(np.asarray(rec.volume), rec.grid, mesh.cell_m)
+    work.mkdir(parents=True, exist_ok=True)
+    write_ply(work / "start_mesh.ply", v, f)
+    return replace(mesh, start_mesh=str(work / "start_mesh.ply"))
 
 
 def _completed_row(row: dict, rec, complete, gt, seed: int) -> dict:
