@@ -46,13 +46,14 @@ RUNS = {
     # 2026-12-02 stopped at 0.1 ms); the scenes' default estimator is now the quadrature, which meets the noise
     # target at any budget by refinement.
     # fit:mesh (issue 29's free mesh from midpoint-fk's front surface, the fit command's defaults but 40 iterations,
-    # as bench_fit_mesh.py) on the letter's 8x8 array only: its cost grows with pixels x spots (16 spots here: about
-    # 10 min per fit on 2 cores), about 4x more on the 16x16 array. Not yet on the tilted plane (time).
+    # as bench_fit_mesh.py) on the 8x8 array only: its cost grows with pixels x spots (16 spots here: about 2 min per
+    # fit on 2 cores), about 4x more on the 16x16 array.
     "nlos_letter": dict(arrays=(8, 16), exposures_s=(1e-4, 1e-2), complete="auto",
                         bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7), fit="mesh", fit_iterations=40, fit_arrays=(8,),
                         defines={"spp": 4096, "pixel_footprint_m": 0.05, "spot_spacing_m": 0.2}),
     "nlos_tilted_plane": dict(arrays=(8, 16), exposures_s=(1e-4, 1e-2), complete="auto",
-                              bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7),
+                              bounds=(-0.3, 0.3, -0.3, 0.3, 0.3, 0.7), fit="mesh", fit_iterations=40,
+                              fit_arrays=(8,),
                               defines={"spp": 4096, "pixel_footprint_m": 0.05, "spot_spacing_m": 0.2}),
 }
 

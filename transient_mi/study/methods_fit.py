@@ -1,0 +1,133 @@
+"""The analysis-by-synthesis fit as a row of the methods study (:func:`~transient_mi.study.methods.run_methods_study`
+with ``fit``): the fit's settings and arrays, its time bins, and :func:`fit_row`, which detects the array's ideal
+capture, fits a model of :mod:`transient_mi.fit` to the counts and scores the fitted surface on the study's grid."""
+
+from __future__ import annotations
+
+import shutil
+import time
+import tracemalloc
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from transient_core.errors import UserInputError
+
+from . import validate as V
+from .metrics_rows import LEADERBOARD_METRICS, score
+
+#: Prefix of the method name in rows of fits (``fit=...``): ``fit:mannequin``.
+FIT_PREFIX = "fit:"
+#: Models ``fit`` accepts (:mod:`transient_mi.fit.models`).
+FIT_MODELS = ("mannequin", "patches", "mesh")
+#: The method whose reconstruction (of the same counts) the free mesh (``fit="mesh"``) starts from, as its front
+#: surface, when the study runs it (the leaderboards' best non-fitting method); else the fit's own start (the
+#: backprojection's front surface, :mod:`transient_mi.fit.mesh_start`).
+FIT_MESH_START = "midpoint-fk"
+#: The fit's time bins reach at least this, ps (:func:`fit_bin_width_ps`).
+FIT_BIN_WIDTH_PS = 10.0
+
+def fit_settings(fit, fit_iterations):
+    """The fit's settings (None without ``fit``); checks ``fit`` and ``fit_iterations``."""
+    if fit is None:
+        if fit_iterations is not None:
+            raise UserInputError(f"fit_iterations={fit_iterations!r}: needs fit (a model: {', '.join(FIT_MODELS)})")
+        return None
+    if fit not in FIT_MODELS:
+        raise UserInputError(f"fit={fit!r}: allowed {', '.join(FIT_MODELS)}")
+    from transient_mi.fit import FitSettings
+
+    if fit_iterations is None:
+        return FitSettings()
+    return FitSettings(iterations=V.integer(fit_iterations, "fit_iterations", 1, 100_000))
+
+
+def fit_arrays(fit, fit_arrays, arrays) -> tuple:
+    """The arrays to fit (none without ``fit``; default all of ``arrays``); each must be one of ``arrays``."""
+    if fit is None:
+        if fit_arrays is not None:
+            raise UserInputError(f"fit_arrays={fit_arrays!r}: needs fit (a model: {', '.join(FIT_MODELS)})")
+        return ()
+    if fit_arrays is None:
+        return tuple(arrays)
+    chosen = tuple(sorted(V.integers_list(fit_arrays, "fit_arrays", 1, 257)))
+    bad = [n for n in chosen if n not in arrays]
+    if bad or not chosen:
+        raise UserInputError(f"fit_arrays={list(chosen)!r}: each must be one of the study's arrays "
+                             f"{', '.join(str(n) for n in arrays)}")
+    return chosen
+
+
+def is_fit(method: str) -> bool:
+    """Whether a leaderboard row's method is a model fit (``fit:<model>``), not a reconstruction method."""
+    return str(method).startswith(FIT_PREFIX)
+
+
+def fit_bin_width_ps(capture_bin_width_ps: float, n_bins: int) -> float:
+    """The fit's bin width for a capture: the smallest whole multiple ``k`` of its bin width that is
+    >= :data:`FIT_BIN_WIDTH_PS` and divides its ``n_bins`` (the fit sums ``k`` bins into one); ps."""
+    import math
+
+    k = max(1, math.ceil(FIT_BIN_WIDTH_PS / float(capture_bin_width_ps) - 1e-9))
+    while n_bins % k:
+        k += 1
+    return float(capture_bin_width_ps) * k
+
+
+def fit_row(work: Path, ideal_dir: Path, params, exposure_s: float, seed: int, model: str, settings, grid, gt,
+             base: dict, start=None):
+    """Detect ``ideal_dir`` to a counts capture, fit ``model`` to it, score the fitted surface on ``grid``
+    (``model="mesh"`` starts from ``start``'s front surface, a :class:`recon.result.Reconstruction` of the same
+    counts, where given).
+
+    Returns ``(row, reconstruction)``; the reconstruction's volume marks the voxels the fitted surface passes
+    through (:func:`recon.metrics.mesh_occupancy`).
+    """
+    import trimesh
+    from spad_detector import detect_stack
+    from recon.metrics import mesh_occupancy
+    from recon.result import Reconstruction
+    from transient_mi.fit import fit_capture
+    from transient_core.stack import read_manifest
+
+    counts = detect_stack(ideal_dir, work / "counts", params, exposure_s=exposure_s, seed=seed, progress=False)
+    t = read_manifest(counts)["time"]
+    bw = fit_bin_width_ps(float(t["bin_width_ps"]), int(t["n_bins"]))
+    tracemalloc.start()
+    try:
+        t0 = time.perf_counter()
+        mesh = _mesh_start(work, start) if model == "mesh" and start is not None else None
+        res = fit_capture(counts, work / "fit", model=model, settings=settings, bin_width_ps=bw, progress=False,
+                          log=lambda *a: None, mesh=mesh)
+        dt = time.perf_counter() - t0
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    mesh = trimesh.load(work / "fit" / "fitted.ply", force="mesh", process=False)
+    occ = mesh_occupancy(mesh, grid).astype(np.float32)
+    iterations = res["config"]["settings"]["iterations"]
+    rec = Reconstruction(raw=occ, grid=grid, method=FIT_PREFIX + model, volume=occ,
+                         params={"fit": {"model": model, "iterations": iterations, "bin_width_ps": bw}})
+    metrics = score(rec, gt, 0)
+    m = res.get("metrics") or {}
+    row = {**base, "method": FIT_PREFIX + model, **{k: metrics.get(k) for k in LEADERBOARD_METRICS},
+           "reconstruct_s": dt, "peak_traced_mb": peak / 2**20, "fit_iterations": iterations,
+           "fit_bin_width_ps": bw, "fit_poisson_nll": res["poisson_nll"],
+           "fit_joint_error_max_deg": m.get("joint_error_max_deg"), "fit_position_error_m": m.get("position_error_m")}
+    shutil.rmtree(work)
+    return row, rec
+
+
+def _mesh_start(work: Path, rec):
+    """The free mesh's settings (its defaults) with its start the front surface of ``rec`` at the default cell size,
+    written to ``work / "start_mesh.ply"``."""
+    from recon.surface import write_ply
+    from transient_mi.fit.mesh_fit import MeshSettings
+    from transient_mi.fit.mesh_start import front_surface
+
+    mesh = MeshSettings()
+    v, f = front_surface(np.asarray(rec.volume), rec.grid, mesh.cell_m)
+    work.mkdir(parents=True, exist_ok=True)
+    write_ply(work / "start_mesh.ply", v, f)
+    return replace(mesh, start_mesh=str(work / "start_mesh.ply"))
