@@ -194,6 +194,20 @@ def _mesh_scene():
     return scene
 
 
+def _vertex_gradient(scene, params, key: str, v0: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The reverse-mode gradient (float32 ``[3 V]``) of ``sum(w * capture)`` with respect to the mesh's
+    ``vertex_positions`` ``key`` set to ``v0``; the parameters are detached again afterwards."""
+    vf = mi.Float(v0.astype(np.float32))
+    dr.enable_grad(vf)
+    params[key] = vf
+    params.update()
+    img = mi.render(scene, params)
+    dr.backward(dr.sum(img * mi.TensorXf(w), axis=None))
+    grad = np.asarray(dr.grad(vf), dtype=np.float32)
+    detach_all(params)
+    return grad
+
+
 def test_vertex_positions_gradient_equals_central_differences():
     """A deformation (every vertex along its own random direction: areas, normals and knots change) of a mesh's
     ``vertex_positions``: the reverse-mode gradient dotted with the direction against a central difference."""
@@ -203,14 +217,7 @@ def test_vertex_positions_gradient_equals_central_differences():
     v0 = np.asarray(params[key], dtype=np.float64)
     w = np.random.default_rng(5).random((2, 2, 128)).astype(np.float32)
     dirs = np.random.default_rng(2).normal(size=(3, v0.size))
-    vf = mi.Float(v0.astype(np.float32))
-    dr.enable_grad(vf)
-    params[key] = vf
-    params.update()
-    img = mi.render(scene, params)
-    dr.backward(dr.sum(img * mi.TensorXf(w), axis=None))
-    grad = np.asarray(dr.grad(vf), dtype=np.float64)
-    detach_all(params)
+    grad = _vertex_gradient(scene, params, key, v0, w).astype(np.float64)
     for d in dirs:
         d = d / np.abs(d).max()
         ls = []
@@ -243,14 +250,7 @@ def test_vertex_gradient_has_the_same_bytes_on_one_thread_and_on_two():
     try:
         for threads in (1, 2):
             numba.set_num_threads(threads)
-            vf = mi.Float(v0.astype(np.float32))
-            dr.enable_grad(vf)
-            params[key] = vf
-            params.update()
-            img = mi.render(scene, params)
-            dr.backward(dr.sum(img * mi.TensorXf(w), axis=None))
-            grads.append(np.asarray(dr.grad(vf), dtype=np.float32).tobytes())
-            detach_all(params)
+            grads.append(_vertex_gradient(scene, params, key, v0, w).tobytes())
     finally:
         numba.set_num_threads(before)
         params[key] = mi.Float(v0.astype(np.float32))

@@ -159,37 +159,19 @@ def _diff1(k, y, w, a, b, mu, var):
 
 @numba.njit(cache=True, fastmath=False)
 def cdf_derivatives(x, a, b, w1, w2, mu, var, small1, small2):
-    """``(C, dC/dx, dC/da, dC/db, dC/dw1, dC/dw2)`` of ``_cdf`` (same branches, ``x`` local)."""
-    y = x + 0.5 * (w1 + w2)
+    """``(C, dC/dx, dC/da, dC/db, dC/dw1, dC/dw2)`` of ``_cdf`` (same branches, ``x`` local) where at least one width
+    is infinitesimal (``small1`` or ``small2``; with both widths finite :func:`_edge_both_widths` serves)."""
     if small1 and small2:
         da, db = _gk_knots(0, x, a, b, mu)
         return _gk(0, x, a, b, mu, var, 0.0), _density(x, a, b), da, db, 0.0, 0.0
-    if small1 or small2:
-        w = w2 if small1 else w1
-        y1 = x + 0.5 * w
-        c, cx, ca, cb = _diff1(1, y1, w, a, b, mu, var)
-        # d/dw: y1 moves by w/2, the lower end by -w/2, and the 1/w
-        cw = 0.5 * (_gk(0, y1, a, b, mu, var, 0.0) + _gk(0, y1 - w, a, b, mu, var, 0.0)) / w - c / w
-        if small1:
-            return c, cx, ca, cb, 0.0, cw
-        return c, cx, ca, cb, cw, 0.0
-    y1, y2, y3 = y - w1, y - w2, y - w1 - w2
-    g0, g1_, g2_, g3 = (_gk(2, y, a, b, mu, var, 0.0), _gk(2, y1, a, b, mu, var, 0.0), _gk(2, y2, a, b, mu, var, 0.0),
-                        _gk(2, y3, a, b, mu, var, 0.0))
-    h0, h1, h2, h3 = (_gk(1, y, a, b, mu, var, 0.0), _gk(1, y1, a, b, mu, var, 0.0), _gk(1, y2, a, b, mu, var, 0.0),
-                      _gk(1, y3, a, b, mu, var, 0.0))
-    a0, b0 = _gk_knots(2, y, a, b, mu)
-    a1, b1 = _gk_knots(2, y1, a, b, mu)
-    a2, b2 = _gk_knots(2, y2, a, b, mu)
-    a3, b3 = _gk_knots(2, y3, a, b, mu)
-    ww = w1 * w2
-    c = (g0 - g1_ - g2_ + g3) / ww
-    cx = (h0 - h1 - h2 + h3) / ww
-    ca = (a0 - a1 - a2 + a3) / ww
-    cb = (b0 - b1 - b2 + b3) / ww
-    cw1 = 0.5 * (h0 + h1 - h2 - h3) / ww - c / w1
-    cw2 = 0.5 * (h0 - h1 + h2 - h3) / ww - c / w2
-    return c, cx, ca, cb, cw1, cw2
+    w = w2 if small1 else w1
+    y1 = x + 0.5 * w
+    c, cx, ca, cb = _diff1(1, y1, w, a, b, mu, var)
+    # d/dw: y1 moves by w/2, the lower end by -w/2, and the 1/w
+    cw = 0.5 * (_gk(0, y1, a, b, mu, var, 0.0) + _gk(0, y1 - w, a, b, mu, var, 0.0)) / w - c / w
+    if small1:
+        return c, cx, ca, cb, 0.0, cw
+    return c, cx, ca, cb, cw, 0.0
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -236,7 +218,8 @@ def _point(y, a, b, mu, var, mu3):
 @numba.njit(cache=True, fastmath=False, inline="always")
 def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3):
     """``(C, dC/dx, dC/da, dC/db, dC/dw1, dC/dw2)`` at edge ``x`` with both widths finite, the tilts' terms added to
-    ``C`` and ``dC/dx`` (as :func:`cdf_derivatives` plus ``t_i`` :func:`_tilt` and :func:`_tilt_dx`): every term is
+    ``C`` and ``dC/dx`` (the second difference of ``G_2`` over both widths, plus ``t_i`` :func:`_tilt` and
+    :func:`_tilt_dx` as where a width is infinitesimal): every term is
     a second difference over the same four points ``y``, ``y - w1``, ``y - w2``, ``y - w1 - w2`` (``y = x + (w1 +
     w2) / 2``), so ``G_1 .. G_3`` and the knot derivatives are evaluated once per point (:func:`_point`)."""
     y = x + 0.5 * (w1 + w2)
