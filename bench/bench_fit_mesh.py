@@ -4,16 +4,17 @@ backprojection, on the same grid.
 
 The capture is rendered by the quadrature (deterministic) to the noise standard (``--noise-target``, 0.1: its
 stated error at most 0.1 of the photon variance at that budget; until 2026-12-05 it was rendered at fixed settings,
-2 cm and 2 cells) and detected with the paper's detector for ``--exposure-ms`` per spot. The generated shapes run
-with ``--noise-target none`` (those fixed settings): the chair's self-occlusion keeps the mixed-visibility bound
-above the target even at the refinement cap (the worst spot stated 24 at 2 cm, 0.93 at 7 mm, 6 cells and 4 levels, 107 s; a third
-round did not finish in 5 minutes), so the record states the capture's ratio instead. The fit runs with the given
-iterations and stages. Defaults are a small configuration (8 x 8 pixels of 4 cm, 2 x 2 laser spots), not the issue's full-size targets (16 x 16, 4 x 4 spots).
+2 cm and 2 cells) and detected with the paper's detector for ``--exposure-ms`` per spot. The chair runs with
+``--noise-target none`` (those fixed settings): its self-occlusion keeps the mixed-visibility bound above the
+target even at the refinement cap (the worst spot stated 24 at 2 cm, 0.93 at 7 mm, 6 cells and 4 levels, 107 s; a
+third round did not finish in 5 minutes), so its record states the capture's ratio instead. The fit runs with the
+given iterations and stages. Defaults are a small configuration (8 x 8 pixels of 4 cm, 2 x 2 laser spots), not the
+issue's full-size targets (16 x 16, 4 x 4 spots).
 
     python bench/bench_fit_mesh.py --save --figure docs/img/fit_mesh_letter_views.png   # fit_mesh_letter.json
     python bench/bench_fit_mesh.py --scene nlos_tilted_plane --save
     python bench/bench_fit_mesh.py --scene chair --noise-target none --save   # generated (scenes.topology)
-    python bench/bench_fit_mesh.py --scene holed_plate --noise-target none --save
+    python bench/bench_fit_mesh.py --scene holed_plate --save
 
 ``--scene`` takes an embedded scene or one of the generated shapes of other topology
 (:data:`transient_mi.scenes.topology.TOPOLOGY_SHAPES`), whose scene is written into the work folder.
@@ -35,7 +36,8 @@ TARGETS = {"chamfer_mesh_m": 0.005, "silhouette_iou": 0.8}
 IOU_OTHER_TOPOLOGY = 0.6  # the issue's target for the generated shapes of other topology
 
 
-def _capture(work: Path, scene: str, width: int, spots: int, exposure_s: float, noise_target: float) -> Path:
+def _capture(work: Path, scene: str, width: int, spots: int, exposure_s: float,
+             noise_target: float | None) -> Path:
     from spad_detector import detect_stack
     from transient_mi.noise_target import NoiseTargetSpec
     from transient_mi.paper import paper_detector
@@ -59,15 +61,14 @@ def _capture(work: Path, scene: str, width: int, spots: int, exposure_s: float, 
                         overwrite=True)
 
 
-def _capture_note(counts: Path, noise_target: float) -> dict:
+def _capture_note(counts: Path, noise_target: float | None) -> dict:
     """The capture's quadrature settings per spot and the rendering-error ratio its detection states."""
     from transient_core.stack import read_manifest
+    from transient_mi.capture_error import quadrature_settings_per_spot
 
     det = read_manifest(counts)["detector"]["resolved"].get("render_noise") or {}
-    ideal = read_manifest(counts.parent / "ideal")
     return {"noise_target": noise_target, "render_noise_ratio": det.get("ratio"),
-            "settings_per_spot": (ideal.get("variance") or {}).get("settings_per_spot")
-            or [(ideal.get("variance") or {}).get("settings")]}
+            "settings_per_spot": quadrature_settings_per_spot(read_manifest(counts.parent / "ideal"))}
 
 
 def _closed_hole_bound(counts: Path) -> dict:

@@ -150,3 +150,11 @@ def variance_summary(directory: Path, manifest: dict, parts: dict | None = None)
     return {"pixel_total_rel_std": {"median": float(np.median(r)), "p90": float(np.percentile(r, 90)),
                                     "max": float(r.max())},
             "bin_rel_std_weighted": sd_sum / x_sum if x_sum > 0 else None}
+
+
+def quadrature_settings_per_spot(manifest: dict) -> list[dict]:
+    """The quadrature's settings (``element_size_m``, ``patch_cells``, ``refine_levels``) of each spot of a capture's
+    manifest: ``variance.settings_per_spot`` (refined per spot by a noise target), else the capture's
+    ``variance.settings`` once; ``[{}]`` for a capture without them (Monte Carlo)."""
+    var = manifest.get("variance") or {}
+    return var.get("settings_per_spot") or [var.get("settings") or {}]

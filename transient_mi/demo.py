@@ -30,6 +30,7 @@ import numpy as np
 
 from transient_core.errors import UserInputError
 
+from .capture_error import quadrature_settings_per_spot
 from .experiment import (HistogramSum, detect_counts, ground_truth, reconstruct, render_ideal,
                          write_ground_truth)
 # DemoSettings and QUICK live in paper.py, beside the settings they start from, so the studies read them
@@ -148,22 +149,16 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
     return results, hists
 
 
-#: The quadrature's settings a capture records per spot (``variance.settings_per_spot``, else ``settings``).
+#: The quadrature's settings a capture records per spot
+#: (:func:`~transient_mi.capture_error.quadrature_settings_per_spot`).
 _QUADRATURE_SETTINGS = ("element_size_m", "patch_cells", "refine_levels")
-
-
-def _spot_settings(m: dict) -> list[dict]:
-    """The quadrature's settings of each spot of a capture's manifest ``m`` (refined ones with a noise target;
-    else the capture's settings, once)."""
-    var = m.get("variance") or {}
-    return var.get("settings_per_spot") or [var.get("settings") or {}]
 
 
 def _finest_settings(ideal: Path) -> dict:
     """The finest quadrature settings any spot of a rendered ideal capture needed (smallest ``element_size_m``,
     most ``patch_cells`` and ``refine_levels``), as :class:`~transient_mi.paper.PaperConfig` fields; empty for a
     capture without them."""
-    per = _spot_settings(json.loads((Path(ideal) / "manifest.json").read_text()))
+    per = quadrature_settings_per_spot(json.loads((Path(ideal) / "manifest.json").read_text()))
     if not all(k in p for p in per for k in _QUADRATURE_SETTINGS):
         return {}
     return {"element_size_m": min(p["element_size_m"] for p in per),
@@ -178,7 +173,7 @@ def _estimator_of(ideal: Path) -> tuple[str, dict]:
     est = (m.get("render") or {}).get("estimator", "monte_carlo")
     if est != "quadrature":
         return est, {}
-    per = _spot_settings(m)
+    per = quadrature_settings_per_spot(m)
     coarsest = {"element_size_m": max, "patch_cells": min, "refine_levels": min}
     return est, {k: pick(p[k] for p in per) for k, pick in coarsest.items() if all(k in p for p in per)}
 

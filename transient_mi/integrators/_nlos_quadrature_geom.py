@@ -220,7 +220,7 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
         gv = np.empty(3)
         for c in range(ca, cz):
             k = cell_pixel[c]
-            row = grad_ext[k]  # (views once per cell, not per pair: a view's reference count is shared by the threads)
+            row = grad_ext[k]
             p = cell_p[c]
             for j in range(ja, jz):
                 e = e0 + j
@@ -311,20 +311,13 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
                     nd = np.sqrt(_dot(gv, gv))
                     for q in range(3):
                         gv[q] = fl * gv[q] / nd - d[q]
-                    for side in range(2):  # (the cell's two edge vectors, ax then ay)
-                        sw = s_w1 if side == 0 else s_w2
+                    for (wv, sw) in ((ax, s_w1), (ay, s_w2)):
                         if sw != 0.0:
-                            gw = 0.0
-                            wd = 0.0
-                            for q in range(3):
-                                wq = ax[q] if side == 0 else ay[q]
-                                gw += gv[q] * wq
-                                wd += wq * d[q]
-                            sg = 1.0 if gw > 0.0 else -1.0
+                            sg = 1.0 if _dot(gv, wv) > 0.0 else -1.0
                             cw = f * sw * sg / bin_m
+                            wd = _dot(wv, d)
                             for q in range(3):
-                                wq = ax[q] if side == 0 else ay[q]
-                                acc[cb, j, q] -= cw * (wq - wd * d[q]) / r
+                                acc[cb, j, q] -= cw * (wv[q] - wd * d[q]) / r
     # --- per element: the blocks' sums in block order, then centroid, unit normal and area to the vertices
     for j in numba.prange(ne):
         e = e0 + j
