@@ -54,6 +54,11 @@ def fit_command(
     align: int = typer.Option(8, "--align", parser=whole_number("--align"), metavar="<int>",
                               help="--model mesh: Levenberg-Marquardt iterations of the start's affine map and "
                                    "reflectance before the vertices move, 0 to 100 (0: none)."),
+    reflectance: str = typer.Option("global", "--reflectance", help="--model mesh: one reflectance for the mesh "
+                                    "(global) or one per face (face: for objects of several materials; fitted.ply "
+                                    "carries them)."),
+    albedo_smoothness: float = typer.Option(1.0, "--albedo-smoothness", help="--model mesh --reflectance face: "
+                                            "weight of the per-face reflectance's smoothness across edges."),
     seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed."),
     resume: bool = typer.Option(False, "--resume", help="Continue the fit in OUT from its checkpoint."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier fit in OUT."),
@@ -68,7 +73,8 @@ def fit_command(
     from transient_mi.fit.mesh_fit import MeshSettings, check_mesh_options
 
     mesh = MeshSettings(start=start, start_mesh=None if start_mesh is None else str(start_mesh), cell_m=cell_m,
-                        stages=stages, smoothing=smoothing, align=align)
+                        stages=stages, smoothing=smoothing, align=align, reflectance=reflectance,
+                        albedo_smoothness=albedo_smoothness)
     check_mesh_options(mesh)  # whatever --model: a bad value is refused before any work
     result = fit_capture(capture, out, model=model, settings=settings, bin_width_ps=bin_width_ps, n_patches=patches,
                          patch_side_m=patch_side_m, resume=resume, overwrite=overwrite, progress=progress,

@@ -64,6 +64,10 @@ def _blur_time(x: np.ndarray, sigma_bins: float) -> np.ndarray:
     return gaussian_filter1d(x, sigma_bins, axis=-1, mode="constant", truncate=4.0)
 
 
+#: The model mesh's face attribute holding a per-face reflectance (``reflectance="face"``).
+FACE_REFLECTANCE = "face_reflectance"
+
+
 class CaptureModel:
     """A counts capture and the forward model that fits it.
 
@@ -83,6 +87,10 @@ class CaptureModel:
     patch_cells, error_estimate : int, bool
         The quadrature's cells per pixel patch side, and whether its renders integrate the error estimate's levels
         (:data:`FIT_QUADRATURE`: the models' fits' choice).
+    reflectance : str
+        ``global``: one diffuse reflectance for the model mesh; ``face``: one per face (the mesh's face attribute
+        ``face_reflectance`` through a ``mesh_attribute`` texture; :meth:`set_mesh` takes ``[F]`` values and
+        :meth:`backward` returns ``[F]`` derivatives).
 
     Attributes
     ----------
@@ -92,8 +100,9 @@ class CaptureModel:
     """
 
     def __init__(self, capture_dir, faces: np.ndarray, n_vertices: int, *, bin_width_ps: float = 10.0,
-                 albedo: float = 0.5, estimator: str = "auto", element_size_m: float = 0.03,
-                 dead_time: str = "first_order", patch_cells: int = 2, error_estimate: bool = True):
+                 albedo=0.5, estimator: str = "auto", element_size_m: float = 0.03,
+                 dead_time: str = "first_order", patch_cells: int = 2, error_estimate: bool = True,
+                 reflectance: str = "global"):
         self.capture_dir = Path(capture_dir)
         if dead_time not in ("first_order", "renewal"):
             raise ValueError(f"dead_time={dead_time!r}: expected first_order or renewal")
@@ -101,6 +110,9 @@ class CaptureModel:
         #: ``renewal``: the detector's whole-blind-cycles mean and its full derivative
         #: (:class:`~spad_detector.likelihood.RenewalExpectedCounts`; the free-mesh fit).
         self.dead_time = dead_time
+        if reflectance not in ("global", "face"):
+            raise ValueError(f"reflectance={reflectance!r}: expected global or face")
+        self.reflectance = reflectance
         m = read_manifest(self.capture_dir)
         if m.get("kind") != "counts":
             raise UserInputError(f"capture {str(self.capture_dir)!r} holds {m.get('kind')!r} data; fit needs a "
@@ -236,7 +248,10 @@ class CaptureModel:
         if not wall:
             raise UserInputError(f"capture {str(self.capture_dir)!r}: its scene has no shape with id {RELAY_WALL_ID}")
         self.mesh = mi.Mesh("model", int(n_vertices), len(faces), has_vertex_normals=False,
-                            props=self._mesh_props(albedo))
+                            props=self._mesh_props(albedo, self.reflectance))
+        if self.reflectance == "face":
+            self.mesh.add_attribute(FACE_REFLECTANCE, 1, np.broadcast_to(
+                np.asarray(albedo, dtype=np.float64).ravel(), (len(faces),)).astype(np.float32).tolist())
         mp = mi.traverse(self.mesh)
         mp["faces"] = mi.UInt32(np.asarray(faces, dtype=np.uint32).ravel())
         mp["vertex_positions"] = dr.zeros(mi.Float, 3 * int(n_vertices))
@@ -252,7 +267,8 @@ class CaptureModel:
         self.integrator.nlos_options["hidden_geometry_prob"] = 1.0
         self.params = mi.traverse(self.scene)
         self.vkey = "model.vertex_positions"
-        self.rkey = [k for k in self.params.keys() if k.startswith("model.bsdf.reflectance")][0]
+        self.rkey = (f"model.{FACE_REFLECTANCE}" if self.reflectance == "face" else
+                     [k for k in self.params.keys() if k.startswith("model.bsdf.reflectance")][0])
         self.spots = list(range(self.n_spots)) if self.manifest["capture"] == "array" else [0]
 
     def _choose_estimator(self, requested: str, element_size_m: float, patch_cells: int,
@@ -296,15 +312,22 @@ class CaptureModel:
             self.integrator.nlos_options["element_size_m"] = float(element_size_m)
 
     @staticmethod
-    def _mesh_props(albedo: float) -> mi.Properties:
+    def _mesh_props(albedo, reflectance: str = "global") -> mi.Properties:
         props = mi.Properties()
-        props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": float(albedo)}})
+        tex = ({"type": "mesh_attribute", "name": FACE_REFLECTANCE} if reflectance == "face" else
+               {"type": "rgb", "value": float(albedo)})
+        props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": tex})
         return props
 
-    def set_mesh(self, vertices: np.ndarray, albedo: float) -> None:
-        """Model mesh vertices ``[V, 3]`` (metres, world frame) and reflectance."""
+    def set_mesh(self, vertices: np.ndarray, albedo) -> None:
+        """Model mesh vertices ``[V, 3]`` (metres, world frame) and reflectance (a float; with
+        ``reflectance="face"`` a float for every face or ``[F]``)."""
         self.params[self.vkey] = mi.Float(np.asarray(vertices, dtype=np.float32).ravel())
-        self.params[self.rkey] = type(self.params[self.rkey])(float(albedo))
+        if self.reflectance == "face":
+            n = dr.width(self.params[self.rkey])
+            self.params[self.rkey] = mi.Float(np.broadcast_to(np.asarray(albedo, dtype=np.float32).ravel(), (n,)))
+        else:
+            self.params[self.rkey] = type(self.params[self.rkey])(float(albedo))
         self.params.update()
 
     def _set_sigma(self, sigma_ps: float) -> None:
@@ -344,7 +367,8 @@ class CaptureModel:
 
     def backward(self, grad_mu: np.ndarray, ideal_ref: np.ndarray, seed: int, spp: int,
                  sigma_ps: float, factor: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-        """Gradient of ``<grad_mu, mu>`` with respect to the mesh vertices ``[V, 3]`` and the reflectance.
+        """Gradient of ``<grad_mu, mu>`` with respect to the mesh vertices ``[V, 3]`` and the reflectance (a float;
+        ``[F]`` with ``reflectance="face"``).
 
         ``ideal_ref`` is the ideal capture the detector layer is linearised at (pile-up; ``factor``: its
         :meth:`dead_time_factor`, if already computed); the render runs with ``seed`` (use one independent of
@@ -371,7 +395,8 @@ class CaptureModel:
                 nlos_backward(self.integrator, self.scene, self.params, g_ideal.astype(np.float32).reshape(shape),
                               self.sensor, int(seed), int(spp), spots=self.spots)
             gv = np.asarray(dr.grad(self.params[self.vkey]), dtype=np.float64).reshape(-1, 3)
-            gr = float(np.sum(np.asarray(dr.grad(self.params[self.rkey]), dtype=np.float64)))
+            gr_all = np.asarray(dr.grad(self.params[self.rkey]), dtype=np.float64)
+            gr = gr_all.ravel().copy() if self.reflectance == "face" else float(np.sum(gr_all))
         finally:
             dr.disable_grad(self.params[self.vkey])
             dr.disable_grad(self.params[self.rkey])

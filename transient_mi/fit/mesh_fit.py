@@ -20,7 +20,10 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
                        the objective per iteration (data + regularisers), the Poisson NLL of the counts under
                        the start and the fit, metrics of the fit, of the start (its mesh voxelised on the same
                        grid) and of the backprojection against the scene's hidden shapes
-   ``fitted.ply``      the fitted mesh; ``start.ply`` the start mesh; ``aligned.ply`` the start after the
+   ``fitted.ply``      the fitted mesh (with ``reflectance="face"`` each face carries its fitted reflectance,
+                       the float property ``reflectance_0``, Mitsuba's name for a one-channel attribute: its PLY
+                       loader makes it the face attribute ``face_reflectance``, which a ``mesh_attribute``
+                       texture reads); ``start.ply`` the start mesh; ``aligned.ply`` the start after the
                        alignment
    ``loss.png``        the objective per iteration and the temporal blur
    ``fit.png``         front views (depth maps): ground truth, backprojection, fit
@@ -50,6 +53,9 @@ __all__ = ["MeshSettings", "fit_mesh_capture"]
 _OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "aligned.ply", "start.json", "align.json", "loss.png", "fit.png",
             "views.png", "checkpoint.json", "stage.json", "config.json")
 _STARTS = ("front", "closed")
+_REFLECTANCES = ("global", "face")
+#: fitted.ply's face property of a per-face reflectance (Mitsuba's PLY loader: the attribute ``face_reflectance``).
+FACE_PLY_PROPERTY = "reflectance_0"
 
 
 @dataclass(frozen=True)
@@ -68,6 +74,8 @@ class MeshSettings:
     step_m: float = 0.003  # Adam's step per iteration at the start
     moments: str = "uniform"  # Adam's second moments of the vertices: uniform (one) or vertex (one per vertex)
     align: int = 8  # Levenberg-Marquardt iterations of the global affine map and reflectance first (0: none)
+    reflectance: str = "global"  # global (one reflectance) | face (one per face, held smooth by albedo_smoothness)
+    albedo_smoothness: float = 1.0  # weight of the per-face reflectance's smoothness (mesh_regularizers)
 
 
 def check_mesh_options(mesh: MeshSettings) -> None:
@@ -78,7 +86,9 @@ def check_mesh_options(mesh: MeshSettings) -> None:
         raise UserInputError(f"cell_m={mesh.cell_m!r}: expected a length in metres from 0.005 to 0.5")
     if isinstance(mesh.stages, bool) or not isinstance(mesh.stages, (int, np.integer)) or not 1 <= mesh.stages <= 3:
         raise UserInputError(f"stages={mesh.stages!r}: expected a whole number from 1 to 3")
-    for name in ("smoothing", "laplacian", "edge", "normal"):
+    if mesh.reflectance not in _REFLECTANCES:
+        raise UserInputError(f"--reflectance {mesh.reflectance!r} is not known; allowed: {', '.join(_REFLECTANCES)}")
+    for name in ("smoothing", "laplacian", "edge", "normal", "albedo_smoothness"):
         v = getattr(mesh, name)
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
             raise UserInputError(f"{name}={v!r}: expected a finite number >= 0")
@@ -104,12 +114,13 @@ def stage_starts(n: int, stages: int) -> list[int]:
     return [round(half * k / (stages - 1)) for k in range(stages - 1)] + [half]
 
 
-def _capture_model(capture, v, f, settings, bin_width_ps):
+def _capture_model(capture, v, f, settings, bin_width_ps, reflectance: str = "global"):
     from .capture_model import CaptureModel
 
     try:  # (always the quadrature, whatever settings.estimator says: see the module docstring)
         return CaptureModel(capture, np.asarray(f, dtype=np.uint32), len(v), bin_width_ps=bin_width_ps,
-                            estimator="quadrature", element_size_m=settings.element_size_m, dead_time="renewal")
+                            estimator="quadrature", element_size_m=settings.element_size_m, dead_time="renewal",
+                            reflectance=reflectance)
     except UserInputError as e:
         if not str(e).startswith("estimator=quadrature:"):
             raise
@@ -121,8 +132,10 @@ def _capture_model(capture, v, f, settings, bin_width_ps):
 def _model(v, f, albedo, mesh: MeshSettings, reg_scale: float):
     from .mesh_model import MeshModel
 
-    w = RegularizerWeights(laplacian=mesh.laplacian, edge=mesh.edge, normal=mesh.normal)
-    model = MeshModel(v, f, albedo, smoothing=mesh.smoothing, weights=w, step_m=mesh.step_m, reg_scale=reg_scale)
+    w = RegularizerWeights(laplacian=mesh.laplacian, edge=mesh.edge, normal=mesh.normal,
+                           albedo=mesh.albedo_smoothness)
+    model = MeshModel(v, f, albedo, smoothing=mesh.smoothing, weights=w, step_m=mesh.step_m, reg_scale=reg_scale,
+                      reflectance=mesh.reflectance)
     model.moments = mesh.moments
     return model
 
@@ -147,15 +160,21 @@ def _match_albedo(model, cap, settings) -> float:
         cap.set_element_size(element_size(0, settings.iterations, settings.element_size_m))
     mu = cap.expected_counts(cap.ideal(0, 0, cap.jitter_sigma_ps))
     total = float(mu.sum())
-    a = model.albedo(th) * cap.counts.sum() / total if total > 0 else model.albedo(th)
+    a = model.albedo_ref * cap.counts.sum() / total if total > 0 else model.albedo_ref
     return float(np.clip(a, 0.01, 1.0))
 
 
-def _write_stage(path: Path, stage: int, v, f, albedo: float, reg_scale: float) -> None:
+def _albedo_json(albedo):
+    """A reflectance for the stage file: a float, or a list (one per face)."""
+    a = np.asarray(albedo, dtype=np.float64)
+    return float(a) if a.ndim == 0 else a.ravel().tolist()
+
+
+def _write_stage(path: Path, stage: int, v, f, albedo, reg_scale: float) -> None:
     from .outputs import _write_text
 
     _write_text(path, json.dumps({"stage": int(stage), "vertices": np.asarray(v).tolist(),
-                                  "faces": np.asarray(f, dtype=np.int64).tolist(), "albedo": float(albedo),
+                                  "faces": np.asarray(f, dtype=np.int64).tolist(), "albedo": _albedo_json(albedo),
                                   "reg_scale": float(reg_scale)}) + "\n")
 
 
@@ -192,14 +211,14 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
         else:
             st = json.loads(stage_file.read_text())
             v0, f0 = np.asarray(st["vertices"]), np.asarray(st["faces"])
-        cap = _capture_model(capture, v0, f0, settings, bin_width_ps)
+        cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance)
         if not resuming:  # (the start's faces across the device's lines of sight dropped: mesh_start)
             from .mesh_start import clear_view, device_sight_lines
 
             v1, f1 = clear_view(v0, f0, *device_sight_lines(cap.sensor, cap.scene, cap.width, cap.height))
             if len(f1) != len(f0):
                 v0, f0 = v1, f1
-                cap = _capture_model(capture, v0, f0, settings, bin_width_ps)
+                cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance)
         # (everything checked: only now is anything written)
         if existing and overwrite and not resume:
             for name in _OUTPUTS:
@@ -210,8 +229,9 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
         if resuming:
             state = FitState.load(ckpt)
             stage, reg_scale = int(st["stage"]), float(st["reg_scale"])
-            model = _model(v0, f0, float(st["albedo"]), replace(mesh, step_m=mesh.step_m / 2 ** stage), reg_scale)
-            if len(state.theta) != 3 * len(v0) + 1:  # (stopped between a stage's mesh and its first checkpoint)
+            model = _model(v0, f0, np.asarray(st["albedo"], dtype=np.float64),
+                           replace(mesh, step_m=mesh.step_m / 2 ** stage), reg_scale)
+            if len(state.theta) != len(model.initial()):  # (stopped between a stage's mesh and its first checkpoint)
                 k = starts[stage]
                 state = FitState(theta=model.initial().tolist(), iteration=k, history=state.history[:k],
                                  elapsed_s=state.elapsed_s)
@@ -257,11 +277,12 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
 
                 theta = np.asarray(state.theta)
                 v1, f1 = subdivide(model.vertices(theta), model.faces)
+                a1 = model.albedo(theta)  # (per face: each face's four children, consecutive, inherit it)
+                a1 = a1 if mesh.reflectance == "global" else np.repeat(a1, 4)
                 stage += 1
-                cap = _capture_model(capture, v1, f1, settings, bin_width_ps)
-                model = _model(v1, f1, model.albedo(theta), replace(mesh, step_m=mesh.step_m / 2 ** stage),
-                               reg_scale)
-                _write_stage(stage_file, stage, v1, f1, model.albedo(theta), reg_scale)
+                cap = _capture_model(capture, v1, f1, settings, bin_width_ps, mesh.reflectance)
+                model = _model(v1, f1, a1, replace(mesh, step_m=mesh.step_m / 2 ** stage), reg_scale)
+                _write_stage(stage_file, stage, v1, f1, a1, reg_scale)
                 state = FitState(theta=model.initial().tolist(), iteration=state.iteration, history=state.history,
                                  elapsed_s=state.elapsed_s)
                 state.save(ckpt)
@@ -295,11 +316,12 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
     if hasattr(cap, "set_element_size"):
         cap.set_element_size(settings.element_size_m)
     nll = {"fit": _nll(cap, fitted.vertices, fitted.faces, model.albedo(theta))}
-    cap0 = _capture_model(capture, sv, sf, settings, bin_width_ps)
+    cap0 = _capture_model(capture, sv, sf, settings, bin_width_ps, model.reflectance)
     cap0.set_element_size(settings.element_size_m) if hasattr(cap0, "set_element_size") else None
     nll["start"] = _nll(cap0, np.asarray(sv), sf, float(salb))
     del cap0
-    write_ply(out / "fitted.ply", fitted.vertices, fitted.faces)
+    write_ply(out / "fitted.ply", fitted.vertices, fitted.faces,
+              {FACE_PLY_PROPERTY: model.albedo(theta)} if model.reflectance == "face" else None)
     write_ply(out / "start.ply", start_mesh.vertices, start_mesh.faces)
     align = json.loads((out / "align.json").read_text())
     aligned = trimesh.Trimesh(vertices=np.asarray(align["vertices"]), faces=np.asarray(sf, dtype=np.int64),
@@ -323,7 +345,7 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
                        "start": {"albedo": float(salb), "n_vertices": int(len(sv)), "n_faces": int(len(sf)),
                                  "source": mcfg["start_mesh"] or f"backprojection ({mcfg['start']})"},
                        "fit": model.as_dict(theta), "truth": None, "error": None},
-        "regularizer": {"scale": model.reg_scale, "parts_at_fit": model.regularization(fitted.vertices)[2]},
+        "regularizer": {"scale": model.reg_scale, "parts_at_fit": model.total_regularization(theta)[1]},
         "estimator": {"used": cap.estimator, "element_size_m": cap.element_size_m},
         "poisson_nll": {**nll, "counts": float(cap.counts.sum())},
         "metrics": metrics,

@@ -11,9 +11,13 @@ receive little light still moves with its neighbours, and high-frequency noise i
 crumple the surface (Nicolet, Jacobson and Jakob 2021, "Large steps in inverse rendering of geometry"). At
 ``lambda = 0`` it is plain per-vertex descent.
 
-One reflectance for the whole mesh (the capture model's single diffuse BSDF); a per-vertex reflectance is
-not fitted: at three-bounce light a brighter patch and a larger or nearer one are nearly the same data, and
-the shape is what is asked for.
+Reflectance: one for the whole mesh by default (``reflectance="global"``: the capture model's single diffuse
+BSDF), or one per face (``reflectance="face"``: ``theta = [u, rho_1 .. rho_F]``, a diffuse BSDF whose reflectance
+is the mesh's face attribute ``face_reflectance``), held smooth across edges by
+:func:`~transient_mi.fit.mesh_regularizers.albedo_regularizer`. At three-bounce light a brighter patch and a larger
+or nearer one are nearly the same data: per-face reflectance is for hidden objects whose reflectance varies (two
+materials), and its smoothness weight (``albedo``, 1 by default) says how much of a change the data must carry.
+At a stage's subdivision each face's four children inherit its reflectance.
 
 The objective the gradient belongs to
 -------------------------------------
@@ -30,7 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from .mesh_regularizers import MeshTopology, RegularizerWeights, laplacian_matrix, regularizer
+from .mesh_regularizers import MeshTopology, RegularizerWeights, albedo_regularizer, laplacian_matrix, regularizer
 
 __all__ = ["MeshModel"]
 
@@ -45,8 +49,10 @@ class MeshModel:
     faces : numpy.ndarray
         ``[F, 3]`` vertex indices, wound so that the normals face the wall (a diffuse surface reflects on its
         front side only).
-    albedo : float
-        Start reflectance.
+    albedo : float or numpy.ndarray
+        Start reflectance: one value, or ``[F]`` (one per face, with ``reflectance="face"``).
+    reflectance : str
+        ``global`` (one reflectance) or ``face`` (one per face; a single ``albedo`` is given to every face).
     smoothing : float
         ``lambda`` of ``M = I + lambda L`` (0: per-vertex steps).
     weights : RegularizerWeights
@@ -59,8 +65,9 @@ class MeshModel:
 
     name = "mesh"
 
-    def __init__(self, vertices, faces, albedo: float = 0.5, *, smoothing: float = 10.0,
-                 weights: RegularizerWeights | None = None, step_m: float = 0.003, reg_scale: float = 1.0):
+    def __init__(self, vertices, faces, albedo=0.5, *, smoothing: float = 10.0,
+                 weights: RegularizerWeights | None = None, step_m: float = 0.003, reg_scale: float = 1.0,
+                 reflectance: str = "global"):
         x = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
         self.faces = np.asarray(faces, dtype=np.uint32).reshape(-1, 3)
         self.n_vertices = len(x)
@@ -73,13 +80,24 @@ class MeshModel:
         M = (sp.identity(self.n_vertices) + self.smoothing * laplacian_matrix(self.topology)).tocsc()
         self._M = M
         self._lu = splu(M)
+        if reflectance not in ("global", "face"):
+            raise ValueError(f"reflectance={reflectance!r}: expected global or face")
+        self.reflectance = reflectance
         self.names = ["u", "albedo"]  # (theta is long: fit.json summarises it, the meshes are in PLY files)
         n = 3 * self.n_vertices
-        self.lower = np.concatenate([np.full(n, -np.inf), [0.01]])
-        self.upper = np.concatenate([np.full(n, np.inf), [1.0]])
-        self.step = np.concatenate([np.full(n, float(step_m)), [0.01]])
+        #: The vertex block's length in ``theta`` (the reflectance follows: 1 value, or one per face).
+        self.n_u = n
+        na = len(self.faces) if reflectance == "face" else 1
+        a = np.asarray(albedo, dtype=np.float64).ravel()
+        if a.size not in (1, na):
+            raise ValueError(f"albedo: {a.size} values for {na} reflectance parameters")
+        self.lower = np.concatenate([np.full(n, -np.inf), np.full(na, 0.01)])
+        self.upper = np.concatenate([np.full(n, np.inf), np.full(na, 1.0)])
+        self.step = np.concatenate([np.full(n, float(step_m)), np.full(na, 0.01)])
         self.start_vertices = x.copy()
-        self.start_albedo = float(albedo)
+        self.start_albedo = np.broadcast_to(a, (na,)).copy()
+        #: The reflectance the smoothness energy measures changes against (the start's mean).
+        self.albedo_ref = float(self.start_albedo.mean())
 
     # --- parametrisation --------------------------------------------------------------------------------
 
@@ -87,23 +105,32 @@ class MeshModel:
         """``theta`` of the start mesh."""
         return self.theta_of(self.start_vertices, self.start_albedo)
 
-    def theta_of(self, vertices, albedo: float) -> np.ndarray:
+    def theta_of(self, vertices, albedo) -> np.ndarray:
         x = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-        return np.concatenate([(self._M @ x).ravel(), [float(albedo)]])
+        na = len(self.start_albedo)
+        return np.concatenate([(self._M @ x).ravel(),
+                               np.broadcast_to(np.asarray(albedo, dtype=np.float64).ravel(), (na,))])
 
     def vertices(self, theta) -> np.ndarray:
         """``[V, 3]`` vertices (m) of ``theta``."""
-        u = np.asarray(theta[:-1], dtype=np.float64).reshape(-1, 3)
+        u = np.asarray(theta[:self.n_u], dtype=np.float64).reshape(-1, 3)
         return self._lu.solve(u)
 
-    def albedo(self, theta) -> float:
-        return float(theta[-1])
+    def albedo(self, theta):
+        """The reflectance of ``theta``: a float (``reflectance="global"``) or ``[F]`` (``"face"``)."""
+        a = np.asarray(theta[self.n_u:], dtype=np.float64)
+        return float(a[0]) if self.reflectance == "global" else a.copy()
 
     def as_dict(self, theta) -> dict:
         x = self.vertices(theta)
         lo, hi = x.min(axis=0), x.max(axis=0)
-        return {"albedo": float(theta[-1]), "n_vertices": int(self.n_vertices), "n_faces": int(len(self.faces)),
-                "bbox_min_m": lo.tolist(), "bbox_max_m": hi.tolist()}
+        a = np.asarray(theta[self.n_u:], dtype=np.float64)
+        out = {"albedo": float(a.mean()), "n_vertices": int(self.n_vertices), "n_faces": int(len(self.faces)),
+               "bbox_min_m": lo.tolist(), "bbox_max_m": hi.tolist(), "reflectance": self.reflectance}
+        if self.reflectance == "face":  # (the values: fitted.ply's face property "reflectance")
+            out.update(albedo_min=float(a.min()), albedo_max=float(a.max()),
+                       albedo_p10_p90=[float(np.percentile(a, 10)), float(np.percentile(a, 90))])
+        return out
 
     # --- objective --------------------------------------------------------------------------------------
 
@@ -112,16 +139,37 @@ class MeshModel:
         r, g, parts = regularizer(x, self.topology, self.h0, self.weights)
         return self.reg_scale * r, self.reg_scale * g, parts
 
-    def gradient(self, theta, grad_vertices: np.ndarray, grad_albedo: float, area_term: bool = False) -> np.ndarray:
+    def albedo_regularization(self, theta) -> tuple[float, np.ndarray, float]:
+        """``(S w E_albedo, S w dE/drho [F], E_albedo)`` of a per-face reflectance (zeros for a global one: it has
+        no neighbours)."""
+        if self.reflectance == "global":
+            return 0.0, np.zeros(1), 0.0
+        e, g = albedo_regularizer(np.asarray(theta[self.n_u:], dtype=np.float64), self.topology.face_pairs,
+                                  self.albedo_ref)
+        w = self.reg_scale * self.weights.albedo
+        return w * e, w * g, e
+
+    def total_regularization(self, theta) -> tuple[float, dict]:
+        """``(S R, parts)``: the vertices' regularisers and, with per-face reflectance, its smoothness (parts
+        unweighted and unscaled)."""
+        r, _, parts = self.regularization(self.vertices(theta))
+        ra, _, ea = self.albedo_regularization(theta)
+        if self.reflectance == "face":
+            parts = dict(parts, albedo=ea)
+        return r + ra, parts
+
+    def gradient(self, theta, grad_vertices: np.ndarray, grad_albedo, area_term: bool = False) -> np.ndarray:
         """``d(data + S R)/dtheta`` from the data term's gradient with respect to the vertices ``[V, 3]`` and the
-        reflectance. ``area_term`` must be False: a free mesh's area change is in the vertex gradient only with
-        the quadrature's (the Monte Carlo renderer's lacks it, and no closed form exists for a free deformation)."""
+        reflectance (a float, or ``[F]`` per face). ``area_term`` must be False: a free mesh's area change is in
+        the vertex gradient only with the quadrature's (the Monte Carlo renderer's lacks it, and no closed form
+        exists for a free deformation)."""
         if area_term:
             raise ValueError("--model mesh needs the quadrature's vertex gradient (area changes included)")
         x = self.vertices(theta)
         _, gr, _ = self.regularization(x)
         gx = np.asarray(grad_vertices, dtype=np.float64).reshape(-1, 3) + gr
-        return np.concatenate([self._lu.solve(gx).ravel(), [float(grad_albedo)]])
+        ga = np.asarray(grad_albedo, dtype=np.float64).ravel() + self.albedo_regularization(theta)[1]
+        return np.concatenate([self._lu.solve(gx).ravel(), ga])
 
     def mesh(self, theta):
         import trimesh

@@ -10,7 +10,8 @@ Nicolet et al. 2021: the largest of the coordinates' second moments, one scalar)
 a vertex whose elements receive almost no light (a tiny gradient) a full step; the uniform moment keeps the
 vertices' steps proportional to their gradients. ``moments="vertex"``: one moment per vertex (the mean of its
 three coordinates'), floored at a thousandth of the largest: every vertex with a real gradient moves by about
-the step. The reflectance has its own moment. Step sizes decay on a cosine
+the step. The reflectance has its own moment (per face with ``reflectance="face"``, floored at a thousandth of
+the largest). Step sizes decay on a cosine
 (:func:`~transient_mi.fit.optimize.step_scale`); the result is the mean of the last quarter's iterates (within
 the last stage).
 
@@ -94,7 +95,7 @@ def regularized_objective(model, capture, theta, sigma_ps: float, *, end_ps: flo
     factor = capture.dead_time_factor(ideal)
     mu = capture.expected_counts(ideal, factor)
     data, resid = capture.objective(capture.blur(mu, end, sigma_ps), sigma_ps)
-    reg, _, _ = model.regularization(model.vertices(theta))
+    reg, _ = model.total_regularization(theta)
     g = None
     if gradient:
         gv, ga = capture.backward(capture.blur(resid, end, sigma_ps), ideal, seed + 1, spp_d, end, factor)
@@ -119,7 +120,8 @@ def run_mesh_adam(model, capture, state: FitState, settings, *, stage_start: int
                   progress=None, checkpoint=None) -> FitState:
     """Optimise ``state.theta`` in place from ``state.iteration`` to ``stop`` (default ``settings.iterations``,
     the global count the schedules run over) for a stage that began at ``stage_start`` (Adam's bias correction
-    counts from there). ``state.v`` holds ``[v_vertices, v_albedo]`` (uniform moments).
+    counts from there). ``state.v`` holds ``[v_vertices, v_albedo]`` (the vertices' uniform or per-vertex moments,
+    then one per reflectance value: one, or one per face).
     ``progress(i, n, objective)`` after each iteration; ``checkpoint(state)`` every
     ``settings.checkpoint_every`` iterations and at ``stop``."""
     n = settings.iterations
@@ -144,24 +146,32 @@ def run_mesh_adam(model, capture, state: FitState, settings, *, stage_start: int
         mu_end = capture.expected_counts(ideal_end, factor)
         obj_end, _ = capture.objective(mu_end, end)
         obj, resid = capture.objective(capture.blur(mu_end, end, sigma), sigma)
-        reg, _, _ = model.regularization(x)
+        reg, _ = model.total_regularization(theta)
         gv, ga = capture.backward(capture.blur(resid, end, sigma), ideal_end, seed + 1, spp, end, factor)
         g = model.gradient(theta, gv, ga)
         g = np.where(np.isfinite(g), g, 0.0)
         m = b1 * m + (1 - b1) * g
-        gu, ga2 = g[:-1], g[-1]
+        nu = getattr(model, "n_u", len(g) - 1)
+        gu, ga2 = g[:nu], g[nu:]  # (the vertex block, then the reflectance: one value or one per face)
         per_vertex = getattr(model, "moments", "uniform") == "vertex"
         sq = np.mean((gu * gu).reshape(-1, 3), axis=1) if per_vertex else np.array([float(np.max(gu * gu))])
-        if len(v2) != len(sq) + 1:
-            v2 = np.zeros(len(sq) + 1)
-        v2 = b2 * v2 + (1 - b2) * np.concatenate([sq, [ga2 * ga2]])
+        na = len(ga2)
+        if len(v2) != len(sq) + na:
+            v2 = np.zeros(len(sq) + na)
+        # (the reflectance: one moment per value, as Adam's own; per face, floored as the vertices' per-vertex ones:
+        # a face's reflectance moves at the step where its data agree, however faint its light)
+        v2 = b2 * v2 + (1 - b2) * np.concatenate([sq, ga2 * ga2])
         k = i - stage_start + 1
         mh = m / (1 - b1 ** k)
         vh = v2 / (1 - b2 ** k)
-        dv = np.repeat(np.sqrt(vh[:-1]), 3) if per_vertex else np.full(len(gu), np.sqrt(vh[0]))
+        nv = len(vh) - na
+        dv = np.repeat(np.sqrt(vh[:nv]), 3) if per_vertex else np.full(len(gu), np.sqrt(vh[0]))
         if per_vertex:  # (a floor: vertices whose gradient is a millionth of the largest stay put)
             dv = np.maximum(dv, 1e-3 * float(np.max(dv)))
-        denom = np.concatenate([dv, [np.sqrt(vh[-1])]]) + 1e-30
+        da = np.sqrt(vh[nv:])
+        if na > 1:
+            da = np.maximum(da, 1e-3 * float(np.max(da)))
+        denom = np.concatenate([dv, da]) + 1e-30
         theta = _keep_the_view(model, capture, theta,
                                np.clip(theta - step_scale(i, n) * model.step * mh / denom, model.lower, model.upper))
         if i >= tail_from:

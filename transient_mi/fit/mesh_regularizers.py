@@ -13,7 +13,11 @@ mean edge length), so its weight does not depend on the mesh's size or resolutio
 * **edge length** ``E_edge = mean_e ((|e| - h0) / h0)^2`` (pytorch3d's ``mesh_edge_loss``): keeps triangles
   from degenerating while the vertices move;
 * **normal consistency** ``E_normal = mean_{e interior} (1 - n_a . n_b)`` over the two faces of each interior
-  edge (pytorch3d's ``mesh_normal_consistency``): penalises folds.
+  edge (pytorch3d's ``mesh_normal_consistency``): penalises folds;
+* **reflectance smoothness** (per-face reflectance only, :func:`albedo_regularizer`)
+  ``E_albedo = mean_{e interior} ((rho_a - rho_b) / rho_ref)^2`` over the same face pairs: a change of
+  reflectance costs at the edges where it happens, so two materials meeting along a line cost little and
+  face-to-face noise much.
 
 :func:`laplacian_matrix` is the same adjacency as a sparse symmetric matrix ``L = D - A`` (combinatorial,
 boundary-aware as above), used for the "large steps" parametrisation of :mod:`transient_mi.fit.mesh_model`.
@@ -26,16 +30,18 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["MeshTopology", "RegularizerWeights", "regularizer", "laplacian_matrix"]
+__all__ = ["MeshTopology", "RegularizerWeights", "albedo_regularizer", "regularizer", "laplacian_matrix"]
 
 
 @dataclass(frozen=True)
 class RegularizerWeights:
-    """Weights of the three energies (dimensionless; each is multiplied by the fit's objective scale)."""
+    """Weights of the energies (dimensionless; each is multiplied by the fit's objective scale; ``albedo`` only
+    with per-face reflectance)."""
 
     laplacian: float = 1.0
     edge: float = 0.05
     normal: float = 0.1
+    albedo: float = 1.0
 
 
 class MeshTopology:
@@ -143,3 +149,20 @@ def regularizer(x: np.ndarray, topo: MeshTopology, h0: float, w: RegularizerWeig
         parts["normal"] = 0.0
     total = w.laplacian * parts["laplacian"] + w.edge * parts["edge"] + w.normal * parts["normal"]
     return float(total), g, parts
+
+
+def albedo_regularizer(rho: np.ndarray, face_pairs: np.ndarray, rho_ref: float) -> tuple[float, np.ndarray]:
+    """``(E_albedo, dE/drho [F])`` of per-face reflectances ``rho [F]`` (module docstring) over the interior edges'
+    face pairs ``[P, 2]`` (:attr:`MeshTopology.face_pairs`), changes measured against ``rho_ref`` (> 0); 0 without
+    interior edges."""
+    rho = np.asarray(rho, dtype=np.float64)
+    g = np.zeros_like(rho)
+    if len(face_pairs) == 0:
+        return 0.0, g
+    d = (rho[face_pairs[:, 0]] - rho[face_pairs[:, 1]]) / rho_ref
+    n = len(face_pairs)
+    e = float(np.mean(d * d))
+    c = 2.0 * d / (rho_ref * n)
+    np.add.at(g, face_pairs[:, 0], c)
+    np.add.at(g, face_pairs[:, 1], -c)
+    return e, g

@@ -18,7 +18,7 @@ from transient_core.atomic import atomic_file
 from transient_core.errors import UserInputError
 
 
-def ply_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:
+def ply_bytes(vertices: np.ndarray, faces: np.ndarray, face_values: dict | None = None) -> bytes:
     """Binary little-endian PLY of a triangle mesh.
 
     Parameters
@@ -27,9 +27,14 @@ def ply_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:
         Positions in metres (stored as float32).
     faces : ndarray, shape (F, 3)
         Vertex indices of each triangle, counter-clockwise seen from outside.
+    face_values : dict of str to ndarray, shape (F,), optional
+        Float32 face properties after the indices. Mitsuba's PLY loader reads a property ``<name>_0`` as the
+        one-channel face attribute ``face_<name>`` (which a ``mesh_attribute`` texture reads) and ignores a name
+        without that postfix.
     """
     v = np.ascontiguousarray(vertices, dtype="<f4")
     f = np.asarray(faces, dtype="<i4")
+    extra = dict(face_values or {})
     header = (
         "ply\n"
         "format binary_little_endian 1.0\n"
@@ -38,11 +43,14 @@ def ply_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:
         "property float x\nproperty float y\nproperty float z\n"
         f"element face {len(f)}\n"
         "property list uchar int vertex_indices\n"
-        "end_header\n"
+        + "".join(f"property float {name}\n" for name in extra)
+        + "end_header\n"
     ).encode("ascii")
-    rec = np.empty(len(f), dtype=[("n", "u1"), ("idx", "<i4", (3,))])
+    rec = np.empty(len(f), dtype=[("n", "u1"), ("idx", "<i4", (3,))] + [(name, "<f4") for name in extra])
     rec["n"] = 3
     rec["idx"] = f
+    for name, values in extra.items():
+        rec[name] = np.asarray(values, dtype=np.float64).ravel()
     return header + v.tobytes() + rec.tobytes()
 
 
@@ -69,6 +77,6 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes, what: str = "output
     return p
 
 
-def write_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray) -> Path:
-    """Write a triangle mesh as binary PLY, atomically. Returns the path."""
-    return write_bytes_atomic(path, ply_bytes(vertices, faces), what="output mesh")
+def write_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray, face_values: dict | None = None) -> Path:
+    """Write a triangle mesh as binary PLY, atomically (``face_values``: :func:`ply_bytes`). Returns the path."""
+    return write_bytes_atomic(path, ply_bytes(vertices, faces, face_values), what="output mesh")
