@@ -23,6 +23,72 @@ def fit_mesh_plane_table(R) -> str:
     return _table(R("fit_mesh_tilted_plane"))
 
 
+def fit_mesh_full_table(R) -> str:
+    """The letter and the tilted plane at the issue's full size (16 x 16 pixels, 4 x 4 spots): start -> aligned ->
+    fit per metric and the targets."""
+    recs = [R("fit_mesh_letter_16"), R("fit_mesh_tilted_plane_16")]
+    rows = ["| scene | Chamfer, surface to surface (<= 0.5 cm) | silhouette IoU (>= 0.8) | occupancy IoU "
+            "| triangles | time (align + fit, wall) |", "|---|---|---|---|---|---|"]
+    captures = []
+    for rec in recs:
+        r = rec["result"]
+        m, t = r["metrics"], r["targets"]
+
+        def arrow(key, fmt):
+            return " -> ".join(fmt(m[c][key]) for c in ("start", "aligned", "fit") if c in m)
+
+        rows.append(f"| {r['scene'].removeprefix('nlos_').replace('_', ' ')} "
+                    f"| {arrow('chamfer_mesh_m', _cm)}: {'met' if t['met']['chamfer'] else 'not met'} "
+                    f"| {arrow('silhouette_iou', _f)}: {'met' if t['met']['silhouette_iou'] else 'not met'} "
+                    f"| {arrow('iou', _f)} | {r['n_faces']['start']} -> {r['n_faces']['fit']} "
+                    f"| {r['time_s']['fit_wall']:.0f} s |")
+        captures.append(f"{r['scene'].removeprefix('nlos_').replace('_', ' ')}: {_capture(r)} "
+                        f"({provenance(rec).strip()})")
+    r0 = recs[0]["result"]
+    head = (f"Start -> aligned -> fit at the issue's full size ({r0['width']} x {r0['width']} pixels of "
+            f"{32 / r0['width']:g} cm, {r0['spots']} x {r0['spots']} laser spots, {r0['exposure_ms']:g} ms per spot, "
+            f"{r0['align']} alignment iterations, {r0['iterations']} iterations in {r0['stages']} stages from "
+            f"{100 * r0['cell_m']:g} cm cells), `python bench/bench_fit_mesh.py --width 16 --spots 4`:")
+    return head + "\n\n" + "\n".join(rows) + "\n\n" + "; ".join(captures) + "\n"
+
+
+def fit_mesh_mannequin_para(R) -> str:
+    """The paper's mannequin from midpoint-fk's surface within the 5-minute budget, against the issue's targets."""
+    from .common import Missing
+
+    recs = [R("fit_mesh_mannequin")]
+    try:  # (the closed start: a second record, where measured)
+        recs.append(R("fit_mesh_mannequin_closed"))
+    except Missing:
+        pass
+    r = recs[0]["result"]
+    start, t = r["metrics"][r["start"]], r["targets"]
+    rows = ["| | occupancy IoU (>= 0.7) | Chamfer (<= 0.8 cm) | silhouette IoU | depth MAE | triangles | time |",
+            "|---|---|---|---|---|---|---|",
+            f"| {r['start']} | {_f(start['iou'])} | {_cm(start['chamfer_m'])} "
+            f"| {_f(start.get('silhouette_iou'))} | {_cm(start.get('depth_mae_m'))} | | {r['reconstruct_s']:.1f} s |"]
+    for rec in recs:
+        q = rec["result"]
+        fit, t = q["metrics"]["fit"], q["targets"]
+        shape = "closed surface around its voxels" if q.get("start_shape") == "closed" else "front surface"
+        sm = q["metrics"].get("start_mesh")
+        if sm:  # (records from 2026-12-05 on score the start mesh too)
+            rows.append(f"| its {shape} (the start) | {_f(sm['iou'])} | {_cm(sm['chamfer_m'])} "
+                        f"| {_f(sm.get('silhouette_iou'))} | {_cm(sm.get('depth_mae_m'))} | {q['n_faces']['start']} | |")
+        rows.append(f"| fit:mesh from its {shape}, {q['align']} + {q['iterations']} iterations "
+                    f"| {_f(fit['iou'])}: {'met' if t['met']['iou'] else 'not met'} "
+                    f"| {_cm(fit['chamfer_m'])}: {'met' if t['met']['chamfer'] else 'not met'} "
+                    f"| {_f(fit.get('silhouette_iou'))} | {_cm(fit.get('depth_mae_m'))} "
+                    f"| {q['n_faces']['start']} -> {q['n_faces']['fit']} "
+                    f"| {q['fit_wall_s']:.0f} s (<= {t['wall_s_max']:.0f} s: {'met' if t['met']['time'] else 'not met'}) |")
+    head = (f"The paper scene at {r['array']} x {r['array']} pixels, {r['spots']} x {r['spots']} laser spots, "
+            f"{r['exposure_ms']:g} ms per spot (rendered by the quadrature in {r['render_s']:.0f} s), scored on the "
+            f"methods study's grid as the leaderboard's rows; the free mesh from {r['start']}'s reconstruction of the "
+            f"same counts ({r['fit_bin_width_ps']:g} ps bins; time: the fit's wall time, alignment and iterations "
+            f"at the given counts):")
+    return (head + "\n\n" + "\n".join(rows) + "\n\n" + " ".join(provenance(rec) for rec in recs) + "\n")
+
+
 def _capture(r) -> str:
     """How the capture was rendered: its quadrature settings and the rendering-error ratio its detection states."""
     c = r.get("capture")
