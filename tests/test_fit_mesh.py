@@ -26,23 +26,13 @@ from transient_mi.fit.mesh_fit import MeshSettings, _capture_model
 from transient_mi.fit.mesh_model import MeshModel
 from transient_mi.fit.mesh_optimize import regularized_objective
 from transient_mi.fit.mesh_regularizers import MeshTopology, RegularizerWeights, regularizer
+from mesh_helpers import tilted_grid
 
 ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = FitSettings(iterations=2, sigma_start_ps=60.0, element_size_m=0.05)
 
 
-def _grid(n: int, side: float, tilt_deg: float = 30.0, z: float = 0.5):
-    """An ``n x n``-vertex grid of the tilted plane (side ``side``), faces wound towards the wall (-z)."""
-    s = np.linspace(-side / 2, side / 2, n)
-    u, v = np.meshgrid(s, s)
-    a = math.radians(tilt_deg)
-    x = np.stack([u.ravel() * math.cos(a), v.ravel(), z - u.ravel() * math.sin(a)], axis=1)
-    f = []
-    for j in range(n - 1):
-        for i in range(n - 1):
-            q = j * n + i
-            f += [[q, q + n + 1, q + 1], [q, q + n, q + n + 1]]
-    return x, np.array(f)
+_grid = tilted_grid
 
 
 def _tilted_plane_counts(tmp_path_factory, name: str, **defines):

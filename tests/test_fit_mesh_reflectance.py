@@ -12,7 +12,6 @@ quadrature's (deterministic) and the detection seed is fixed: no false-failure r
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -24,28 +23,19 @@ from transient_mi.fit import FitSettings, fit_capture
 from transient_mi.fit.mesh_fit import FACE_PLY_PROPERTY, MeshSettings, _capture_model
 from transient_mi.fit.mesh_model import MeshModel
 from transient_mi.fit.mesh_regularizers import MeshTopology, albedo_regularizer
+from mesh_helpers import tilted_grid
 
 ROOT = Path(__file__).resolve().parents[1]
 DARK, BRIGHT = 0.3, 0.8
 
 
 def _grid(n: int, side: float, tilt_deg: float = 30.0, z: float = 0.5):
-    """An ``n x n``-vertex grid of the tilted plane (side ``side``), faces wound towards the wall (-z), and each
-    face's side of the plane's horizontal midline (-1 below, +1 above: both halves span the same depths, so their
-    light arrives in the same bins; split along the tilt, the farther half's arrives after the nearer's and the
-    paper's detector, piled up by then, holds little of it)."""
-    s = np.linspace(-side / 2, side / 2, n)
-    u, v = np.meshgrid(s, s)
-    a = math.radians(tilt_deg)
-    x = np.stack([u.ravel() * math.cos(a), v.ravel(), z - u.ravel() * math.sin(a)], axis=1)
-    f = []
-    for j in range(n - 1):
-        for i in range(n - 1):
-            q = j * n + i
-            f += [[q, q + n + 1, q + 1], [q, q + n, q + n + 1]]
-    f = np.array(f)
-    side_of = np.sign(v.ravel()[f].mean(axis=1))
-    return x, f, side_of
+    """The tilted plane's grid (:func:`mesh_helpers.tilted_grid`) and each face's side of the plane's horizontal
+    midline (-1 below, +1 above: both halves span the same depths, so their light arrives in the same bins; split
+    along the tilt, the farther half's arrives after the nearer's and the paper's detector, piled up by then,
+    holds little of it)."""
+    x, f = tilted_grid(n, side, tilt_deg, z)
+    return x, f, np.sign(x[f, 1].mean(axis=1))
 
 
 @pytest.fixture(scope="module")

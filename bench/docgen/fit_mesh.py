@@ -13,6 +13,11 @@ def _f(x) -> str:
     return "-" if x is None else f"{x:.2f}"
 
 
+def _arrow(m: dict, key: str, fmt) -> str:
+    """``start -> aligned -> fit`` of one metric (the columns a record has)."""
+    return " -> ".join(fmt(m[c][key]) for c in ("start", "aligned", "fit") if c in m)
+
+
 def fit_mesh_table(R) -> str:
     """The letter: fit, start and backprojection against the scene's hidden shapes, and the targets."""
     return _table(R("fit_mesh_letter"))
@@ -33,14 +38,10 @@ def fit_mesh_full_table(R) -> str:
     for rec in recs:
         r = rec["result"]
         m, t = r["metrics"], r["targets"]
-
-        def arrow(key, fmt):
-            return " -> ".join(fmt(m[c][key]) for c in ("start", "aligned", "fit") if c in m)
-
         rows.append(f"| {r['scene'].removeprefix('nlos_').replace('_', ' ')} "
-                    f"| {arrow('chamfer_mesh_m', _cm)}: {'met' if t['met']['chamfer'] else 'not met'} "
-                    f"| {arrow('silhouette_iou', _f)}: {'met' if t['met']['silhouette_iou'] else 'not met'} "
-                    f"| {arrow('iou', _f)} | {r['n_faces']['start']} -> {r['n_faces']['fit']} "
+                    f"| {_arrow(m, 'chamfer_mesh_m', _cm)}: {'met' if t['met']['chamfer'] else 'not met'} "
+                    f"| {_arrow(m, 'silhouette_iou', _f)}: {'met' if t['met']['silhouette_iou'] else 'not met'} "
+                    f"| {_arrow(m, 'iou', _f)} | {r['n_faces']['start']} -> {r['n_faces']['fit']} "
                     f"| {r['time_s']['fit_wall']:.0f} s |")
         captures.append(f"{r['scene'].removeprefix('nlos_').replace('_', ' ')}: {_capture(r)} "
                         f"({provenance(rec).strip()})")
@@ -157,10 +158,6 @@ def fit_mesh_topology_table(R) -> str:
     and the issue's IoU >= 0.6 target."""
     recs = [R("fit_mesh_chair"), R("fit_mesh_holed_plate")]
     names = {"chair": "chair (six boxes)", "holed_plate": "plate with a hole"}
-
-    def arrow(m, key, fmt):
-        return " -> ".join(fmt(m[c][key]) for c in ("start", "aligned", "fit"))
-
     rows = ["| shape | silhouette IoU | occupancy IoU | Chamfer, surface to surface | triangles | time (fit, wall) "
             "| IoU >= 0.6 |", "|---|---|---|---|---|---|---|"]
     captures = []
@@ -168,8 +165,8 @@ def fit_mesh_topology_table(R) -> str:
         r = rec["result"]
         m, t = r["metrics"], r["targets"]
         met = ", ".join(f"{k.replace('_', ' ')} {'met' if v else 'not met'}" for k, v in t["met"].items())
-        rows.append(f"| {names[r['scene']]} | {arrow(m, 'silhouette_iou', _f)} | {arrow(m, 'iou', _f)} "
-                    f"| {arrow(m, 'chamfer_mesh_m', _cm)} | {r['n_faces']['start']} -> {r['n_faces']['fit']} "
+        rows.append(f"| {names[r['scene']]} | {_arrow(m, 'silhouette_iou', _f)} | {_arrow(m, 'iou', _f)} "
+                    f"| {_arrow(m, 'chamfer_mesh_m', _cm)} | {r['n_faces']['start']} -> {r['n_faces']['fit']} "
                     f"| {r['time_s']['fit_wall']:.0f} s | {met} |")
         captures.append(f"{names[r['scene']]}: {_capture(r)}")
     r0 = recs[0]["result"]
