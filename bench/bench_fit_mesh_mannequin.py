@@ -56,7 +56,7 @@ def main(argv=None) -> int:
     from transient_mi.paper import PaperConfig, paper_detector, scene_file
     from transient_mi.render_capture import render
     from transient_mi.study.methods import _reconstruct, scene_ground_truth
-    from transient_mi.study.methods_fit import FIT_MESH_START, _mesh_start, fit_bin_width_ps
+    from transient_mi.study.methods_fit import FIT_MESH_START, _mesh_start, fit_bin_width_ps, mesh_reconstruction
     from transient_mi.study.metrics_rows import LEADERBOARD_METRICS, score
     from transient_mi.study.scene import study_scene
 
@@ -92,17 +92,9 @@ def main(argv=None) -> int:
         res = fit_capture(counts, td / "fit", model="mesh", bin_width_ps=bw, progress=False, log=lambda *x: None,
                           settings=FitSettings(iterations=a.iterations), mesh=mesh)
         fit_s = time.perf_counter() - t1
-        import trimesh
-        from recon.metrics import mesh_occupancy
-        from recon.result import Reconstruction
-
-        def scored(path):
-            mesh_ = trimesh.load(path, force="mesh", process=False)
-            occ = mesh_occupancy(mesh_, rec.grid).astype(np.float32)
-            return score(Reconstruction(raw=occ, grid=rec.grid, method="fit:mesh", volume=occ, params={}), gt, 0)
-
-        fit_metrics = scored(td / "fit" / "fitted.ply")
-        start_mesh_metrics = scored(td / "fit" / "start.ply")  # (the start as the fit took it: clear of the view)
+        fit_metrics = score(mesh_reconstruction(td / "fit" / "fitted.ply", rec.grid, "fit:mesh", {}), gt, 0)
+        # (the start as the fit took it: clear of the view)
+        start_mesh_metrics = score(mesh_reconstruction(td / "fit" / "start.ply", rec.grid, "start", {}), gt, 0)
     keep = list(LEADERBOARD_METRICS)
     fit_row = {k: fit_metrics.get(k) for k in keep}
     result = {"scene": "paper_mannequin", "bounds_m": list(bounds), "voxels": list(VOXELS), "array": a.array, "spots": 2, "exposure_ms": a.exposure_ms,

@@ -45,6 +45,7 @@ import numpy as np
 from transient_core.errors import UserInputError
 from transient_core.lock import output_lock
 
+from .mesh_model import REFLECTANCES
 from .mesh_regularizers import RegularizerWeights
 from .optimize import FitState
 
@@ -53,7 +54,6 @@ __all__ = ["MeshSettings", "fit_mesh_capture"]
 _OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "aligned.ply", "start.json", "align.json", "loss.png", "fit.png",
             "views.png", "checkpoint.json", "stage.json", "config.json")
 _STARTS = ("front", "closed")
-_REFLECTANCES = ("global", "face")
 #: fitted.ply's face property of a per-face reflectance (Mitsuba's PLY loader: the attribute ``face_reflectance``).
 FACE_PLY_PROPERTY = "reflectance_0"
 
@@ -86,8 +86,8 @@ def check_mesh_options(mesh: MeshSettings) -> None:
         raise UserInputError(f"cell_m={mesh.cell_m!r}: expected a length in metres from 0.005 to 0.5")
     if isinstance(mesh.stages, bool) or not isinstance(mesh.stages, (int, np.integer)) or not 1 <= mesh.stages <= 3:
         raise UserInputError(f"stages={mesh.stages!r}: expected a whole number from 1 to 3")
-    if mesh.reflectance not in _REFLECTANCES:
-        raise UserInputError(f"--reflectance {mesh.reflectance!r} is not known; allowed: {', '.join(_REFLECTANCES)}")
+    if mesh.reflectance not in REFLECTANCES:
+        raise UserInputError(f"--reflectance {mesh.reflectance!r} is not known; allowed: {', '.join(REFLECTANCES)}")
     for name in ("smoothing", "laplacian", "edge", "normal", "albedo_smoothness"):
         v = getattr(mesh, name)
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):

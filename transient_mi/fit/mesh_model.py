@@ -36,7 +36,10 @@ from scipy.sparse.linalg import splu
 
 from .mesh_regularizers import MeshTopology, RegularizerWeights, albedo_regularizer, laplacian_matrix, regularizer
 
-__all__ = ["MeshModel"]
+__all__ = ["MeshModel", "REFLECTANCES"]
+
+#: The reflectance models: one for the whole mesh, or one per face.
+REFLECTANCES = ("global", "face")
 
 
 class MeshModel:
@@ -80,8 +83,8 @@ class MeshModel:
         M = (sp.identity(self.n_vertices) + self.smoothing * laplacian_matrix(self.topology)).tocsc()
         self._M = M
         self._lu = splu(M)
-        if reflectance not in ("global", "face"):
-            raise ValueError(f"reflectance={reflectance!r}: expected global or face")
+        if reflectance not in REFLECTANCES:
+            raise ValueError(f"reflectance={reflectance!r}: expected {' or '.join(REFLECTANCES)}")
         self.reflectance = reflectance
         self.names = ["u", "albedo"]  # (theta is long: fit.json summarises it, the meshes are in PLY files)
         n = 3 * self.n_vertices
@@ -127,7 +130,7 @@ class MeshModel:
         a = np.asarray(theta[self.n_u:], dtype=np.float64)
         out = {"albedo": float(a.mean()), "n_vertices": int(self.n_vertices), "n_faces": int(len(self.faces)),
                "bbox_min_m": lo.tolist(), "bbox_max_m": hi.tolist(), "reflectance": self.reflectance}
-        if self.reflectance == "face":  # (the values: fitted.ply's face property "reflectance")
+        if self.reflectance == "face":  # (the values: fitted.ply's face property, mesh_fit.FACE_PLY_PROPERTY)
             out.update(albedo_min=float(a.min()), albedo_max=float(a.max()),
                        albedo_p10_p90=[float(np.percentile(a, 10)), float(np.percentile(a, 90))])
         return out
@@ -149,10 +152,10 @@ class MeshModel:
         w = self.reg_scale * self.weights.albedo
         return w * e, w * g, e
 
-    def total_regularization(self, theta) -> tuple[float, dict]:
+    def total_regularization(self, theta, x=None) -> tuple[float, dict]:
         """``(S R, parts)``: the vertices' regularisers and, with per-face reflectance, its smoothness (parts
-        unweighted and unscaled)."""
-        r, _, parts = self.regularization(self.vertices(theta))
+        unweighted and unscaled); ``x``: ``theta``'s vertices where the caller has them."""
+        r, _, parts = self.regularization(self.vertices(theta) if x is None else x)
         ra, _, ea = self.albedo_regularization(theta)
         if self.reflectance == "face":
             parts = dict(parts, albedo=ea)

@@ -146,7 +146,7 @@ def run_mesh_adam(model, capture, state: FitState, settings, *, stage_start: int
         mu_end = capture.expected_counts(ideal_end, factor)
         obj_end, _ = capture.objective(mu_end, end)
         obj, resid = capture.objective(capture.blur(mu_end, end, sigma), sigma)
-        reg, _ = model.total_regularization(theta)
+        reg, _ = model.total_regularization(theta, x)
         gv, ga = capture.backward(capture.blur(resid, end, sigma), ideal_end, seed + 1, spp, end, factor)
         g = model.gradient(theta, gv, ga)
         g = np.where(np.isfinite(g), g, 0.0)

@@ -84,10 +84,7 @@ def fit_row(work: Path, ideal_dir: Path, params, exposure_s: float, seed: int, m
     Returns ``(row, reconstruction)``; the reconstruction's volume marks the voxels the fitted surface passes
     through (:func:`recon.metrics.mesh_occupancy`).
     """
-    import trimesh
     from spad_detector import detect_stack
-    from recon.metrics import mesh_occupancy
-    from recon.result import Reconstruction
     from transient_mi.fit import fit_capture
     from transient_core.stack import read_manifest
 
@@ -104,11 +101,9 @@ def fit_row(work: Path, ideal_dir: Path, params, exposure_s: float, seed: int, m
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-    mesh = trimesh.load(work / "fit" / "fitted.ply", force="mesh", process=False)
-    occ = mesh_occupancy(mesh, grid).astype(np.float32)
     iterations = res["config"]["settings"]["iterations"]
-    rec = Reconstruction(raw=occ, grid=grid, method=FIT_PREFIX + model, volume=occ,
-                         params={"fit": {"model": model, "iterations": iterations, "bin_width_ps": bw}})
+    rec = mesh_reconstruction(work / "fit" / "fitted.ply", grid, FIT_PREFIX + model,
+                              {"fit": {"model": model, "iterations": iterations, "bin_width_ps": bw}})
     metrics = score(rec, gt, 0)
     m = res.get("metrics") or {}
     row = {**base, "method": FIT_PREFIX + model, **{k: metrics.get(k) for k in LEADERBOARD_METRICS},
@@ -117,6 +112,18 @@ def fit_row(work: Path, ideal_dir: Path, params, exposure_s: float, seed: int, m
            "fit_joint_error_max_deg": m.get("joint_error_max_deg"), "fit_position_error_m": m.get("position_error_m")}
     shutil.rmtree(work)
     return row, rec
+
+
+def mesh_reconstruction(path: Path, grid, method: str, params: dict):
+    """A mesh file (a fit's ``fitted.ply``) as a :class:`recon.result.Reconstruction` on ``grid``: its volume marks
+    the voxels the surface passes through (:func:`recon.metrics.mesh_occupancy`), so it is scored as the methods'
+    reconstructions are."""
+    import trimesh
+    from recon.metrics import mesh_occupancy
+    from recon.result import Reconstruction
+
+    occ = mesh_occupancy(trimesh.load(path, force="mesh", process=False), grid).astype(np.float32)
+    return Reconstruction(raw=occ, grid=grid, method=method, volume=occ, params=params)
 
 
 def _mesh_start(work: Path, rec):
