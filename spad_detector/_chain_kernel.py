@@ -93,3 +93,58 @@ def mean_wait(decay, within, one_minus_e, out):
         for s in range(n - 1, -1, -1):
             w = within[p, s] + decay[p, s] * w
             out[p, s] = w
+
+
+@numba.njit(cache=True)
+def chain_terms(lam, widths, decay, onem, within, pi, one_minus_e):
+    """The rest of what the chain reads of the intensity, one pass per pixel (in place of numpy's whole-array
+    temporaries: on a 32 x 32 array of 20,000 slots each of them was a 160 MB pass), given ``decay = exp(-lam)`` and
+    ``onem = 1 - exp(-lam)`` (numpy's vectorised ``exp`` and ``expm1``: a scalar ``exp`` per slot here cost more
+    than all the passes it saved).
+
+    Per pixel ``p`` and slot ``j``: ``within = width onem / lam`` (``width`` where ``lam`` is 0: the expected time
+    spent in the slot before a photon or its end); ``pi`` Coates' first-avalanche probabilities of a detector fresh
+    at the cycle start, ``exp(-sum_{i<j} lam_i) onem_j`` with the survival taken as the running product of
+    ``decay`` (relative rounding about ``n_slots`` ulps, as the cumulative sum's), normalised to 1 (the chain's
+    starting point); ``one_minus_e[p] = 1 - exp(-sum_j lam_j)`` (the sum in slot order). A pixel whose ``pi`` sums
+    to 0 is left unnormalised (the caller passes pixels with light only).
+    """
+    n_pix, n = lam.shape
+    for p in range(n_pix):
+        tot_lam = 0.0
+        surv = 1.0
+        tot = 0.0
+        for j in range(n):
+            x = lam[p, j]
+            om = onem[p, j]
+            within[p, j] = widths[j] * om / x if x > 0.0 else widths[j]
+            v = surv * om
+            pi[p, j] = v
+            tot += v
+            surv *= decay[p, j]
+            tot_lam += x
+        one_minus_e[p] = -np.expm1(-tot_lam)
+        if tot > 0.0:
+            inv = 1.0 / tot
+            for j in range(n):
+                pi[p, j] *= inv
+
+
+@numba.njit(cache=True)
+def rates_per_cycle(pi, target, delay, W, period, out):
+    """Avalanches per cycle in each slot from the chain's stationary ``pi``: the mean time between avalanches is
+    ``sum_i pi_i delay_i + sum_j beta_j W_j`` (``beta``: ``pi`` moved to each slot's ready boundary ``target``,
+    ``W``: :func:`mean_wait`), and ``out = pi period / mean`` (sums in slot order)."""
+    n_pix, n = pi.shape
+    beta = np.empty(n)
+    for p in range(n_pix):
+        beta[:] = 0.0
+        mean = 0.0
+        for i in range(n):
+            beta[target[i]] += pi[p, i]
+            mean += pi[p, i] * delay[i]
+        for j in range(n):
+            mean += beta[j] * W[p, j]
+        s = period / mean
+        for j in range(n):
+            out[p, j] = pi[p, j] * s

@@ -238,7 +238,7 @@ def stationary_avalanche_rates(lam: np.ndarray, grid: CycleGrid, dead_time_ps: f
     ``sum_i pi_i (delay_i + W(ready_i))``, so the avalanches per cycle in
     slot ``i`` are ``pi_i P / mean``.
     """
-    from ._chain_kernel import mean_wait, stationary
+    from ._chain_kernel import chain_terms, mean_wait, rates_per_cycle, stationary
 
     lam = np.asarray(lam, dtype=np.float64)
     n_pix, n = lam.shape
@@ -251,20 +251,19 @@ def stationary_avalanche_rates(lam: np.ndarray, grid: CycleGrid, dead_time_ps: f
     target, delay = ready_shift(grid, dead_time_ps)
     decay = np.exp(-L)
     onem = -np.expm1(-L)
-    one_minus_e = -np.expm1(-L.sum(1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        within = np.where(L > 0, grid.widths[None, :] * onem / L, grid.widths[None, :])
-    pi = first_photon_probabilities(L)  # a detector fresh at the cycle start
-    pi /= pi.sum(1, keepdims=True)
+    within, pi = np.empty_like(L), np.empty_like(L)
+    one_minus_e = np.empty(len(L))
+    # exp(-lam), 1 - exp(-lam), the time within each slot and the fresh detector's first photon (Coates), normalised
+    chain_terms(L, np.ascontiguousarray(grid.widths, dtype=np.float64), decay, onem, within, pi, one_minus_e)
     iters = np.zeros(len(L), dtype=np.int64)
     resid = np.zeros(len(L))
     stationary(pi, target, decay, onem, one_minus_e, tol, max_iter, iters, resid)
     it, res = int(iters.max()), float(resid.max())
     W = np.empty_like(L)
     mean_wait(decay, within, one_minus_e, W)
-    beta = np.zeros_like(pi)
-    np.add.at(beta.T, target, pi.T)
-    mean_interval = (pi * delay[None, :]).sum(1) + (beta * W).sum(1)
-    rates[live] = pi * (grid.period_ps / mean_interval)[:, None]
+    out = np.empty_like(L)
+    rates_per_cycle(pi, np.ascontiguousarray(target, dtype=np.int64), np.ascontiguousarray(delay, dtype=np.float64),
+                    W, float(grid.period_ps), out)
+    rates[live] = out
     info.update(iterations=it, residual=res)
     return rates, info

@@ -181,9 +181,12 @@ def test_demo_shows_the_best_array_method_beside_the_paper_pipeline(quick_demo):
 def test_demo_starts_each_array_from_the_settings_the_previous_one_needed(tmp_path):
     """With the quadrature and a noise target, the first array's refinement starts from the scene's settings and
     the next array's from the finest settings the first one's capture needed (same scene, exposure and detector;
-    on the demo's arrays of 4 x 4 to 32 x 32 pixels, of 1 cm patches, that met the target in one round). At 1 s per
-    spot the scene's settings state more than 0.1 (arrays of 2 x 2 and 4 x 4 pixels, 8 ps bins: seconds)."""
+    on the demo's arrays of 4 x 4 to 32 x 32 pixels, of 1 cm patches, that met the target in one round), its
+    elements enlarged by what the first one's worst ratio leaves below the target
+    (:func:`~transient_mi.noise_target_quadrature.coarser_start`). At 1 s per spot the scene's settings state more
+    than 0.1 (arrays of 2 x 2 and 4 x 4 pixels, 8 ps bins: seconds)."""
     from transient_mi.demo import run_demo
+    from transient_mi.noise_target_quadrature import coarser_start
     from transient_mi.paper import (PAPER_ELEMENT_SIZE_M, PAPER_PATCH_CELLS, PAPER_REFINE_LEVELS, DemoSettings)
 
     s = DemoSettings(arrays=(2, 4), bin_width_ps=8.0, n_bins=1438, exposure_s=1.0, voxels=(16, 16, 8),
@@ -200,5 +203,6 @@ def test_demo_starts_each_array_from_the_settings_the_previous_one_needed(tmp_pa
     finest = {"element_size_m": min(p["element_size_m"] for p in per),
               "patch_cells": max(p["patch_cells"] for p in per),
               "refine_levels": max(p["refine_levels"] for p in per)}
-    assert second["variance"]["settings"] == finest  # where the second array's refinement started
-    assert all(sp["element_size_m"] <= finest["element_size_m"] for sp in nt2["spots"])
+    start = coarser_start(finest, max(sp["ratio"] for sp in nt1["spots"]), s.noise_target)
+    assert second["variance"]["settings"] == start  # where the second array's refinement started
+    assert all(sp["element_size_m"] <= start["element_size_m"] for sp in nt2["spots"])

@@ -608,6 +608,26 @@ def test_noise_target_refines_the_part_of_the_error_that_sets_it():
     assert rl == QUADRATURE_MAX_REFINE_LEVELS and h < 0.01 and m == 1
 
 
+def test_a_series_starts_its_next_capture_coarser_by_what_the_last_ratio_leaves():
+    """:func:`~transient_mi.noise_target_quadrature.coarser_start` (the demo's next array): the elements enlarged by
+    ``(PLAN_MARGIN target / ratio)^(1 / (2 COARSEN_ORDER))``, so a ratio growing as the size to ``2 COARSEN_ORDER``
+    lands on ``PLAN_MARGIN`` x the target; the cells and visibility levels kept; at most ``MAX_COARSEN``; nothing
+    changed for a ratio at or above the target's margin, a missing ratio or a capture without the quadrature's
+    settings."""
+    from transient_mi.noise_target import PLAN_MARGIN
+    from transient_mi.noise_target_quadrature import COARSEN_ORDER, MAX_COARSEN, coarser_start
+
+    start = {"element_size_m": 0.018, "patch_cells": 1, "refine_levels": 2}
+    out = coarser_start(start, 0.04, 0.1)
+    f = out["element_size_m"] / 0.018
+    assert f > 1.0 and (out["patch_cells"], out["refine_levels"]) == (1, 2)
+    assert 0.04 * f ** (2 * COARSEN_ORDER) == pytest.approx(PLAN_MARGIN * 0.1, rel=1e-12)
+    assert coarser_start(start, 1e-9, 0.1)["element_size_m"] == pytest.approx(0.018 * MAX_COARSEN, rel=1e-12)
+    for ratio in (PLAN_MARGIN * 0.1, 0.09, 0.2, float("nan"), 0.0):
+        assert coarser_start(start, ratio, 0.1) == start
+    assert coarser_start({}, 0.01, 0.1) == {}
+
+
 @pytest.mark.parametrize("cells", [None, 1])
 def test_quadrature_reports_progress_per_chunk(cells):
     """A long quadrature render moves the progress bar as its chunks of pairs are done (not 0 then 100 %): the

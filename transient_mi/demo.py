@@ -37,6 +37,7 @@ from .experiment import (HistogramSum, detect_counts, ground_truth, reconstruct,
 # without importing the demo
 from .paper import PAPER, PAPER_BOUNDS_M, QUICK, DemoSettings, paper_detector  # noqa: F401  (re-exported)
 from .noise_target import rendered_spp
+from .noise_target_quadrature import coarser_start
 from .reporting import METRIC_KEYS, atomic_output_dir, save_figure as _savefig, subplots, write_csv
 
 
@@ -134,8 +135,9 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
         estimator, quad = _estimator_of(ideal)
         if estimator == "quadrature" and s.noise_target is not None:
             # the next array starts its refinement from the settings this one needed (same scene, exposure and
-            # detector: the same parts of the error set its ratio), not from the scene's: one round instead of two
-            start = _finest_settings(ideal)
+            # detector: the same parts of the error set its ratio), not from the scene's: one round instead of two;
+            # its elements enlarged by what this one's ratio leaves below the target (coarser_start)
+            start = coarser_start(_finest_settings(ideal), _worst_ratio(ideal), s.noise_target)
         spp_used = 0 if estimator == "quadrature" else rendered_spp(ideal, s.spp)
         results.append(ArrayResult(
             array=n, metrics=metrics, pulses_per_spot=pulses, spp=spp_used, render_noise=rn,
@@ -164,6 +166,15 @@ def _finest_settings(ideal: Path) -> dict:
     return {"element_size_m": min(p["element_size_m"] for p in per),
             "patch_cells": max(p["patch_cells"] for p in per),
             "refine_levels": max(p["refine_levels"] for p in per)}
+
+
+def _worst_ratio(ideal: Path) -> float:
+    """The largest rendering-error ratio over the spots of a capture rendered to a noise target (its manifest's
+    ``render.noise_target.spots``), NaN without one."""
+    m = json.loads((Path(ideal) / "manifest.json").read_text())
+    spots = ((m.get("render") or {}).get("noise_target") or {}).get("spots") or []
+    ratios = [float(p["ratio"]) for p in spots if p and p.get("ratio") is not None]
+    return max(ratios) if ratios else float("nan")
 
 
 def _estimator_of(ideal: Path) -> tuple[str, dict]:

@@ -28,6 +28,41 @@ QUADRATURE_ELEMENT_STEP = 0.9
 ELEMENTS_ORDER = 2.5
 
 
+#: Half the largest power of the element size that a whole ratio was seen to grow as when a series' next capture
+#: started coarser (:func:`coarser_start`): on the demo at 1 s per spot the 32 x 32 array started 1.12 times
+#: coarser than the 16 x 16 one's settings gave 0.124 against 0.053, the size to the 7.5th power (the elements'
+#: part, a bound, falls as the size to 2.6-3.0 within one capture: ``bench/results/quadrature_parts_a8_e1000ms.json``).
+COARSEN_ORDER = 3.75
+#: The most :func:`coarser_start` enlarges the elements by.
+MAX_COARSEN = 1.5
+
+
+def coarser_start(settings: dict, ratio: float, target: float) -> dict:
+    """Quadrature settings for the next capture of a series (same scene, exposure and detector: the demo's next
+    array) from ``settings`` (``element_size_m``, ``patch_cells``, ``refine_levels``) that met ``target`` with the
+    worst ratio ``ratio``: the elements enlarged by ``f = (PLAN_MARGIN target / ratio)^(1 / (2 COARSEN_ORDER))``
+    (at most :data:`MAX_COARSEN`; never made smaller), the rest kept.
+
+    A refinement overshoots (the plan steps the elements' size by :data:`QUADRATURE_ELEMENT_STEP` and aims at
+    ``PLAN_MARGIN target``), and a series that starts every capture where the last one ended keeps that overshoot:
+    on the demo at 1 s per spot the 4 x 4 array's second round gave 0.086 against 0.1, and the 8 x 8 to 32 x 32
+    arrays, started there, 0.040-0.042, the 32 x 32 one in 109 s.
+
+    The whole ratio is taken to grow as the size to ``2 COARSEN_ORDER``, the fastest seen between two captures of
+    the demo; not the parts of the error by their own orders (:func:`quadrature_part_ratios`, as
+    :func:`plan_quadrature_level` refines): grown so from the 16 x 16 array's parts (visibility 0.014, elements
+    0.018, cells 0.002: ``f = 1.12``), the 32 x 32 array's start gave 0.124, its elements' part 0.054. The parts do
+    not carry over from one array to the next; the next capture's own ratio is measured and refined as any other.
+    Empty ``settings`` (a Monte Carlo capture), a ratio that is not positive or one at or above ``PLAN_MARGIN
+    target`` return ``settings`` as they are."""
+    out = dict(settings)
+    if "element_size_m" not in out or not ratio > 0 or ratio >= PLAN_MARGIN * target:
+        return out
+    f = min(MAX_COARSEN, max(1.0, (PLAN_MARGIN * target / ratio) ** (0.5 / COARSEN_ORDER)))
+    out["element_size_m"] = float(out["element_size_m"]) * f
+    return out
+
+
 def quadrature_ratio(run: TargetRun, j: int, result) -> float:
     """The rendering-error ratio of a quadrature result (its error estimate carried like ``detect`` does)."""
     return run.headline(j, result.histogram, result.error_bound, result.total_error_bound, error_bound=True)
