@@ -70,6 +70,11 @@ class TracedVisibility:
         return TracedVisibility(self.spots, self.spot[keep], self.cell_p,
                                 None if self.cell is None else np.ascontiguousarray(self.cell[:, keep]))
 
+    def then(self, more: "TracedVisibility") -> "TracedVisibility":
+        """These elements' masks followed by ``more``'s (traced from the same spots and cells)."""
+        cell = None if self.cell is None or more.cell is None else np.concatenate([self.cell, more.cell], axis=1)
+        return TracedVisibility(self.spots, np.concatenate([self.spot, more.spot]), self.cell_p, cell)
+
 
 class LevelElements:
     """A level's elements: vertices ``tri [n, 3, 3]``, source triangles ``src`` (rows of the

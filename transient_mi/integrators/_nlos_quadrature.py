@@ -219,12 +219,19 @@ def refine_visibility(scene, setup, g: _Geometry, spots, tri, src, refine_levels
                       keep_cells: bool = False):
     """Split mixed-visibility elements (and ``prov``) in four, ``refine_levels`` times at most: ``(tri, src, levels,
     prov, traced)`` (``src``: each element's source triangle, a row of the :class:`~._nlos_elements.Faces`;
-    ``traced``: the masks of the last test for the elements it kept, which come first, as
-    :class:`~._nlos_pairs.TracedVisibility` (cells' masks with ``keep_cells``), or ``None`` without a test)."""
+    ``traced``: the masks of the tests for the elements they kept, which come first, as
+    :class:`~._nlos_pairs.TracedVisibility` (cells' masks with ``keep_cells``), or ``None`` without a test). Each
+    test after the first traces the elements split by the one before only (the kept ones, first, keep their
+    masks: the same rays)."""
     levels = 0
     traced = None
     for _ in range(refine_levels):
-        mixed, traced = _mixed_elements(scene, setup, g, spots, tri, keep_cells)
+        # (the elements an earlier test kept come first, their masks in ``traced``: the same rays give the same
+        # masks, so only the elements split since are tested)
+        n0 = 0 if traced is None else traced.n
+        mixed, new = _mixed_elements(scene, setup, g, spots, tri[n0:], keep_cells)
+        traced = new if traced is None else traced.then(new)
+        mixed = np.concatenate([np.zeros(n0, dtype=bool), mixed])
         if not mixed.any():
             break
         keep = ~mixed
