@@ -286,6 +286,37 @@ def test_occluded_target_agrees_with_monte_carlo():
     _mc_vs_quadrature(scene(), scene(), 2048, [0], dict(element_size_m=0.02, patch_cells=2, refine_levels=3))
 
 
+def test_visibility_refinement_splits_the_elements_whose_lit_pairs_are_mixed():
+    """The refinement's test (:func:`~transient_mi.integrators._nlos_pair_kernels.mixed_lit`) splits an element
+    for a pair (cell, spot) that can carry light and sees its samples partly, as the render bounds it: the cell's
+    and the spot's masks combined (a spot seeing samples 2-3 and a cell seeing 0-1 light nothing), the cell and the
+    spot on one side of a Lambertian element's normal, and for a confocal capture each cell with its own pixel's
+    spot only. One element at the origin facing +z."""
+    from transient_mi.integrators._nlos_pair_kernels import mixed_lit
+
+    X0 = np.zeros((1, 3))
+    n_sh = np.array([[0.0, 0.0, 1.0]])
+    front, back = np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, -1.0]])
+
+    def test(vc, vs, cell_p, S, cell_spot=(-1,), side_test=True):
+        out = np.zeros(1, dtype=bool)
+        mixed_lit(np.array(vc, dtype=np.uint8).reshape(len(cell_p), 1), np.array(vs, dtype=np.uint8).reshape(1, -1),
+                  0, X0, n_sh, np.asarray(cell_p, dtype=np.float64), np.asarray(S, dtype=np.float64),
+                  np.array(cell_spot, dtype=np.int64), side_test, out)
+        return bool(out[0])
+
+    assert test([0b0011], [0b1111], front, front)  # the cell sees half: mixed
+    assert test([0b1111], [0b0011], front, front)  # the spot sees half: mixed
+    assert not test([0b1111], [0b1111], front, front)  # both see all
+    assert not test([0b0011], [0b1100], front, front)  # no sample seen from both: no light, nothing to split
+    assert not test([0b0011], [0b1111], front, back)  # the spot behind the element: no light
+    assert test([0b0011], [0b1111], front, back, side_test=False)  # (not Lambertian: no side test)
+    # confocal: the cell pairs with its own spot (0) only; spot 1 sees the element partly
+    two = np.array([[0.0, 0.0, 1.0], [0.1, 0.0, 1.0]])
+    assert not test([0b1111], [0b1111, 0b0001], front, two, cell_spot=(0,))
+    assert test([0b1111], [0b1111, 0b0001], front, two, cell_spot=(-1,))
+
+
 @pytest.mark.parametrize("capture", ["array", "confocal"])
 def test_general_bsdf_path_equals_the_lambertian_one(capture, monkeypatch):
     """Lambertian BSDFs are evaluated once per (element, spot) and per wall cell, each pair applying the hemisphere

@@ -199,6 +199,47 @@ def pairs_lit(geo, cos_p, side_x, e0, ne, per_pixel, vis_s, side_s, wall_lambert
     return lit
 
 
+@numba.njit(cache=True, parallel=True, fastmath=False)
+def mixed_lit(vc, vs, e0, X0, n_sh, cell_p, S, cell_spot, side_test, out):
+    """The visibility refinement's test (:func:`~._nlos_quadrature.refine_visibility`) for the elements ``e0:e0 +
+    k``: ``out[e0 + j]`` is set when some cell ``c`` and spot ``s`` whose pair can carry light see the element's
+    samples partly, ``m = vc[c, j] & vs[e0 + j, s]`` neither 0 nor all four: the pairs :func:`spread_group` bounds
+    as mixed. A pair can carry light as :func:`pairs_lit` says by geometry: with ``side_test`` (Lambertian
+    elements) the cell and the spot lie on the same side of the element's shading normal ``n_sh [n, 3]`` at its
+    centroid ``X0 [n, 3]``. ``vc [C, k]``, ``vs [n, G]`` uint8 masks; ``cell_p [C, 3]``, ``S [G, 3]`` (m);
+    ``cell_spot [C]``: the one spot each cell pairs with (confocal captures: its pixel's), -1 for every spot."""
+    C, k = vc.shape
+    G = vs.shape[1]
+    for j in numba.prange(k):
+        e = e0 + j
+        hit = False
+        for c in range(C):
+            mp = vc[c, j]
+            if mp == 0:
+                continue
+            sx = 0
+            if side_test:
+                sx = _side((cell_p[c, 0] - X0[e, 0]) * n_sh[e, 0] + (cell_p[c, 1] - X0[e, 1]) * n_sh[e, 1]
+                           + (cell_p[c, 2] - X0[e, 2]) * n_sh[e, 2])
+                if sx == 0:
+                    continue
+            s_lo = 0 if cell_spot[c] < 0 else cell_spot[c]
+            s_hi = G if cell_spot[c] < 0 else cell_spot[c] + 1
+            for s in range(s_lo, s_hi):
+                m = mp & vs[e, s]
+                if m == 0 or m == 15:
+                    continue
+                if side_test and sx * _side((S[s, 0] - X0[e, 0]) * n_sh[e, 0] + (S[s, 1] - X0[e, 1]) * n_sh[e, 1]
+                                            + (S[s, 2] - X0[e, 2]) * n_sh[e, 2]) <= 0:
+                    continue
+                hit = True
+                break
+            if hit:
+                break
+        if hit:
+            out[e] = True
+
+
 def cell_terms(cell_p: np.ndarray, D: np.ndarray, ax: np.ndarray, ay: np.ndarray, fl: float, ap_n: np.ndarray,
                wall_n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What :func:`pair_geometry` needs of each cell alone (cells ``[C, 3]``, edge vectors ``ax``, ``ay``):

@@ -80,10 +80,10 @@ from transient_core.units import C_M_PER_PS
 from transient_mi.integrators._nlos_elements import (fine_provenance, mesh_triangles, provenance, sample_points, split4,
                                                      subdivide, subdivide_provenance)
 from transient_mi.integrators._nlos_error_estimate import discretisation_error, local_rms
-from transient_mi.integrators._nlos_pair_kernels import cell_terms
+from transient_mi.integrators._nlos_pair_kernels import cell_terms, mixed_lit
 from transient_mi.integrators._nlos_pairs import (Chunk, LevelElements, SpotSide, TracedVisibility, chunk_starts,
                                                   spot_masks)
-from transient_mi.integrators._nlos_surfaces import WallCells, visibility_masks
+from transient_mi.integrators._nlos_surfaces import ElementSurfaces, WallCells, is_lambertian, visibility_masks
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
 
@@ -198,38 +198,60 @@ class _Geometry:
         return _Geometry(self._setup, self._film, cells)
 
 
-def _mixed_elements(scene, setup, g: _Geometry, spots, tri, keep_cells: bool = False):
-    """Elements whose visibility samples disagree for some cell of ``g`` or some spot: ``(mixed, traced)``, bool
+def _mixed_elements(scene, setup, g: _Geometry, spots, tri, keep_cells: bool = False, n_sh=None,
+                    confocal: bool = False):
+    """Elements with a pair (cell of ``g``, spot) that can carry light and whose visibility samples it sees partly
+    (:func:`~._nlos_pair_kernels.mixed_lit`: the pairs the render bounds as mixed): ``(mixed, traced)``, bool
     ``[n]`` and the masks traced for the test (:class:`~._nlos_pairs.TracedVisibility`; its cells' masks only with
-    ``keep_cells``)."""
+    ``keep_cells``). ``n_sh [n, 3]``: the elements' shading normals where they are Lambertian (a pair then carries
+    light only with the cell and the spot on one side), ``None`` otherwise; ``confocal``: each cell pairs with its
+    pixel's spot only.
+
+    The test asked before whether the samples disagreed for some cell or some spot alone; on the paper scene (16 x
+    16, 2.1 cm) it split 8605 of 33,732 elements where 5719 have such a pair (a spot that sees a sample the cells
+    do not, the back of the mannequin seen from the wall): splitting the others changed no bound, only the
+    count."""
     pts = sample_points(tri)
-    vs = spot_masks(scene, setup, spots, pts)
-    mixed = ((vs != 0) & (vs != 15)).any(axis=1)
+    vs = np.ascontiguousarray(spot_masks(scene, setup, spots, pts))
+    n = len(tri)
+    mixed = np.zeros(n, dtype=bool)
     C = len(g.cell_p)
-    vc = np.empty((C, len(tri)), dtype=np.uint8) if keep_cells else None
-    for e0, e1 in chunk_starts(4 * C, len(tri)):
-        v = visibility_masks(scene, g.cell_p, g.normal, pts, e0, e1).reshape(C, e1 - e0)
-        mixed[e0:e1] |= ((v != 0) & (v != 15)).any(axis=0)
+    X0 = np.ascontiguousarray(pts[:, 0])
+    side_test = n_sh is not None
+    nrm = np.ascontiguousarray(n_sh if side_test else np.zeros((n, 3)), dtype=np.float64)
+    S = np.ascontiguousarray(np.asarray(setup.spots, dtype=np.float64)[list(spots)])
+    cell_spot = (np.ascontiguousarray(g.cell_pixel, dtype=np.int64) if confocal
+                 else np.full(C, -1, dtype=np.int64))
+    cell_p = np.ascontiguousarray(g.cell_p, dtype=np.float64)
+    vc = np.empty((C, n), dtype=np.uint8) if keep_cells else None
+    for e0, e1 in chunk_starts(4 * C, n):
+        v = np.ascontiguousarray(visibility_masks(scene, g.cell_p, g.normal, pts, e0, e1).reshape(C, e1 - e0))
+        mixed_lit(v, vs, e0, X0, nrm, cell_p, S, cell_spot, side_test, mixed)
         if keep_cells:
             vc[:, e0:e1] = v
     return mixed, TracedVisibility(spots, vs, g.cell_p if keep_cells else None, vc)
 
 
 def refine_visibility(scene, setup, g: _Geometry, spots, tri, src, refine_levels: int, prov=None,
-                      keep_cells: bool = False):
+                      keep_cells: bool = False, faces=None, hidden_ptrs=None, confocal: bool = False):
     """Split mixed-visibility elements (and ``prov``) in four, ``refine_levels`` times at most: ``(tri, src, levels,
     prov, traced)`` (``src``: each element's source triangle, a row of the :class:`~._nlos_elements.Faces`;
     ``traced``: the masks of the tests for the elements they kept, which come first, as
     :class:`~._nlos_pairs.TracedVisibility` (cells' masks with ``keep_cells``), or ``None`` without a test). Each
     test after the first traces the elements split by the one before only (the kept ones, first, keep their
-    masks: the same rays)."""
+    masks: the same rays). With ``faces`` and ``hidden_ptrs`` (the :class:`~._nlos_elements.Faces` and the hidden
+    shapes) the test reads Lambertian elements' shading normals (a pair carries light with the cell and the spot on
+    one side); ``confocal``: each cell pairs with its pixel's spot (:func:`_mixed_elements`)."""
     levels = 0
     traced = None
+    lambertian = faces is not None and all(is_lambertian(sh.bsdf()) for sh in setup.hidden_shapes)
     for _ in range(refine_levels):
         # (the elements an earlier test kept come first, their masks in ``traced``: the same rays give the same
         # masks, so only the elements split since are tested)
         n0 = 0 if traced is None else traced.n
-        mixed, new = _mixed_elements(scene, setup, g, spots, tri[n0:], keep_cells)
+        n_sh = (ElementSurfaces(setup.hidden_shapes, hidden_ptrs, faces, tri[n0:], src[n0:]).n_sh if lambertian
+                else None)
+        mixed, new = _mixed_elements(scene, setup, g, spots, tri[n0:], keep_cells, n_sh, confocal)
         traced = new if traced is None else traced.then(new)
         mixed = np.concatenate([np.zeros(n0, dtype=bool), mixed])
         if not mixed.any():
@@ -278,7 +300,8 @@ def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_p
     m_test = max(1, g.m // 2)
     tri_f, src_f, levels, prov, traced = refine_visibility(
         scene, setup, g if m_test == g.m else g.with_cells(m_test), spot_ids, tri_f, src_f,
-        int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)), prov, keep_cells=m_test == g.m)
+        int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)), prov, keep_cells=m_test == g.m, faces=faces,
+        hidden_ptrs=hidden_ptrs, confocal=setup.capture == "confocal")
     out = (None if tri_c is None else LevelElements(setup, faces, hidden_ptrs, tri_c, src_c),
            LevelElements(setup, faces, hidden_ptrs, tri_f, src_f, traced), levels)
     return out + ((prov,) if with_provenance else ())
