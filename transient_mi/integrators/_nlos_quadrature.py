@@ -33,9 +33,9 @@ Here it is integrated by quadrature instead of sampling:
 * **Visibility.** ``V(p, X)`` and ``V(X, S)`` are tested by ray casts at the centroid and at three points
   near the element's corners (each leg from the cell centre and from the spot; a sample is visible when no
   surface lies before ``1 - 1e-4`` of its distance: :func:`~._nlos_surfaces.visibility_masks`; from a cell
-  only for pairs that can carry light, :func:`~._nlos_pair_kernels.pairs_lit`). Elements whose samples
-  disagree for some pixel or spot (tested from the coarse level's cell centres) are split in four, up to
-  ``refine_levels`` times; a pair still mixed
+  only for pairs that can carry light, :func:`~._nlos_pair_kernels.pairs_lit`). Elements with a pair (cell,
+  spot) that can carry light and sees their samples partly (tested from the coarse level's cell centres:
+  :func:`~._nlos_pair_kernels.mixed_lit`) are split in four, up to ``refine_levels`` times; a pair still mixed
   then contributes the visible share of its samples (centroid 1/2, corners 1/6 each).
   Visibility is assumed constant over an element whose samples agree (an occluder smaller than an element
   can be missed: keep ``element_size_m`` below the smallest feature).
