@@ -125,6 +125,9 @@ def test_demo_quick_writes_every_output(quick_demo):
             assert len(z["x_m"]) == 64 and len(z["z_m"]) == 32
         rec_metrics = json.loads((out / "recon" / f"array_{n:02d}" / "metrics.json").read_text())
         assert rec_metrics["chamfer_m"] is not None
+        # the reconstruction names its capture inside the demo folder (not the temporary folder it was written in)
+        source = json.loads((out / "recon" / f"array_{n:02d}" / "recon.json").read_text())["capture"]["source"]
+        assert source == f"captures/array_{n:02d}/counts" and (out / source / "manifest.json").is_file()
 
 
 def test_demo_replaces_its_own_earlier_output_only(quick_demo):

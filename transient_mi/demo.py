@@ -124,8 +124,9 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
         rec, metrics = reconstruct(counts, voxels=s.voxels, bounds=PAPER_BOUNDS_M, threshold=s.threshold,
                                    mesh=mesh, seed=s.seed)
         t3 = time.perf_counter()
-        write_outputs(tmp / "recon" / f"array_{n:02d}", rec, meta={"capture": {"source": str(counts)}},
-                      metrics=metrics)
+        # (the capture as the demo folder names it: ``counts`` lies in the temporary folder renamed at the end)
+        source = f"captures/array_{n:02d}/counts"
+        write_outputs(tmp / "recon" / f"array_{n:02d}", rec, meta={"capture": {"source": source}}, metrics=metrics)
         t_ideal, h_ideal, h_counts = sum_ideal.t_ns, sum_ideal.total, sum_counts.total
         m = json.loads((counts / "manifest.json").read_text())
         pulses = int(m["detector"]["pulses"])
