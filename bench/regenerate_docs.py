@@ -50,9 +50,9 @@ from docgen.recon import (  # noqa: E402
     completion_limit_inline, completion_aspect_para, recon_quality_para, methods_trend_para,
 )
 from docgen.quadrature import (  # noqa: E402
-    PAPER_ESTIMATORS, QUADRATURE_PARTS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, SCENE_SETTINGS,
+    PAPER_ESTIMATORS, QUADRATURE_PARTS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, REFINEMENT_RULE, SCENE_SETTINGS,
     paper_estimators_table, quadrature_parts_table, quadrature_settings_table, quadrature_cost_inline,
-    quadrature_inline, quadrature_profile_inline, quadrature_table, scene_settings_table,
+    quadrature_inline, quadrature_profile_inline, quadrature_table, refinement_rule_inline, scene_settings_table,
 )
 from docgen.nlos_quadrature import nlos_quadrature_table  # noqa: E402
 from docgen.fit_mesh import (fit_mesh_full_table, fit_mesh_mannequin_para, fit_mesh_plane_table,  # noqa: E402
@@ -112,6 +112,7 @@ GENERATORS = {
     "quadrature_inline": (quadrature_inline, ["quadrature"], True),
     "quadrature_cost": (quadrature_cost_inline, ["quadrature_cost"], True),
     "quadrature_profile": (quadrature_profile_inline, list(QUADRATURE_PROFILES), True),
+    "refinement_rule": (refinement_rule_inline, [REFINEMENT_RULE], True),
     "paper_estimators": (paper_estimators_table, list(PAPER_ESTIMATORS), False),
     "quadrature_settings": (quadrature_settings_table, [QUADRATURE_SETTINGS], False),
     "quadrature_parts": (quadrature_parts_table, [QUADRATURE_PARTS], False),

@@ -219,3 +219,17 @@ def quadrature_parts_table(R) -> str:
     return ("\n".join(rows) + "\n\n"
             f"({res['config']}, {res['exposure_ms']:g} ms per spot, the demo's target {res['target']:g}; "
             f"{res['ratio']}. {provenance(rec)})\n")
+
+
+REFINEMENT_RULE = "refinement_rule"
+
+
+def refinement_rule_inline(R) -> str:
+    """How many elements the first visibility refinement test splits under each rule (bench_refinement_rule.py)."""
+    rec = R(REFINEMENT_RULE)
+    r = rec["result"]
+    s = r["split"]
+    return (f"on the paper scene at {r['array']} x {r['array']} pixels and {100 * r['element_size_m']:.2f} cm "
+            f"elements the first test split {s['any']:,} of {r['fine_elements']:,} elements by the cell or the spot "
+            f"alone, {s['combined']:,} with the masks combined and {s['lit']:,} with the side test too "
+            f"({provenance(rec, short=True)})")
