@@ -249,8 +249,9 @@ def stationary_avalanche_rates(lam: np.ndarray, grid: CycleGrid, dead_time_ps: f
         return rates, info
     L = np.ascontiguousarray(lam[live])
     target, delay = ready_shift(grid, dead_time_ps)
-    decay = np.exp(-L)
-    onem = -np.expm1(-L)
+    neg = np.negative(L)
+    decay = np.exp(neg)
+    onem = np.negative(np.expm1(neg, out=neg), out=neg)  # (the temporary reused: 1 - exp(-lam))
     within, pi = np.empty_like(L), np.empty_like(L)
     one_minus_e = np.empty(len(L))
     # exp(-lam), 1 - exp(-lam), the time within each slot and the fresh detector's first photon (Coates), normalised

@@ -138,7 +138,7 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
             # the next array starts its refinement from the settings this one needed (same scene, exposure and
             # detector: the same parts of the error set its ratio), not from the scene's: one round instead of two;
             # its elements enlarged by what this one's ratio leaves below the target (coarser_start)
-            start = coarser_start(_finest_settings(ideal), _worst_ratio(ideal), s.noise_target)
+            start = _next_start(ideal, s.noise_target)
         spp_used = 0 if estimator == "quadrature" else rendered_spp(ideal, s.spp)
         results.append(ArrayResult(
             array=n, metrics=metrics, pulses_per_spot=pulses, spp=spp_used, render_noise=rn,
@@ -157,25 +157,22 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
 _QUADRATURE_SETTINGS = ("element_size_m", "patch_cells", "refine_levels")
 
 
-def _finest_settings(ideal: Path) -> dict:
-    """The finest quadrature settings any spot of a rendered ideal capture needed (smallest ``element_size_m``,
-    most ``patch_cells`` and ``refine_levels``), as :class:`~transient_mi.paper.PaperConfig` fields; empty for a
-    capture without them."""
-    per = quadrature_settings_per_spot(json.loads((Path(ideal) / "manifest.json").read_text()))
+def _next_start(ideal: Path, target: float) -> dict:
+    """Where the next array's refinement starts, from a rendered ideal capture's manifest (read once): the finest
+    quadrature settings any of its spots needed (smallest ``element_size_m``, most ``patch_cells`` and
+    ``refine_levels``), as :class:`~transient_mi.paper.PaperConfig` fields, its elements enlarged by what its worst
+    spot's ratio (``render.noise_target.spots``) leaves below ``target``
+    (:func:`~transient_mi.noise_target_quadrature.coarser_start`); empty for a capture without those settings."""
+    m = json.loads((Path(ideal) / "manifest.json").read_text())
+    per = quadrature_settings_per_spot(m)
     if not all(k in p for p in per for k in _QUADRATURE_SETTINGS):
         return {}
-    return {"element_size_m": min(p["element_size_m"] for p in per),
-            "patch_cells": max(p["patch_cells"] for p in per),
-            "refine_levels": max(p["refine_levels"] for p in per)}
-
-
-def _worst_ratio(ideal: Path) -> float:
-    """The largest rendering-error ratio over the spots of a capture rendered to a noise target (its manifest's
-    ``render.noise_target.spots``), NaN without one."""
-    m = json.loads((Path(ideal) / "manifest.json").read_text())
+    finest = {"element_size_m": min(p["element_size_m"] for p in per),
+              "patch_cells": max(p["patch_cells"] for p in per),
+              "refine_levels": max(p["refine_levels"] for p in per)}
     spots = ((m.get("render") or {}).get("noise_target") or {}).get("spots") or []
     ratios = [float(p["ratio"]) for p in spots if p and p.get("ratio") is not None]
-    return max(ratios) if ratios else float("nan")
+    return coarser_start(finest, max(ratios) if ratios else float("nan"), target)
 
 
 def _estimator_of(ideal: Path) -> tuple[str, dict]:
