@@ -79,6 +79,12 @@ def test_bad_input_exit_status_2_one_line_no_output(tmp_path):
     (["array-size", "--exposure-ms", "0"], "--exposure-ms 0"),
     (["array-size", "--seed", "-1"], "--seed -1"),
     (["array-size", "-D", "array=8"], "set by the study"),
+    (["methods", "--fit", "mesh,cube"], "fit='cube': allowed mannequin, patches, mesh"),
+    (["methods", "--fit", "mesh", "--fit-iterations", "mesh=x"], "--fit-iterations 'x': expected a whole number"),
+    (["methods", "--fit", "mesh", "--fit-iterations", "=4"], "--fit-iterations '=4': expected N or MODEL=N"),
+    (["methods", "--fit", "mesh", "--fit-iterations", "patches=4"], "'patches' is not one of the fitted models mesh"),
+    (["methods", "--fit", "mesh", "--fit-arrays", "mesh=8,x"], "--fit-arrays '8,x'"),
+    (["methods", "--fit", "mannequin,mesh", "--fit-arrays", "mesh=64"], "fit_arrays=[64]: each must be one of"),
 ])
 def test_bad_input_messages(tmp_path, capsys, args, match):
     """In process (fast): each mistake is one line naming the option and value, status 2, nothing written."""
@@ -90,6 +96,16 @@ def test_bad_input_messages(tmp_path, capsys, args, match):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and match in err[0], err
     assert not (tmp_path / "out").exists()
+
+
+def test_per_model_fit_options_parse():
+    """``--fit-iterations`` and ``--fit-arrays`` take one value for every fitted model or ``MODEL=...`` per model."""
+    from transient_mi.commands.study import _fit_arrays, _fit_iterations
+
+    assert _fit_iterations("40") == 40 and _fit_iterations("1e2") == 100
+    assert _fit_iterations("mannequin=300,mesh=40") == {"mannequin": 300, "mesh": 40}
+    assert _fit_arrays("8,16") == (8, 16)
+    assert _fit_arrays("mannequin=8,16;mesh=8") == {"mannequin": (8, 16), "mesh": (8,)}
 
 
 def test_existing_output_is_refused(tmp_path, capsys):

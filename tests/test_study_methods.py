@@ -161,21 +161,28 @@ def test_fit_row_beside_the_methods(tmp_path):
     assert fit_bin_width_ps(4.0, 2875) == 20.0 and fit_bin_width_ps(25.0, 7) == 25.0
 
 
-def test_mesh_fit_row_on_the_chosen_arrays_only(tmp_path):
-    """``fit="mesh", fit_arrays=(4,)``: the free mesh (issue 29) is fitted to the 4x4 array's counts only, one
-    ``fit:mesh`` row per exposure beside the methods, none for the 8x8 array; it starts from midpoint-fk's front
-    surface, and the settings record the arrays and the start."""
+def test_two_fitted_models_each_on_its_own_arrays(tmp_path):
+    """``fit=("mesh", "mannequin")`` with per-model iterations and arrays: the free mesh (issue 29) is fitted to the
+    4x4 array's counts only, starting from midpoint-fk's front surface, the mannequin model to the 8x8 array's only, each row after the methods of its array in the order the models
+    were given; the settings record both fits (a list), and the summary says which row knows the object's kind."""
     from transient_mi.study import run_methods_study
+    from transient_mi.study.methods import fit_records
 
     kw = {**TINY, "methods": ("midpoint-fk",), "complete": None}
-    out, rows = run_methods_study("paper_mannequin", tmp_path / "s", fit="mesh", fit_iterations=2, fit_arrays=(4,),
-                                  **kw)
-    assert [(r["array"], r["method"]) for r in rows] == [(4, "midpoint-fk"), (4, "fit:mesh"), (8, "midpoint-fk")]
-    fit = rows[1]
-    assert fit["fit_iterations"] == 2 and fit["reconstruct_s"] > 0 and fit["chamfer_m"] is not None
-    settings = json.loads((out / "leaderboard.json").read_text())["settings"]["fit"]
-    assert settings["model"] == "mesh" and settings["arrays"] == [4]
-    assert settings["start"] == "midpoint-fk's front surface"
+    out, rows = run_methods_study("paper_mannequin", tmp_path / "s", fit=("mesh", "mannequin"),
+                                  fit_iterations={"mesh": 2, "mannequin": 1},
+                                  fit_arrays={"mesh": (4,), "mannequin": (8,)}, **kw)
+    assert [(r["array"], r["method"]) for r in rows] == [(4, "midpoint-fk"), (4, "fit:mesh"), (8, "midpoint-fk"),
+                                                         (8, "fit:mannequin")]
+    assert rows[1]["fit_iterations"] == 2 and rows[3]["fit_iterations"] == 1
+    assert all(r["reconstruct_s"] > 0 and r["chamfer_m"] is not None for r in rows[1::2])
+    settings = json.loads((out / "leaderboard.json").read_text())["settings"]
+    fits = fit_records(settings)
+    assert [(f["model"], f["arrays"], f["iterations"]) for f in fits] == [("mesh", [4], 2), ("mannequin", [8], 1)]
+    assert fits[0]["start"] == "midpoint-fk's front surface" and "start" not in fits[1]
+    text = (out / "summary.md").read_text()
+    assert "Rows `fit:mesh` are" in text and "a free mesh from midpoint-fk's front surface, which knows no kind" in text
+    assert "Rows `fit:mannequin` are" in text and "model-based (it knows what kind of object hides)" in text
 
 
 def test_fit_bad_input(tmp_path):
@@ -192,6 +199,19 @@ def test_fit_bad_input(tmp_path):
         run_methods_study("paper_mannequin", tmp_path / "x", fit_arrays=[4], **TINY)
     with pytest.raises(UserInputError, match="fit_arrays=\\[16\\]: each must be one of the study's arrays 4, 8"):
         run_methods_study("paper_mannequin", tmp_path / "x", fit="mesh", fit_arrays=(16,), **TINY)
+    with pytest.raises(UserInputError, match="fit=\\['mesh', 'mesh'\\]: each model at most once"):
+        run_methods_study("paper_mannequin", tmp_path / "x", fit=("mesh", "mesh"), **TINY)
+    with pytest.raises(UserInputError, match="fit='cube': allowed"):
+        run_methods_study("paper_mannequin", tmp_path / "x", fit=("mesh", "cube"), **TINY)
+    with pytest.raises(UserInputError, match="fit_iterations=\\{'patches': 3\\}: 'patches' is not one of the fitted "
+                                             "models mesh"):
+        run_methods_study("paper_mannequin", tmp_path / "x", fit="mesh", fit_iterations={"patches": 3}, **TINY)
+    with pytest.raises(UserInputError, match="fit_iterations of mesh=0"):
+        run_methods_study("paper_mannequin", tmp_path / "x", fit=("mannequin", "mesh"), fit_iterations={"mesh": 0},
+                          **TINY)
+    with pytest.raises(UserInputError, match="fit_arrays=\\[16\\]: each must be one of"):
+        run_methods_study("paper_mannequin", tmp_path / "x", fit=("mannequin", "mesh"), fit_arrays={"mesh": [16]},
+                          **TINY)
     assert not (tmp_path / "x").exists()
 
 
@@ -212,3 +232,22 @@ def test_the_fit_sees_the_counts_the_methods_see(tmp_path):
                                               progress=False))
     assert written.kind == "counts" and written.data.sum() > 0
     np.testing.assert_array_equal(written.data, cap.data)
+
+
+@pytest.mark.parametrize("given, estimator, expected", [("auto", "quadrature", 0.01), ("auto", "monte_carlo", 0.1),
+                                                        (0.1, "quadrature", 0.1), (0.05, "monte_carlo", 0.05)])
+def test_the_auto_noise_target_holds_the_quadrature_to_a_hundredth(tmp_path, given, estimator, expected):
+    """A study's ``noise_target="auto"`` asks 0.1 x the photon noise of Monte Carlo and 0.01 x of the deterministic
+    quadrature (issue 27), decided when the render knows the scene's estimator; a number given is kept for both."""
+    from pathlib import Path
+
+    from spad_detector import DetectorParams
+    from transient_mi.render_capture import prepare_render
+    from transient_mi.study.common import noise_target_spec, resolve_noise_target
+
+    spec = noise_target_spec(given, resolve_noise_target(given, quick=False), DetectorParams(auto_gate=True), 1e-3)
+    scene = Path(__file__).resolve().parents[1] / "scenes" / "nlos_letter.xml"
+    prepare_render(scene, tmp_path / "c", defines={"estimator": estimator, "width": "4", "height": "4"}, spp=64,
+                   noise_target=spec)
+    assert spec.target == expected
+    assert not (tmp_path / "c").exists()  # prepare_render writes nothing

@@ -100,8 +100,8 @@ def photon_budget(
     overwrite: bool = OVERWRITE_OPT,
     noise_target: Optional[str] = typer.Option(
         None, "--noise-target", help="Render until rendering variance <= this share of the photon variance at the "
-                                     "largest budget; 'none' renders the scene's spp (default 0.1, none with "
-                                     "--quick; docs/noise.md)."),
+                                     "largest budget; 'none' renders the scene's spp (default 0.1, 0.01 for the "
+                                     "quadrature, none with --quick; docs/noise.md)."),
 ) -> None:
     """One render of SCENE, then detection over decades of photon budget x dark-count rates x dead times x seeds,
     reconstruction of each; reconstruction error and per-bin SNR against detected photons (CSV, JSON, plots,
@@ -187,17 +187,21 @@ def methods(
         None, "--complete", help="Also score each reconstruction closed behind its front under a stated prior "
                                  "(elliptical cross-sections; auto or an aspect in [0, 2]), as <method>+completion."),
     fit: Optional[str] = typer.Option(
-        None, "--fit", help="Also fit this model (mannequin, patches or mesh; `transient-mi fit`) to every array x "
-                            "exposure's counts, as a row fit:<model> (minutes per fit)."),
-    fit_iterations: Optional[int] = typer.Option(
-        None, "--fit-iterations", parser=whole_number("--fit-iterations"), metavar="<int>", help="The fit's iterations (default the fit command's, 300)."),
+        None, "--fit", help="Also fit this model (mannequin, patches or mesh; `transient-mi fit`), or these models "
+                            "comma-separated, to every array x exposure's counts, as rows fit:<model> (minutes "
+                            "per fit)."),
+    fit_iterations: Optional[str] = typer.Option(
+        None, "--fit-iterations", metavar="N|MODEL=N,...",
+        help="The fits' iterations (default the fit command's, 300): one number for every model, or per model "
+             "(mannequin=300,mesh=40)."),
     fit_arrays: Optional[str] = typer.Option(
-        None, "--fit-arrays", help="Fit only these array sides, comma-separated (default every array of --arrays; "
-                                   "a free mesh's fit grows with pixels x spots)."),
+        None, "--fit-arrays", metavar="N,...|MODEL=N,...;...",
+        help="Fit only these array sides, comma-separated (default every array of --arrays; a free mesh's fit "
+             "grows with pixels x spots), or per model (mesh=8, or mannequin=8,16;mesh=8)."),
     noise_target: Optional[str] = typer.Option(
         None, "--noise-target", help="Render each array until its rendering variance <= this share of the photon "
                                      "variance at the largest exposure; 'none' renders the scene's spp (default 0.1, "
-                                     "none with --quick; docs/noise.md)."),
+                                     "0.01 for the quadrature, none with --quick; docs/noise.md)."),
     seed: int = SEED_OPT,
     ground_truth: Optional[Path] = GT_OPT,
     quick: bool = QUICK_OPT,
@@ -227,12 +231,47 @@ def methods(
     if noise_target is not None:
         kw["noise_target"] = _noise_target(noise_target)
     if fit_arrays is not None:
-        kw["fit_arrays"] = _ints(fit_arrays, "--fit-arrays", "8")
+        kw["fit_arrays"] = _fit_arrays(fit_arrays)
+    if fit_iterations is not None:
+        kw["fit_iterations"] = _fit_iterations(fit_iterations)
     names = tuple(m.strip() for m in methods.split(",") if m.strip())
+    fits = None if fit is None else tuple(m.strip() for m in fit.split(",") if m.strip())
     path, rows = run_methods_study(scene, out, arrays=sizes, methods=names, defines=defines, seed=seed, quick=quick,
-                                   ground_truth=ground_truth, complete=complete, fit=fit,
-                                   fit_iterations=fit_iterations, overwrite=overwrite, log=_log, **kw)
+                                   ground_truth=ground_truth, complete=complete,
+                                   fit=fits[0] if fits and len(fits) == 1 else fits, overwrite=overwrite, log=_log,
+                                   **kw)
     typer.echo(f"wrote {path}: {len(rows)} reconstructions; summary {path / 'summary.md'}")
+
+
+def _fit_iterations(text: str):
+    """``--fit-iterations``: ``N`` (every model) or ``MODEL=N,...`` (a dict; the study checks the models)."""
+    from transient_core.errors import UserInputError
+
+    if "=" not in text:
+        return whole_number("--fit-iterations")(text)
+    out = {}
+    for part in text.split(","):
+        model, sep, n = part.partition("=")
+        if not sep or not model.strip():
+            raise UserInputError(f"--fit-iterations {text!r}: expected N or MODEL=N,... (e.g. mannequin=300,mesh=40)")
+        out[model.strip()] = whole_number("--fit-iterations")(n)
+    return out
+
+
+def _fit_arrays(text: str):
+    """``--fit-arrays``: ``N,...`` (every model) or ``MODEL=N,...;MODEL=N,...`` (a dict)."""
+    from transient_core.errors import UserInputError
+
+    if "=" not in text:
+        return _ints(text, "--fit-arrays", "8")
+    out = {}
+    for part in text.split(";"):
+        model, sep, sizes = part.partition("=")
+        if not sep or not model.strip():
+            raise UserInputError(f"--fit-arrays {text!r}: expected N,... or MODEL=N,...;MODEL=N,... "
+                                 "(e.g. mannequin=8,16;mesh=8)")
+        out[model.strip()] = _ints(sizes, "--fit-arrays", "mesh=8")
+    return out
 
 
 def _noise_target(value: str):

@@ -2,7 +2,8 @@
 
 For every array size: render the scene's ideal capture once (``-D array=N``,
 or ``-D width=N -D height=N``), by default until its rendering noise is at most
-0.1 x the photon noise of the largest exposure (``noise_target``; the scene's
+0.1 x the photon noise of the largest exposure, 0.01 x where the deterministic
+quadrature renders it (``noise_target``; for Monte Carlo the scene's
 spp is the pilot; rows record the samples used, ``render_spp``, and each
 exposure's measured ratio, ``render_noise_ratio``); for every exposure detect it in memory
 (:class:`~transient_mi.study.detection.Detection`, detection seed
@@ -59,10 +60,12 @@ from transient_mi.noise_target import rendered_spp
 from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv, write_json
 
 from . import validate as V
-from .common import bar_enabled, capture_estimator, front_view, quiet_inner_bars, render, resolve_noise_target
+from .common import (bar_enabled, capture_estimator, front_view, noise_target_spec, quiet_inner_bars, render,
+                     resolve_noise_target)
 from .methods_fit import (FIT_BIN_WIDTH_PS, FIT_MESH_START, FIT_MODELS, FIT_PREFIX, fit_bin_width_ps,  # noqa: F401
                           fit_row, is_fit)
 from .methods_fit import fit_arrays as check_fit_arrays
+from .methods_fit import fit_models
 from .methods_fit import fit_settings as check_fit_settings
 from .metrics_rows import LEADERBOARD_METRICS, score as _metrics
 from .scene import array_size_defines, base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
@@ -112,8 +115,8 @@ def scene_ground_truth(scene) -> object:
 def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, arrays=DEFAULT_ARRAYS,
                       exposures_s=DEFAULT_EXPOSURES_S, methods=DEFAULT_METHODS, defines=None, voxels=(64, 64, 32),
                       seed: int = 0, quick: bool = False, progress: bool | None = None, ground_truth=None,
-                      bounds=None, threshold: str | None = None, complete=None, fit: str | None = None,
-                      fit_iterations: int | None = None, fit_arrays=None,
+                      bounds=None, threshold: str | None = None, complete=None, fit=None,
+                      fit_iterations=None, fit_arrays=None,
                       noise_target: float | None | str = "auto", overwrite: bool = False, log=None):
     """Run the methods study (see the module docstring); returns ``(out_dir, rows)``.
 
@@ -136,18 +139,21 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         Also score every reconstruction closed behind its front under the
         completion prior (:func:`recon.completion.complete_surface`), as rows
         named ``<method>+completion`` whose time includes the completion's.
-    fit : {"mannequin", "patches", "mesh"}, optional
-        Also fit this model of :mod:`transient_mi.fit` to every array x exposure's counts (row
-        ``fit:<model>``; see the module docstring). Minutes per fit.
-    fit_iterations : int, optional
-        The fit's iterations (default :class:`transient_mi.fit.FitSettings`'s).
-    fit_arrays : sequence of int, optional
-        The arrays whose counts are fitted (default every one of ``arrays``): a fit's cost grows with pixels x
-        spots, so a free mesh (``fit="mesh"``) may be fitted on the smaller arrays only.
+    fit : {"mannequin", "patches", "mesh"} or sequence of them, optional
+        Also fit this model (or each of these models, in order) of :mod:`transient_mi.fit` to every array x
+        exposure's counts (row ``fit:<model>``; see the module docstring). Minutes per fit.
+    fit_iterations : int or dict, optional
+        The fit's iterations (default :class:`transient_mi.fit.FitSettings`'s): one count for every model, or
+        ``{model: count}`` (e.g. ``{"mesh": 40}``; the models it leaves out keep the default).
+    fit_arrays : sequence of int or dict, optional
+        The arrays whose counts are fitted (default every one of ``arrays``): one list for every model or
+        ``{model: list}``. A fit's cost grows with pixels x spots, so a free mesh (``fit="mesh"``) may be fitted
+        on the smaller arrays only.
     noise_target : float, None or "auto"
         Render each array's ideal capture until its rendering variance is at most this share of the photon
         variance at the largest exposure (every smaller exposure then has a smaller ratio); the scene's spp is
-        the pilot (:mod:`transient_mi.noise_target`). ``"auto"``: 0.1, or None with ``quick``. None renders the
+        the pilot (:mod:`transient_mi.noise_target`). ``"auto"``: 0.1 (0.01 where the quadrature renders the scene:
+        :data:`~transient_mi.study.common.QUADRATURE_AUTO_TARGET`), or None with ``quick``. None renders the
         scene's spp as it is. Either way every row records the measured ratio (``render_noise_ratio``,
         :mod:`spad_detector.render_noise`) and the samples used (``render_spp``).
     voxels, seed, quick, progress, ground_truth, bounds, overwrite, log
@@ -171,10 +177,12 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
 
         check_aspect(complete)
     seed = V.integer(seed, "seed", 0, 2**32)
+    fits = fit_models(fit)
     fit_settings = check_fit_settings(fit, fit_iterations)
     fit_arrays = check_fit_arrays(fit, fit_arrays, arrays)
     progress = V.progress(progress)
     quick = V.flag(quick, "quick")
+    given_target = noise_target
     noise_target = resolve_noise_target(noise_target, quick)
     sc = study_scene(scene, defines, quick=quick)
     if any(k in (defines or {}) for k in array_size_defines(sc, arrays[0])):
@@ -186,15 +194,11 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         gt, gt_desc = load_study_ground_truth(sc, ground_truth)
     bnds = reconstruction_bounds(sc, bounds)
     params = base_detector(sc)
-    spec = None
-    if noise_target is not None:
-        from transient_mi.noise_target import NoiseTargetSpec
-
-        spec = NoiseTargetSpec(target=noise_target, params=params, exposure_s=max(exposures))
+    spec = noise_target_spec(given_target, noise_target, params, max(exposures))
     out = Path(out_dir)
     t_start = time.perf_counter()
     rows, previews = [], []
-    n_steps = len(arrays) * (1 + len(exposures) * len(methods)) + len(fit_arrays) * len(exposures)
+    n_steps = len(arrays) * (1 + len(exposures) * len(methods)) + sum(map(len, fit_arrays.values())) * len(exposures)
     with atomic_output_dir(out, V.flag(overwrite, "overwrite")) as tmp, quiet_inner_bars():
         with progress_bar("methods study", total=n_steps, disable=not bar_enabled(progress)) as advance:
             warmed = False
@@ -239,11 +243,13 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                         if complete is not None:
                             rows.append(_completed_row(rows[-1], rec, complete, gt, seed))
                         advance(1)
-                    if n in fit_arrays:
-                        log(f"{n}x{n}, {e * 1e3:g} ms per spot: fit {fit}")
+                    for model in fits:
+                        if n not in fit_arrays[model]:
+                            continue
+                        log(f"{n}x{n}, {e * 1e3:g} ms per spot: fit {model}")
                         # scored on the grid the methods just used
-                        row, frec = fit_row(tmp / "fit_work", ideal_dir, params, e, seed + 1, fit, fit_settings,
-                                             rec.grid, gt, base, start=recs.get(FIT_MESH_START))
+                        row, frec = fit_row(tmp / "fit_work", ideal_dir, params, e, seed + 1, model,
+                                             fit_settings[model], rec.grid, gt, base, start=recs.get(FIT_MESH_START))
                         rows.append(row)
                         if n == arrays[-1] and e == exposures[-1]:
                             previews.append((row["method"], front_view(frec)))
@@ -255,11 +261,8 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                     "voxels": list(vox), "bounds_m": list(bnds) if bnds is not None else None,
                     "threshold": threshold or "each method's default (recon.pipeline.default_threshold)",
                     "completion": None if complete is None else str(complete),
-                    "noise_target": noise_target, "estimators": {str(k): v for k, v in estimators.items()},
-                    "fit": None if fit is None else {
-                        "model": fit, "arrays": list(fit_arrays), **asdict(fit_settings),
-                        **({"start": f"{FIT_MESH_START}'s front surface" if FIT_MESH_START in methods
-                            else "the backprojection's front surface"} if fit == "mesh" else {})},
+                    "noise_target": None if spec is None else spec.target, "estimators": {str(k): v for k, v in estimators.items()},
+                    "fit": _fit_record(fits, fit_arrays, fit_settings, methods),
                     "render_seed": seed, "detection_seed": seed + 1,
                     "detector": params.to_dict(), "ground_truth": gt_desc,
                     "total_s": time.perf_counter() - t_start}
@@ -276,6 +279,23 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         (tmp / "summary.md").write_text(summary_markdown(rows, settings))
     log(f"wrote {out} in {time.perf_counter() - t_start:.1f} s")
     return out, rows
+
+
+def _fit_record(fits: tuple, fit_arrays: dict, fit_settings: dict, methods: tuple):
+    """The leaderboard's ``settings["fit"]``: None without fits; one model's settings as a dict (``model``,
+    ``arrays``, the optimiser's settings and, for a free mesh, its ``start``); a list of such dicts for several."""
+    recs = [{"model": m, "arrays": list(fit_arrays[m]), **asdict(fit_settings[m]),
+             **({"start": f"{FIT_MESH_START}'s front surface" if FIT_MESH_START in methods
+                 else "the backprojection's front surface"} if m == "mesh" else {})} for m in fits]
+    if not recs:
+        return None
+    return recs[0] if len(recs) == 1 else recs
+
+
+def fit_records(settings: dict) -> list:
+    """Every fit of a leaderboard's settings as a list of dicts (:func:`_fit_record`'s one or several)."""
+    f = settings.get("fit")
+    return [] if not f else ([f] if isinstance(f, dict) else list(f))
 
 
 def _detect(ideal_dir: Path, params, exposure_s: float, seed: int):
@@ -360,13 +380,7 @@ def summary_markdown(rows: list[dict], settings: dict) -> str:
         noise_note += (" Ideal captures rendered by " + " and ".join(est) +
                        (" (deterministic three-bounce quadrature, its stated error standing for the rendering noise; "
                         "docs/quadrature.md)." if est == ["quadrature"] else "."))
-    fit = s.get("fit")
-    fit_note = "" if not fit else (
-        f" Rows `{FIT_PREFIX}{fit['model']}` are the analysis-by-synthesis fit of a {fit['model']} model "
-        f"(`transient-mi fit`, {fit['iterations']} iterations) to the same counts, its surface voxelised on the grid: "
-        "model-based (it knows what kind of object hides), so not a reconstruction method; the mannequin model starts "
-        "from the paper's pose, which is this scene's unless `-D pose`/`joints` change it. Its time is the fit's; "
-        "its peak MB misses Dr.Jit's buffers.")
+    fit_note = "".join(_fit_note(f) for f in fit_records(s))
     return f"""# Methods study (leaderboard)
 
 Scene `{s['scene_file']}` (-D {', '.join(f'{k}={v}' for k, v in s['defines'].items()) or 'defaults'}), arrays
@@ -382,6 +396,21 @@ filter in this process; peak MB: numpy allocations traced by tracemalloc (a lowe
 
 {markdown_table(headers, table)}
 """
+
+
+def _fit_note(fit: dict) -> str:
+    """The summary's sentence on one fit's rows: a model fit knows the object's kind; a free mesh does not."""
+    arrays = ", ".join(f"{n}x{n}" for n in fit.get("arrays") or [])
+    head = (f" Rows `{FIT_PREFIX}{fit['model']}` are the analysis-by-synthesis fit of a {fit['model']} model "
+            f"(`transient-mi fit`, {fit['iterations']} iterations; arrays {arrays}) to the same counts, its surface "
+            "voxelised on the grid: ")
+    if fit["model"] == "mesh":
+        return head + (f"a free mesh from {fit.get('start', 'its start')}, which knows no kind of object, so a "
+                       "reconstruction from the counts alone. Its time is the fit's; its peak MB misses Dr.Jit's "
+                       "buffers.")
+    return head + ("model-based (it knows what kind of object hides), so not a reconstruction method; the mannequin "
+                   "model starts from the paper's pose, which is this scene's unless `-D pose`/`joints` change it. "
+                   "Its time is the fit's; its peak MB misses Dr.Jit's buffers.")
 
 
 def leaderboard_figure(path: Path, rows: list[dict]) -> Path:

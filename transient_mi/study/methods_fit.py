@@ -28,35 +28,72 @@ FIT_MESH_START = "midpoint-fk"
 #: The fit's time bins reach at least this, ps (:func:`fit_bin_width_ps`).
 FIT_BIN_WIDTH_PS = 10.0
 
-def fit_settings(fit, fit_iterations):
-    """The fit's settings (None without ``fit``); checks ``fit`` and ``fit_iterations``."""
+def fit_models(fit) -> tuple:
+    """The models to fit, in the order given: none for ``fit=None``; ``fit`` one model of :data:`FIT_MODELS` or a
+    sequence of them (each at most once)."""
     if fit is None:
+        return ()
+    models = (fit,) if isinstance(fit, str) else tuple(fit)
+    if not models:
+        raise UserInputError(f"fit={fit!r}: give a model ({', '.join(FIT_MODELS)}) or several, or none")
+    for m in models:
+        if m not in FIT_MODELS:
+            raise UserInputError(f"fit={m!r}: allowed {', '.join(FIT_MODELS)}")
+    if len(set(models)) != len(models):
+        raise UserInputError(f"fit={list(models)!r}: each model at most once")
+    return models
+
+
+def _per_model(value, models: tuple, name: str) -> dict:
+    """``value`` for every model: a mapping ``{model: value}`` (models it does not name: None) or one value for
+    all."""
+    if isinstance(value, dict):
+        unknown = [k for k in value if k not in models]
+        if unknown:
+            raise UserInputError(f"{name}={value!r}: {unknown[0]!r} is not one of the fitted models "
+                                 f"{', '.join(models) or '(none: give fit)'}")
+        return {m: value.get(m) for m in models}
+    return {m: value for m in models}
+
+
+def fit_settings(fit, fit_iterations) -> dict:
+    """``{model: FitSettings}`` of every model in ``fit`` (:func:`fit_models`; empty without it).
+    ``fit_iterations``: one count for every model, or ``{model: count}`` (the others: the fit's default)."""
+    models = fit_models(fit)
+    if not models:
         if fit_iterations is not None:
             raise UserInputError(f"fit_iterations={fit_iterations!r}: needs fit (a model: {', '.join(FIT_MODELS)})")
-        return None
-    if fit not in FIT_MODELS:
-        raise UserInputError(f"fit={fit!r}: allowed {', '.join(FIT_MODELS)}")
+        return {}
     from transient_mi.fit import FitSettings
 
-    if fit_iterations is None:
-        return FitSettings()
-    return FitSettings(iterations=V.integer(fit_iterations, "fit_iterations", 1, 100_000))
+    out = {}
+    for m, n in _per_model(fit_iterations, models, "fit_iterations").items():
+        out[m] = FitSettings() if n is None else FitSettings(
+            iterations=V.integer(n, "fit_iterations" + ("" if len(models) == 1 else f" of {m}"), 1, 100_000))
+    return out
 
 
-def fit_arrays(fit, fit_arrays, arrays) -> tuple:
-    """The arrays to fit (none without ``fit``; default all of ``arrays``); each must be one of ``arrays``."""
-    if fit is None:
+def fit_arrays(fit, fit_arrays, arrays) -> dict:
+    """``{model: arrays}``: the array sides each model of ``fit`` is fitted on (empty without ``fit``; default every
+    one of ``arrays``); ``fit_arrays`` one list for every model or ``{model: list}``; each must be one of
+    ``arrays``."""
+    models = fit_models(fit)
+    if not models:
         if fit_arrays is not None:
             raise UserInputError(f"fit_arrays={fit_arrays!r}: needs fit (a model: {', '.join(FIT_MODELS)})")
-        return ()
-    if fit_arrays is None:
-        return tuple(arrays)
-    chosen = tuple(sorted(V.integers_list(fit_arrays, "fit_arrays", 1, 257)))
-    bad = [n for n in chosen if n not in arrays]
-    if bad or not chosen:
-        raise UserInputError(f"fit_arrays={list(chosen)!r}: each must be one of the study's arrays "
-                             f"{', '.join(str(n) for n in arrays)}")
-    return chosen
+        return {}
+    out = {}
+    for m, given in _per_model(fit_arrays, models, "fit_arrays").items():
+        if given is None:
+            out[m] = tuple(arrays)
+            continue
+        chosen = tuple(sorted(V.integers_list(given, "fit_arrays", 1, 257)))
+        bad = [n for n in chosen if n not in arrays]
+        if bad or not chosen:
+            raise UserInputError(f"fit_arrays={list(chosen)!r}: each must be one of the study's arrays "
+                                 f"{', '.join(str(n) for n in arrays)}")
+        out[m] = chosen
+    return out
 
 
 def is_fit(method: str) -> bool:
