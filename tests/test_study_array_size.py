@@ -56,11 +56,24 @@ def test_rows_report_the_rendering_noise_the_methods_study_measures(study, tmp_p
     from transient_mi.study import run_methods_study
 
     for r in study.rows:
-        assert r["render_noise_ratio"] > 0.1
-    assert "above the usual 0.1" in study.summary.read_text()
+        assert r["render_noise_ratio"] > 0.1 and r["estimator"] == "monte_carlo"
+    assert "above the usual 0.1: part of the error at large arrays is Monte Carlo noise" in study.summary.read_text()
+    assert "(64 spp)" in study.summary.read_text()
     _, rows = run_methods_study("paper_mannequin", tmp_path / "m", arrays=(4,), exposures_s=(1e-3,), methods=("bp",),
                                 defines={"spp": 64, "estimator": "monte_carlo"}, quick=True, voxels=(32, 32, 16), progress=False)
     assert rows[0]["render_noise_ratio"] == pytest.approx(study.rows[0]["render_noise_ratio"], rel=1e-9)
+
+
+def test_the_noise_sentence_names_the_quadrature_where_it_made_the_captures():
+    """Quadrature captures have no samples: the summary says which estimator made them and, above 0.1, that the
+    excess is its discretisation error, not Monte Carlo noise."""
+    from transient_mi.study.array_size import _noise_sentence
+
+    rows = [{"array": 4, "render_noise_ratio": 0.004, "estimator": "quadrature"},
+            {"array": 8, "render_noise_ratio": 0.2, "estimator": "quadrature"}]
+    text = _noise_sentence(rows, 16384)
+    assert "by the deterministic quadrature" in text and "16384 spp" not in text
+    assert "the quadrature's discretisation error, not photon noise" in text and "4x4: 0.004, 8x8: 0.2" in text
 
 
 def test_same_seed_same_bytes_and_kept_captures(study, tmp_path):

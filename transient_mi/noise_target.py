@@ -59,6 +59,10 @@ class NoiseTargetSpec:
         Photon budget per laser spot (one of them, or neither for the laser's default).
     max_spp : int
         Cap on samples per pixel per spot.
+    quadrature_target : float, optional
+        The target instead of ``target`` where the scene renders with the deterministic quadrature (set by
+        :func:`~transient_mi.render_capture.prepare_render` once it knows the estimator): a study's ``"auto"``
+        asks 0.1 of Monte Carlo and 0.01 of the quadrature, which refines its elements to it in seconds.
     """
 
     target: float
@@ -66,6 +70,7 @@ class NoiseTargetSpec:
     pulses: int | None = None
     exposure_s: float | None = None
     max_spp: int = DEFAULT_MAX_SPP
+    quadrature_target: float | None = None
 
     def validate(self, base_spp: int, replicates: int) -> "NoiseTargetSpec":
         t = self.target

@@ -255,6 +255,8 @@ def _resolve_noise_target(spec, integrator, spp: int, layout: dict, detect_kwarg
         else:
             spec.params = DetectorParams(auto_gate=True)
     spec.params = spec.params.validate()
+    if quadrature and spec.quadrature_target is not None:
+        spec.target = spec.quadrature_target
     R = 2 if quadrature else effective_replicates(spp, _replicates(integrator, nlos=True))
     return spec.validate(spp, R)
 

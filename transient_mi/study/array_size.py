@@ -29,15 +29,15 @@ from transient_core.errors import UserInputError
 from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv, write_json
 
 from . import validate as V
-from .common import (METRIC_COLUMNS, bar_enabled, check_method_fits, front_view, metric_values, quiet_inner_bars,
-                     reconstruct, render)
+from .common import (METRIC_COLUMNS, bar_enabled, capture_estimator, check_method_fits, front_view, metric_values,
+                     quiet_inner_bars, reconstruct, render)
 from .study_result import StudyResult
 from .scene import array_size_defines, base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
 
 #: The paper's array sizes and 64x64.
 DEFAULT_ARRAYS = (4, 8, 16, 32, 64)
 ROW_COLUMNS = ("array", "pixels", "n_spots", "pulses_per_spot", "counts_per_pixel_per_spot", "render_noise_ratio",
-               "ideal_bytes", "counts_bytes", "engines", "exact") + METRIC_COLUMNS
+               "estimator", "ideal_bytes", "counts_bytes", "engines", "exact") + METRIC_COLUMNS
 TIMING_COLUMNS = ("array", "render_s", "detect_s", "reconstruct_s", "metrics_s", "total_s")
 
 
@@ -167,7 +167,9 @@ def _one(tmp: Path, sc, n: int, params, exposure: float, vox, seed: int, bounds,
     row = {"array": n, "pixels": n * n, "n_spots": m["n_files"], "pulses_per_spot": int(m["detector"]["pulses"]),
            "counts_per_pixel_per_spot": total / (n * n * m["n_files"]),
            # rendering variance / photon variance of these counts (spad_detector.render_noise; None if unknown)
-           "render_noise_ratio": (res.get("render_noise") or {}).get("ratio"), "ideal_bytes": _dir_bytes(ideal),
+           "render_noise_ratio": (res.get("render_noise") or {}).get("ratio"),
+           # which estimator made the ideal capture (quadrature: a stated error, not samples)
+           "estimator": capture_estimator(ideal), "ideal_bytes": _dir_bytes(ideal),
            "counts_bytes": _dir_bytes(counts), "engines": "/".join(sorted(set(res["engines_used"]))),
            "exact": bool(res["exact"]), **metric_values(metrics)}
     timing = {"array": n, "render_s": t1 - t0, "detect_s": t2 - t1, "reconstruct_s": t3 - t2 - t_met,
@@ -203,7 +205,8 @@ def _write_outputs(tmp: Path, sc, rows, timings, previews, gt, gt_desc, params, 
 
 
 def _noise_sentence(rows, spp: int) -> str:
-    """How much of the counts' noise is the ideal captures' rendering noise (measured per array)."""
+    """How much of the counts' noise is the ideal captures' rendering noise (measured per array), and which
+    estimator made them (Monte Carlo at ``spp``, or the quadrature, whose stated error stands for it)."""
     ratios = {r["array"]: r.get("render_noise_ratio") for r in rows if r.get("render_noise_ratio") is not None}
     if not ratios:
         return "The ideal captures store no variance: their rendering noise is unknown."
@@ -211,10 +214,16 @@ def _noise_sentence(rows, spp: int) -> str:
 
     worst = max(ratios.values())
     per = ", ".join(f"{a}x{a}: {v:.3g}" for a, v in ratios.items())
+    quadrature = {r.get("estimator") for r in rows} == {"quadrature"}
     verdict = (f"at most the usual {DEFAULT_THRESHOLD:g}" if worst <= DEFAULT_THRESHOLD else
-               f"above the usual {DEFAULT_THRESHOLD:g}: part of the error at large arrays is Monte Carlo noise, "
-               "not photon noise; raise `-D spp` (or use `study methods`, which renders to a noise target)")
-    return (f"Rendering noise of the ideal captures ({spp} spp) relative to the photon noise at this budget "
+               f"above the usual {DEFAULT_THRESHOLD:g}: part of the error at large arrays is "
+               + ("the quadrature's discretisation error, not photon noise; use `study methods`, which refines it "
+                  "to a noise target" if quadrature else
+                  "Monte Carlo noise, not photon noise; raise `-D spp` (or use `study methods`, which renders to a "
+                  "noise target)"))
+    made = ("by the deterministic quadrature, its stated error bound standing for the noise" if quadrature
+            else f"{spp} spp")
+    return (f"Rendering noise of the ideal captures ({made}) relative to the photon noise at this budget "
             f"(`spad_detector.render_noise`): {per}; {verdict}.")
 
 

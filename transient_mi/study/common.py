@@ -33,9 +33,16 @@ def capture_estimator(ideal_dir) -> str:
     return (read_manifest(ideal_dir).get("render") or {}).get("estimator", "monte_carlo")
 
 
+#: A study's ``noise_target="auto"`` where the scene renders with the deterministic quadrature (issue 27: its
+#: captures at 0.01 x the photon noise; Monte Carlo keeps 0.1, :data:`spad_detector.render_noise.DEFAULT_THRESHOLD`,
+#: whose samples grow as 1 / target).
+QUADRATURE_AUTO_TARGET = 0.01
+
+
 def resolve_noise_target(noise_target, quick: bool) -> float | None:
-    """The study's noise target: ``"auto"`` is 0.1 (:data:`spad_detector.render_noise.DEFAULT_THRESHOLD`),
-    or None with ``quick``; None renders the scene's spp as it is; a number must be finite and > 0."""
+    """The study's noise target: ``"auto"`` is 0.1 (:data:`spad_detector.render_noise.DEFAULT_THRESHOLD`;
+    :data:`QUADRATURE_AUTO_TARGET` for a scene the quadrature renders, :func:`noise_target_spec`), or None with
+    ``quick``; None renders the scene's spp as it is; a number must be finite and > 0."""
     from spad_detector.render_noise import DEFAULT_THRESHOLD
 
     from . import validate as V
@@ -45,6 +52,20 @@ def resolve_noise_target(noise_target, quick: bool) -> float | None:
     if noise_target is None:
         return None
     return V.numbers_list([noise_target], "noise_target")[0]
+
+
+def noise_target_spec(given, target: float | None, params, exposure_s: float):
+    """The :class:`~transient_mi.noise_target.NoiseTargetSpec` of a study's render (None without a target):
+    ``target`` (:func:`resolve_noise_target` of ``given``) for the detector ``params`` at ``exposure_s``; where
+    ``given`` was ``"auto"``, the quadrature is held to :data:`QUADRATURE_AUTO_TARGET` instead. Read the target
+    the render met from the spec after it (``spec.target``)."""
+    if target is None:
+        return None
+    from transient_mi.noise_target import NoiseTargetSpec
+
+    auto = isinstance(given, str) and given == "auto"
+    return NoiseTargetSpec(target=target, params=params, exposure_s=exposure_s,
+                           quadrature_target=QUADRATURE_AUTO_TARGET if auto else None)
 
 
 def bar_enabled(progress: bool | None) -> str:

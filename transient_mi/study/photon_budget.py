@@ -33,7 +33,7 @@ from transient_mi.reporting import atomic_output_dir, markdown_table, write_csv,
 
 from . import validate as V
 from .common import (METRIC_COLUMNS, bar_enabled, check_method_fits, front_view, metric_values, quiet_inner_bars,
-                     reconstruct, render, resolve_noise_target)
+                     reconstruct, render, resolve_noise_target, noise_target_spec)
 from .study_result import StudyResult
 from .scene import base_detector, load_study_ground_truth, reconstruction_bounds, study_scene
 
@@ -104,7 +104,8 @@ def run_photon_budget_study(scene="paper_mannequin", out_dir="out/study-photon-b
     noise_target : float, None or "auto"
         Render the ideal capture until its rendering variance is at most this share of the photon variance at
         the study's largest budget (largest exposure and power, lowest dark-count rate: every other setting
-        then has a smaller ratio); the scene's spp is the pilot. ``"auto"``: 0.1, or None with ``quick``.
+        then has a smaller ratio); the scene's spp is the pilot. ``"auto"``: 0.1 (0.01 where the quadrature renders the scene:
+        :data:`~transient_mi.study.common.QUADRATURE_AUTO_TARGET`), or None with ``quick``.
         None: render the scene's spp as it is. Either way every budget's ratio is reported
         (``render_noise_ratio`` in the aggregate rows, the rendering-noise ceiling in the SNR figure).
 
@@ -124,6 +125,7 @@ def run_photon_budget_study(scene="paper_mannequin", out_dir="out/study-photon-b
     overwrite = V.flag(overwrite, "overwrite")
     progress = V.progress(progress)
     method = V.method(method)
+    given_target = noise_target
     noise_target = resolve_noise_target(noise_target, quick)
     sc = study_scene(scene, defines, quick=quick)
     gt, gt_desc = load_study_ground_truth(sc, ground_truth)
@@ -140,13 +142,9 @@ def run_photon_budget_study(scene="paper_mannequin", out_dir="out/study-photon-b
     with atomic_output_dir(out, overwrite) as tmp, quiet_inner_bars():
         log(f"rendering {sc.describe()}")
         t0 = time.perf_counter()
-        spec = None
-        if noise_target is not None:
-            from transient_mi.noise_target import NoiseTargetSpec
-
-            over = {} if powers is None else {"laser_power_w": max(powers)}
-            spec = NoiseTargetSpec(target=noise_target, params=base.replace(dark_count_rate_cps=min(darks), **over),
-                                   exposure_s=max(exposures))
+        over = {} if powers is None else {"laser_power_w": max(powers)}
+        spec = noise_target_spec(given_target, noise_target, base.replace(dark_count_rate_cps=min(darks), **over),
+                                 max(exposures))
         ideal_dir = render(sc, tmp / "ideal", seed, noise_target=spec, log=log)
         render_s = time.perf_counter() - t0
         if gt is not None and gt.mesh is not None:
