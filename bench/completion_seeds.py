@@ -2,8 +2,10 @@
 
 The methods leaderboard scores one detection of one render. This script
 renders the paper's scene once as the leaderboard does (32x32 array, 2x2
-spots, 4 ps bins, render seed 0, until its rendering noise is at most 0.1 x
-the photon noise at 10 ms per spot, from a pilot of ``--spp``), then detects it ``--seeds``
+spots, 4 ps bins, render seed 0, by the scene's default estimator to the study's
+``auto`` noise target at 10 ms per spot: the deterministic quadrature to 0.01 x the
+photon noise; ``--estimator monte_carlo`` renders by Monte Carlo to 0.1 from a pilot of
+``--spp``, as the leaderboard did until 2026-12-05), then detects it ``--seeds``
 times at the paper's budget (10 ms per spot, detection seeds 1..N: seed 1 is
 the leaderboard's), reconstructs each with ``midpoint-fk`` (the paper's
 filter, its default threshold, 64x64x32 voxels over the paper's bounds) and
@@ -51,6 +53,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--spp", type=int, default=16384)
     ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--estimator", choices=("quadrature", "monte_carlo"), default="quadrature")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "completion_seeds.json")
     a = ap.parse_args(argv)
     if a.seeds < 2:
@@ -63,20 +66,21 @@ def main(argv=None) -> int:
     from transient_core.atomic import atomic_file
     from transient_mi.study.common import render
     from transient_mi.study.methods import _detect
-    from transient_mi.noise_target import NoiseTargetSpec
+    from transient_mi.study.common import capture_estimator, noise_target_spec, resolve_noise_target
     from transient_mi.study.scene import base_detector, load_study_ground_truth, study_scene
     from transient_mi.experiment import PAPER_BOUNDS_M
 
     sc = study_scene("paper_mannequin", {"spp": a.spp, "bin_width_ps": 4, "n_bins": 2875, "array": 32,
-                                        "estimator": "monte_carlo"})
+                                        "estimator": a.estimator})
     gt, gt_desc = load_study_ground_truth(sc)
     params = base_detector(sc)
     per = {"midpoint-fk": {k: [] for k in KEYS}, "midpoint-fk+completion": {k: [] for k in KEYS}}
     aspects = []
     with tempfile.TemporaryDirectory(dir=ROOT / "bench") as tmp:
-        # the leaderboard's render: rendering noise <= 0.1 x the photon noise at 10 ms per spot
-        ideal = render(sc, Path(tmp) / "ideal", 0,
-                       noise_target=NoiseTargetSpec(target=0.1, params=params, exposure_s=0.01))
+        # the leaderboard's render: its "auto" noise target at 10 ms per spot (0.01 for the quadrature, 0.1 else)
+        spec = noise_target_spec("auto", resolve_noise_target("auto", False), params, 0.01)
+        ideal = render(sc, Path(tmp) / "ideal", 0, noise_target=spec)
+        estimator = capture_estimator(ideal)
         for seed in range(1, a.seeds + 1):
             cap = _detect(ideal, params, 0.01, seed)[0]
             rec = recon.reconstruct(cap, "midpoint-fk", bounds=PAPER_BOUNDS_M, voxels=(64, 64, 32), filter="paper")
@@ -93,8 +97,9 @@ def main(argv=None) -> int:
            "command": "python bench/completion_seeds.py " + " ".join(argv),
            "date_utc": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
            "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version()},
-           "settings": {"scene": "paper_mannequin", "array": 32, "spots": "2x2", "spp_pilot": a.spp,
-                        "noise_target": 0.1, "bin_width_ps": 4,
+           "settings": {"scene": "paper_mannequin", "array": 32, "spots": "2x2", "estimator": estimator,
+                        "spp_pilot": a.spp if estimator == "monte_carlo" else None,
+                        "noise_target": spec.target, "bin_width_ps": 4,
                         "exposure_s": 0.01, "render_seed": 0, "detection_seeds": list(range(1, a.seeds + 1)),
                         "voxels_xyz": [64, 64, 32], "bounds_m": list(PAPER_BOUNDS_M), "ground_truth": gt_desc},
            "results": res, "aspects": aspects}
