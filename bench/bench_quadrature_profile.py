@@ -15,7 +15,8 @@ and CPU time (every thread of the process) of each stage, taken by wrapping the 
 * ``render call``: the whole ``render`` (setup, the quadrature, writing the capture and its error files).
 
 Scenes: ``--scene letter`` (``scenes/nlos_letter.xml`` at its defaults: the README capture) or ``paper`` (the
-paper scene at ``--array`` pixels, 2 x 2 spots, 1 ps bins over the demo's 11.5 ns, its quadrature defaults).
+paper scene at ``--array`` pixels, 2 x 2 spots, ``--bin-width-ps`` bins (default 1 ps) over the demo's 11.5 ns, its
+quadrature defaults).
 
     python bench/bench_quadrature_profile.py --scene letter --save
     python bench/bench_quadrature_profile.py --scene paper --save
@@ -75,12 +76,18 @@ class _Timer:
         setattr(mod, name, timed)
 
 
+def _n_bins(bin_width_ps: float) -> int:
+    """Bins of ``bin_width_ps`` over the demo's 11.5 ns."""
+    return int(round(11500.0 / bin_width_ps))
+
+
 def _defines(a) -> tuple[Path, dict]:
     if a.scene == "letter":
         return ROOT / "scenes" / "nlos_letter.xml", {}
     from transient_mi.paper import PaperConfig, scene_file
 
-    cfg = PaperConfig(array=a.array, spots=2, spp=1024, bin_width_ps=1.0, n_bins=11500, estimator="quadrature")
+    cfg = PaperConfig(array=a.array, spots=2, spp=1024, bin_width_ps=a.bin_width_ps,
+                      n_bins=_n_bins(a.bin_width_ps), estimator="quadrature")
     return Path(scene_file()), {k: str(v) for k, v in cfg.defines().items()}
 
 
@@ -88,6 +95,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", choices=("letter", "paper"), default="letter")
     ap.add_argument("--array", type=int, default=32, help="paper scene only: pixels per side (default 32)")
+    ap.add_argument("--bin-width-ps", type=float, default=1.0,
+                    help="paper scene only: bin width over the demo's 11.5 ns (default 1; the dataset example's 8)")
     _record.add_arguments(ap)
     a = ap.parse_args(argv)
     load_start = list(os.getloadavg())
@@ -116,13 +125,15 @@ def main(argv=None) -> int:
               for k, v in sorted(timer.t.items(), key=lambda kv: -kv[1][1])}
     result = {"scene": str(scene.relative_to(ROOT)) if scene.is_relative_to(ROOT) else scene.name,
               "config": "the README capture (the scene's defaults)" if a.scene == "letter" else
-              f"{a.array} x {a.array} pixels, 2 x 2 spots, 11,500 bins of 1 ps, the scene's quadrature defaults",
+              f"{a.array} x {a.array} pixels, 2 x 2 spots, {_n_bins(a.bin_width_ps):,} bins of {a.bin_width_ps:g} ps, "
+              "the scene's quadrature defaults",
               "settings": info, "render_call": {"wall_s": round(total[0], 2), "cpu_s": round(total[1], 2)},
               "stages": stages,
               "note": "stages nest: the levels hold the bin masses, pair geometry, visibility from the cells, lit pairs "
                       "and knots; CPU is every thread of the process (numba's two)"}
     print(json.dumps(result, indent=1))
-    _record.maybe_save(a, f"quadrature_profile_{a.scene}", result, load_start=load_start)
+    name = f"quadrature_profile_{a.scene}" + ("" if a.bin_width_ps == 1.0 else f"_{a.bin_width_ps:g}ps")
+    _record.maybe_save(a, name, result, load_start=load_start)
     return 0
 
 
