@@ -180,6 +180,7 @@ def test_two_fitted_models_each_on_its_own_arrays(tmp_path):
     fits = fit_records(settings)
     assert [(f["model"], f["arrays"], f["iterations"]) for f in fits] == [("mesh", [4], 2), ("mannequin", [8], 1)]
     assert fits[0]["start"] == "midpoint-fk's front surface" and "start" not in fits[1]
+    assert fits[0]["estimator"] == "quadrature"  # the free mesh's forward model, always
     text = (out / "summary.md").read_text()
     assert "Rows `fit:mesh` are" in text and "a free mesh from midpoint-fk's front surface, which knows no kind" in text
     assert "Rows `fit:mannequin` are" in text and "model-based (it knows what kind of object hides)" in text

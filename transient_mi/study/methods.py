@@ -261,7 +261,8 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
                     "voxels": list(vox), "bounds_m": list(bnds) if bnds is not None else None,
                     "threshold": threshold or "each method's default (recon.pipeline.default_threshold)",
                     "completion": None if complete is None else str(complete),
-                    "noise_target": None if spec is None else spec.target, "estimators": {str(k): v for k, v in estimators.items()},
+                    "noise_target": None if spec is None else spec.target,
+                    "estimators": {str(k): v for k, v in estimators.items()},
                     "fit": _fit_record(fits, fit_arrays, fit_settings, methods),
                     "render_seed": seed, "detection_seed": seed + 1,
                     "detector": params.to_dict(), "ground_truth": gt_desc,
@@ -284,8 +285,9 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
 def _fit_record(fits: tuple, fit_arrays: dict, fit_settings: dict, methods: tuple):
     """The leaderboard's ``settings["fit"]``: None without fits; one model's settings as a dict (``model``,
     ``arrays``, the optimiser's settings and, for a free mesh, its ``start``); a list of such dicts for several."""
+    # (a free mesh always renders by the quadrature, whatever FitSettings.estimator says: transient_mi.fit.mesh_fit)
     recs = [{"model": m, "arrays": list(fit_arrays[m]), **asdict(fit_settings[m]),
-             **({"start": f"{FIT_MESH_START}'s front surface" if FIT_MESH_START in methods
+             **({"estimator": "quadrature", "start": f"{FIT_MESH_START}'s front surface" if FIT_MESH_START in methods
                  else "the backprojection's front surface"} if m == "mesh" else {})} for m in fits]
     if not recs:
         return None

@@ -104,8 +104,8 @@ def run_photon_budget_study(scene="paper_mannequin", out_dir="out/study-photon-b
     noise_target : float, None or "auto"
         Render the ideal capture until its rendering variance is at most this share of the photon variance at
         the study's largest budget (largest exposure and power, lowest dark-count rate: every other setting
-        then has a smaller ratio); the scene's spp is the pilot. ``"auto"``: 0.1 (0.01 where the quadrature renders the scene:
-        :data:`~transient_mi.study.common.QUADRATURE_AUTO_TARGET`), or None with ``quick``.
+        then has a smaller ratio); the scene's spp is the pilot. ``"auto"``: 0.1 (0.01 where the quadrature
+        renders the scene: :data:`~transient_mi.study.common.QUADRATURE_AUTO_TARGET`), or None with ``quick``.
         None: render the scene's spp as it is. Either way every budget's ratio is reported
         (``render_noise_ratio`` in the aggregate rows, the rendering-noise ceiling in the SNR figure).
 
