@@ -61,7 +61,7 @@ def _row(c: dict) -> str:
 
 #: Records of configurations measured in a later run (``--only NAME --record-suffix NAME``): their rows replace
 #: the main record's rows of the same configuration.
-LATER = ("nlos_quadrature_64x64", "nlos_quadrature_confocal")
+LATER = ("nlos_quadrature_64x64", "nlos_quadrature_confocal", "nlos_quadrature_array")
 
 
 def _later(R) -> list[dict]:
