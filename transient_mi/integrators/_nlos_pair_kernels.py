@@ -212,25 +212,23 @@ def mixed_lit(vc, vs, e0, X0, n_sh, cell_p, S, cell_spot, side_test, out):
     G = vs.shape[1]
     for j in numba.prange(k):
         e = e0 + j
+        side_s = np.ones(G, dtype=np.int64)  # each spot's side, once per element (1: no side test)
+        if side_test:
+            for s in range(G):
+                side_s[s] = _side_of(S, s, X0, n_sh, e)
         hit = False
         for c in range(C):
             mp = vc[c, j]
             if mp == 0:
                 continue
-            sx = 0
-            if side_test:
-                sx = _side((cell_p[c, 0] - X0[e, 0]) * n_sh[e, 0] + (cell_p[c, 1] - X0[e, 1]) * n_sh[e, 1]
-                           + (cell_p[c, 2] - X0[e, 2]) * n_sh[e, 2])
-                if sx == 0:
-                    continue
+            sx = _side_of(cell_p, c, X0, n_sh, e) if side_test else 1
+            if sx == 0:
+                continue
             s_lo = 0 if cell_spot[c] < 0 else cell_spot[c]
             s_hi = G if cell_spot[c] < 0 else cell_spot[c] + 1
             for s in range(s_lo, s_hi):
                 m = mp & vs[e, s]
-                if m == 0 or m == 15:
-                    continue
-                if side_test and sx * _side((S[s, 0] - X0[e, 0]) * n_sh[e, 0] + (S[s, 1] - X0[e, 1]) * n_sh[e, 1]
-                                            + (S[s, 2] - X0[e, 2]) * n_sh[e, 2]) <= 0:
+                if m == 0 or m == 15 or sx * side_s[s] <= 0:
                     continue
                 hit = True
                 break
@@ -238,6 +236,14 @@ def mixed_lit(vc, vs, e0, X0, n_sh, cell_p, S, cell_spot, side_test, out):
                 break
         if hit:
             out[e] = True
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _side_of(P, i, X0, n_sh, e):
+    """The side (+1, -1; 0 in the plane) of point ``P[i]`` with respect to element ``e``'s shading normal
+    ``n_sh[e]`` at its centroid ``X0[e]``."""
+    return _side((P[i, 0] - X0[e, 0]) * n_sh[e, 0] + (P[i, 1] - X0[e, 1]) * n_sh[e, 1]
+                 + (P[i, 2] - X0[e, 2]) * n_sh[e, 2])
 
 
 def cell_terms(cell_p: np.ndarray, D: np.ndarray, ax: np.ndarray, ay: np.ndarray, fl: float, ap_n: np.ndarray,
