@@ -64,9 +64,8 @@ def main(argv=None) -> int:
     from recon.completion import complete_surface
     from recon.metrics import compute_metrics
     from transient_core.atomic import atomic_file
-    from transient_mi.study.common import render
+    from transient_mi.study.common import capture_estimator, noise_target_spec, render, resolve_noise_target
     from transient_mi.study.methods import _detect
-    from transient_mi.study.common import capture_estimator, noise_target_spec, resolve_noise_target
     from transient_mi.study.scene import base_detector, load_study_ground_truth, study_scene
     from transient_mi.experiment import PAPER_BOUNDS_M
 

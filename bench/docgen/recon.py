@@ -264,15 +264,11 @@ def methods_trend_para(R) -> str:
         have = [(a, r) for a, r in zip(arrays, rs) if r is not None and r["chamfer_m"] is not None]
         if not have:
             continue
-        if len(have) < len(arrays):  # a fit on some arrays only (fit_arrays): those, named
-            on = " / ".join(f"{a}x{a}" for a, _ in have)
-            cham = " / ".join(f"{100 * r['chamfer_m']:.2f}" for _, r in have)
-            secs = " / ".join(f"{r['reconstruct_s']:.2f}" for _, r in have)
-            parts.append(f"{m} ({on} only) {cham} cm ({secs} s)")
-            continue
-        cham = " / ".join(f"{100 * r['chamfer_m']:.2f}" for r in rs)
-        secs = " / ".join(f"{r['reconstruct_s']:.2f}" for r in rs)
-        parts.append(f"{m} {cham} cm ({secs} s)")
+        # (a fit on some arrays only, fit_arrays: those, named)
+        name = m if len(have) == len(arrays) else f"{m} ({' / '.join(f'{a}x{a}' for a, _ in have)} only)"
+        cham = " / ".join(f"{100 * r['chamfer_m']:.2f}" for _, r in have)
+        secs = " / ".join(f"{r['reconstruct_s']:.2f}" for _, r in have)
+        parts.append(f"{name} {cham} cm ({secs} s)")
     sizes = " / ".join(f"{a}x{a}" for a in arrays)
     st = rec["result"]["settings"]
     spp = [r.get("render_spp") for r in (get("midpoint-fk", a, exps[-1]) for a in arrays) if r]

@@ -178,8 +178,8 @@ def run_methods_study(scene="paper_mannequin", out_dir="out/study-methods", *, a
         check_aspect(complete)
     seed = V.integer(seed, "seed", 0, 2**32)
     fits = fit_models(fit)
-    fit_settings = check_fit_settings(fit, fit_iterations)
-    fit_arrays = check_fit_arrays(fit, fit_arrays, arrays)
+    fit_settings = check_fit_settings(fits, fit_iterations)
+    fit_arrays = check_fit_arrays(fits, fit_arrays, arrays)
     progress = V.progress(progress)
     quick = V.flag(quick, "quick")
     given_target = noise_target

@@ -56,10 +56,9 @@ def _per_model(value, models: tuple, name: str) -> dict:
     return {m: value for m in models}
 
 
-def fit_settings(fit, fit_iterations) -> dict:
-    """``{model: FitSettings}`` of every model in ``fit`` (:func:`fit_models`; empty without it).
+def fit_settings(models: tuple, fit_iterations) -> dict:
+    """``{model: FitSettings}`` of every model of ``models`` (:func:`fit_models`'s; empty without one).
     ``fit_iterations``: one count for every model, or ``{model: count}`` (the others: the fit's default)."""
-    models = fit_models(fit)
     if not models:
         if fit_iterations is not None:
             raise UserInputError(f"fit_iterations={fit_iterations!r}: needs fit (a model: {', '.join(FIT_MODELS)})")
@@ -73,11 +72,10 @@ def fit_settings(fit, fit_iterations) -> dict:
     return out
 
 
-def fit_arrays(fit, fit_arrays, arrays) -> dict:
-    """``{model: arrays}``: the array sides each model of ``fit`` is fitted on (empty without ``fit``; default every
-    one of ``arrays``); ``fit_arrays`` one list for every model or ``{model: list}``; each must be one of
-    ``arrays``."""
-    models = fit_models(fit)
+def fit_arrays(models: tuple, fit_arrays, arrays) -> dict:
+    """``{model: arrays}``: the array sides each model of ``models`` (:func:`fit_models`'s) is fitted on (empty
+    without one; default every one of ``arrays``); ``fit_arrays`` one list for every model or ``{model: list}``;
+    each must be one of ``arrays``."""
     if not models:
         if fit_arrays is not None:
             raise UserInputError(f"fit_arrays={fit_arrays!r}: needs fit (a model: {', '.join(FIT_MODELS)})")
