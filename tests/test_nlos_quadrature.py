@@ -713,3 +713,28 @@ def test_cell_tilt_keeps_the_weight_non_negative():
     assert first <= last and buf[first:last + 1].min() >= -1e-15
     _masses(buf, 100.0, t[1] - t[0], t[2] - t[0], w1[0], w2[0], 3.0 * tilt[0, 0], 3.0 * tilt[0, 1], 4096)
     assert buf[first:last + 1].min() < -1e-6  # unscaled slopes of three times that: negative light
+
+
+def test_render_command_reports_a_quadrature_noise_target(tmp_path):
+    """`transient-mi render --noise-target` on a scene the quadrature renders ends with one line stating the worst
+    spot's error ratio and the target (its spots record settings, not spp: the line used to read their spp and
+    stopped with a traceback after writing the capture, as the README's paper-scene example did)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from transient_core import stack
+
+    root = Path(__file__).resolve().parents[1]
+    d = ["-D", "width=3", "-D", "height=3", "-D", "spots_x=1", "-D", "spots_y=1", "-D", "n_bins=64",
+         "-D", "bin_width_ps=64"]
+    r = subprocess.run([sys.executable, "-m", "transient_mi", "render", "scenes/nlos_letter.xml", "-o",
+                        str(tmp_path / "nt"), *d, "--noise-target", "0.1", "--exposure-s", "0.01"],
+                       capture_output=True, text=True, cwd=root, timeout=600,
+                       env={**os.environ, "TRANSIENT_MI_PROGRESS": "0"})
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    nt = stack.read_manifest(tmp_path / "nt")["render"]["noise_target"]
+    worst = max(s["ratio"] for s in nt["spots"])
+    assert f"quadrature: stated error ratio up to {worst:.3g} for noise target 0.1: met" in r.stdout, r.stdout

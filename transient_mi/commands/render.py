@@ -58,15 +58,31 @@ def render(
     job = prepare_render(scene, out, defines=parse_defines(define), spp=spp or 0, seed=seed, variant=variant,
                          resume=resume, noise_target=spec)
     path = run_render(job)
-    m = job.manifest
-    spp_txt = f"spp {job.spp}"
-    nt = (m.get("render") or {}).get("noise_target")
-    if nt:
-        spp_used = [s["spp"] for s in nt["spots"]]
-        spp_txt = (f"spp {min(spp_used)}-{max(spp_used)} for noise target {nt['target']:g}: "
-                   + ("met" if nt.get("met") else "NOT met (max spp reached)"))
-    typer.echo(f"wrote {path} ({m['n_files']} spot file(s), {m['height']}x{m['width']} pixels, "
-               f"{m['time']['n_bins']} bins of {m['time']['bin_width_ps']:g} ps, {spp_txt})")
+    typer.echo(f"wrote {path} ({_summary(job.manifest, job.spp)})")
+
+
+def _summary(m: dict, spp: int) -> str:
+    """The capture's shape and how it was rendered: Monte Carlo's spp (the range a noise target chose per spot), or
+    the quadrature's worst stated ratio against its noise target (its spots record settings, not spp)."""
+    shape = (f"{m['n_files']} spot file(s), {m['height']}x{m['width']} pixels, {m['time']['n_bins']} bins of "
+             f"{m['time']['bin_width_ps']:g} ps")
+    render = m.get("render") or {}
+    nt = render.get("noise_target")
+    quadrature = render.get("estimator") == "quadrature"
+    if not nt:
+        if not quadrature:
+            return f"{shape}, spp {spp}"
+        from transient_core import stack
+
+        remainder = stack.has_error_bound(m) and not stack.is_error_bound(m)  # light beyond three bounces
+        return f"{shape}, quadrature" + (f" + Monte Carlo remainder at spp {spp}" if remainder else "")
+    verdict = "met" if nt.get("met") else ("NOT met (refinement cap reached)" if quadrature else
+                                           "NOT met (max spp reached)")
+    if quadrature:
+        worst = max(float(s["ratio"]) for s in nt["spots"])
+        return f"{shape}, quadrature: stated error ratio up to {worst:.3g} for noise target {nt['target']:g}: {verdict}"
+    spp_used = [s["spp"] for s in nt["spots"]]
+    return f"{shape}, spp {min(spp_used)}-{max(spp_used)} for noise target {nt['target']:g}: {verdict}"
 
 
 def _whole(name: str, v):
