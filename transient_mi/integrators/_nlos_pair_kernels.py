@@ -22,7 +22,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from transient_mi.integrators._nlos_time_spread import cell_widths, masses
+from transient_mi.integrators._nlos_time_spread import MASS_FASTMATH, cell_widths, masses
 
 
 #: The largest ``|t1| + |t2|`` of a cell's amplitude slopes: the linear weight ``1 + t1 v1 + t2 v2`` over the cell
@@ -64,7 +64,7 @@ def _knots(A, B, i, e, s):
     return lo, mid - lo, hi - lo
 
 
-@numba.njit(cache=True, parallel=True, fastmath=False)
+@numba.njit(cache=True, parallel=True, fastmath=MASS_FASTMATH)
 def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, f_p, vis_p, A, w1, w2, tilt, side_x,
                  fx_pair, vis_s, B, sw, fx_e, side_s, lambertian, confocal):
     """Every pair of a chunk with every spot of the group: weights, visibility, arrival knots, deposits.
@@ -141,7 +141,7 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
                 steady[row, k] += f
 
 
-@numba.njit(cache=True, parallel=True, fastmath=False)
+@numba.njit(cache=True, parallel=True, fastmath=MASS_FASTMATH)
 def adjoint_group(g, grad_ext, per_pixel, e0, ne, vis_p, A, w1, w2, tilt, vis_s, B, confocal):
     """The adjoint of :func:`spread_group` with respect to the pairs' weights ``full = geo f_p f_x sw``: per pair
     and spot ``g[r, i] = share * sum_b grad_ext[r, k, b] m_b`` (``k`` the pair's pixel, ``m_b`` the masses of
