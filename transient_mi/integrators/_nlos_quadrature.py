@@ -323,12 +323,13 @@ def _clear_rounding_residue(h: np.ndarray, light: np.ndarray | None = None) -> n
     return h
 
 
-@numba.njit(cache=True, fastmath=False)
+@numba.njit(cache=True, parallel=True, fastmath=False)
 def _clear_rows(h, ref, share):
     """In place, per row ``k``: ``h[k, b] = 0`` where ``-share * max|ref[k]| <= h[k, b] < 0`` (one pass per row
     instead of numpy's temporaries: on a 64 x 64 capture of 2048 bins they cost more than the pairs of a coarse
-    level). A row whose ``ref`` holds a NaN clears nothing (as numpy's comparison with a NaN limit)."""
-    for k in range(h.shape[0]):
+    level), the rows in parallel (each row alone: the same bytes whatever the threads). A row whose ``ref`` holds a
+    NaN clears nothing (as numpy's comparison with a NaN limit)."""
+    for k in numba.prange(h.shape[0]):
         m = 0.0
         for b in range(ref.shape[1]):
             a = abs(ref[k, b])
