@@ -27,6 +27,7 @@ import platform
 import shutil
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -301,6 +302,33 @@ def run_render(job: RenderJob, progress: bool | None = None, on_spot=None, log=N
         return _run_render_locked(job, progress, on_spot, log)
 
 
+#: Threads that write the spots of a group (each spot's files in order on one of them).
+WRITE_THREADS = 2
+
+
+def _write_spot_files(d: Path, j: int, res, m: dict):
+    """Write spot ``j``'s error files, then its spot file (a complete spot file implies complete error files: resume
+    checks both), and summarise its error from the arrays in memory (the files are not read back): ``(summary,
+    bound_summary)`` of :func:`~transient_mi.capture_error.spot_error_summary`, ``None`` where the capture has no
+    such part."""
+    summary = bound_summary = None
+    if stack.has_error_bound(m) and not stack.is_error_bound(m):  # quadrature + MC remainder
+        stack.write_error_bound(d, j, res.error_bound, res.total_error_bound, m)
+    if stack.has_variance(m):
+        if stack.is_error_bound(m):
+            stack.write_variance(d, j, res.error_bound, res.total_error_bound, m)
+        else:
+            stack.write_variance(d, j, res.variance, res.total_variance, m)
+    stack.write_spot(d, j, res.histogram, m)
+    if stack.has_variance(m):
+        v, tv = ((res.error_bound, res.total_error_bound) if stack.is_error_bound(m)
+                 else (res.variance, res.total_variance))
+        summary = spot_error_summary(res.histogram, v, tv, stack.is_error_bound(m))
+    if stack.has_error_bound(m) and not stack.is_error_bound(m):
+        bound_summary = spot_error_summary(res.histogram, res.error_bound, res.total_error_bound, True)
+    return summary, bound_summary
+
+
 def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> Path:
     d = job.ideal_dir
     d.mkdir(parents=True, exist_ok=True)
@@ -372,34 +400,27 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
             else:
                 results = job.integrator.render_transient(job.scene, job.sensor, seed=seed_g, spp=job.spp,
                                                           spots=group, progress=cb)
-            for j, res, inf in zip(group, results, info):
-                if j not in todo_set:
-                    continue  # complete from an earlier run (and identical)
+            written = [(j, res, inf) for j, res, inf in zip(group, results, info) if j in todo_set]
+            for j, res, inf in written:  # (a spot not to do is complete from an earlier run, and identical)
                 facts[j] = {"dropped_contributions": int(res.dropped_contributions),
                             "dropped_fraction": float(res.dropped_fraction),
                             "invalid_path_lengths": int(res.invalid_contributions),
                             "negative_fraction": float(res.negative_fraction), "noise_target": inf}
                 write_spot_facts(d, j, m["render"]["config_sha256"], facts[j])
-                # then the error files: a complete spot file implies complete error files (resume checks both)
-                if stack.has_error_bound(m) and not stack.is_error_bound(m):  # quadrature + MC remainder
-                    stack.write_error_bound(d, j, res.error_bound, res.total_error_bound, m)
-                if stack.has_variance(m):
-                    if stack.is_error_bound(m):
-                        stack.write_variance(d, j, res.error_bound, res.total_error_bound, m)
-                    else:
-                        stack.write_variance(d, j, res.variance, res.total_variance, m)
-                stack.write_spot(d, j, res.histogram, m)
-                # the summaries' parts from the arrays in memory (the files are not read back)
-                if stack.has_variance(m):
-                    v, tv = ((res.error_bound, res.total_error_bound) if stack.is_error_bound(m)
-                             else (res.variance, res.total_variance))
-                    summary_parts[j] = spot_error_summary(res.histogram, v, tv, stack.is_error_bound(m))
-                if stack.has_error_bound(m) and not stack.is_error_bound(m):
-                    bound_parts[j] = spot_error_summary(res.histogram, res.error_bound, res.total_error_bound, True)
-                if j == 0:
-                    preview_data = (j, np.array(res.histogram))  # a copy: frees the group buffer
-                if on_spot is not None:
-                    on_spot(j)
+            # each spot's files on a thread of their own (compression and fsync release the GIL: the paper scene's
+            # 32 x 32 capture at 1 ps bins spent 2.9 s writing its four spots one after another)
+            with ThreadPoolExecutor(max_workers=max(1, min(len(written), WRITE_THREADS))) as pool:
+                pending = [(j, res, pool.submit(_write_spot_files, d, j, res, m)) for j, res, _ in written]
+                for j, res, fut in pending:  # in spot order, each once its files are complete
+                    summary, bound_summary = fut.result()
+                    if summary is not None:
+                        summary_parts[j] = summary
+                    if bound_summary is not None:
+                        bound_parts[j] = bound_summary
+                    if j == 0:
+                        preview_data = (j, np.array(res.histogram))  # a copy: frees the group buffer
+                    if on_spot is not None:
+                        on_spot(j)
             del results
             if ckpt is not None:
                 ckpt.unlink(missing_ok=True)
