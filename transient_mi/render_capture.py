@@ -311,21 +311,17 @@ def _write_spot_files(d: Path, j: int, res, m: dict):
     checks both), and summarise its error from the arrays in memory (the files are not read back): ``(summary,
     bound_summary)`` of :func:`~transient_mi.capture_error.spot_error_summary`, ``None`` where the capture has no
     such part."""
-    summary = bound_summary = None
-    if stack.has_error_bound(m) and not stack.is_error_bound(m):  # quadrature + MC remainder
+    bounded = stack.is_error_bound(m)  # the quadrature's error estimate stands where Monte Carlo's variance does
+    remainder = stack.has_error_bound(m) and not bounded  # quadrature + Monte Carlo remainder: both files
+    if remainder:
         stack.write_error_bound(d, j, res.error_bound, res.total_error_bound, m)
+    v, tv = (res.error_bound, res.total_error_bound) if bounded else (res.variance, res.total_variance)
     if stack.has_variance(m):
-        if stack.is_error_bound(m):
-            stack.write_variance(d, j, res.error_bound, res.total_error_bound, m)
-        else:
-            stack.write_variance(d, j, res.variance, res.total_variance, m)
+        stack.write_variance(d, j, v, tv, m)
     stack.write_spot(d, j, res.histogram, m)
-    if stack.has_variance(m):
-        v, tv = ((res.error_bound, res.total_error_bound) if stack.is_error_bound(m)
-                 else (res.variance, res.total_variance))
-        summary = spot_error_summary(res.histogram, v, tv, stack.is_error_bound(m))
-    if stack.has_error_bound(m) and not stack.is_error_bound(m):
-        bound_summary = spot_error_summary(res.histogram, res.error_bound, res.total_error_bound, True)
+    summary = spot_error_summary(res.histogram, v, tv, bounded) if stack.has_variance(m) else None
+    bound_summary = (spot_error_summary(res.histogram, res.error_bound, res.total_error_bound, True) if remainder
+                     else None)
     return summary, bound_summary
 
 
