@@ -77,8 +77,11 @@ class _Timer:
 
 
 def _n_bins(bin_width_ps: float) -> int:
-    """Bins of ``bin_width_ps`` over the demo's 11.5 ns."""
-    return int(round(11500.0 / bin_width_ps))
+    """Bins of ``bin_width_ps`` over the demo's time window (``DemoSettings``: 11,500 bins of 1 ps)."""
+    from transient_mi.paper import DemoSettings
+
+    demo = DemoSettings()
+    return int(round(demo.n_bins * demo.bin_width_ps / bin_width_ps))
 
 
 def _defines(a) -> tuple[Path, dict]:
