@@ -47,7 +47,7 @@ def measure(array: int, h: float) -> dict:
     spots = list(range(setup.n_spots))
     n_sh = ElementSurfaces(setup.hidden_shapes, mi.ShapePtr(setup.hidden_shapes), faces, tri, src).n_sh
     t0 = time.perf_counter()
-    lit, traced = Q._mixed_elements(scene, setup, g, spots, tri, True, n_sh, False)
+    lit, traced, _ = Q._mixed_elements(scene, setup, g, spots, tri, True, n_sh, False)
     test_s = time.perf_counter() - t0
     vs, vc = traced.spot, traced.cell  # [n, G], [C, n]
     part = lambda m: (m != 0) & (m != 15)  # noqa: E731

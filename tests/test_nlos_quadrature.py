@@ -317,6 +317,88 @@ def test_visibility_refinement_splits_the_elements_whose_lit_pairs_are_mixed():
     assert test([0b1111], [0b1111, 0b0001], front, two, cell_spot=(-1,))
 
 
+def test_refined_pairs_give_each_pair_to_the_element_or_to_its_children():
+    """:func:`~transient_mi.integrators._nlos_pair_kernels.refined_pairs`: a split element keeps the pairs whose test
+    cell and spot see its samples wholly (or not at all) and gives the others to its four children, down the levels;
+    so each cell covers the surface once. Element 0 split into 1-4, child 1 split again into 5-8; three cells: the
+    first sees element 0 wholly, the second partly (child 1 wholly), the third partly (child 1 partly too)."""
+    from transient_mi.integrators._nlos_pair_kernels import refined_pairs
+
+    parent = np.array([-1, 0, 0, 0, 0, 1, 1, 1, 1], dtype=np.int64)
+    split_idx = np.array([0, 1, -1, -1, -1, -1, -1, -1, -1], dtype=np.int64)
+    cm = np.array([[15, 15], [3, 15], [3, 6]], dtype=np.uint8)  # [test cell, split element]
+    whole = np.array([[15], [15]], dtype=np.uint8)  # [split element, spot]: one spot sees both wholly
+    area = np.array([1.0] + [1 / 4] * 4 + [1 / 16] * 4)
+
+    def kept(sm, cell_of=(0, 1, 2), cell_spot=(-1, -1, -1), e0=0, ne=9, lit=None):
+        lit = np.ones(len(cell_of) * ne, dtype=bool) if lit is None else lit.copy()
+        refined_pairs(lit, e0, ne, parent, split_idx, cm, np.asarray(sm, dtype=np.uint8),
+                      np.array(cell_of, dtype=np.int64), np.array(cell_spot, dtype=np.int64))
+        return lit.reshape(len(cell_of), ne).astype(int).tolist()
+
+    got = kept(whole)
+    assert got == [[1, 0, 0, 0, 0, 0, 0, 0, 0], [0, 1, 1, 1, 1, 0, 0, 0, 0], [0, 0, 1, 1, 1, 1, 1, 1, 1]]
+    assert np.allclose(np.array(got) @ area, 1.0)  # each cell covers element 0's area once
+    assert kept(whole, e0=5, ne=4) == [[0] * 4, [0] * 4, [1] * 4]  # a chunk of the elements 5-8
+    # a spot that sees element 0 partly gives every cell's pair to the children
+    assert kept([[9], [15]])[0] == [0, 1, 1, 1, 1, 0, 0, 0, 0]
+    # confocal: each cell with its own spot (spot 1 sees element 0 partly, spot 0 wholly)
+    assert kept([[15, 9], [15, 15]], cell_spot=(0, 1, 0))[:2] == [[1, 0, 0, 0, 0, 0, 0, 0, 0],
+                                                                 [0, 1, 1, 1, 1, 0, 0, 0, 0]]
+    # cells of the level inside one test cell (the test at half the cells per side) follow it
+    assert kept(whole, cell_of=(1, 1)) == [[0, 1, 1, 1, 1, 0, 0, 0, 0]] * 2
+    # pairs that carry no light stay without
+    none = np.zeros(27, dtype=bool)
+    assert kept(whole, lit=none) == [[0] * 9] * 3
+
+
+def test_refinement_test_traces_the_pairs_that_can_carry_light():
+    """:func:`~transient_mi.integrators._nlos_pair_kernels.test_pairs` (the refinement test's rays from the cells):
+    a cell is traced with an element when a spot that sees one of its samples lies on the cell's side of the
+    element's shading normal, a cell in the element's plane always (the margin); a confocal cell with its own spot
+    only. One element at the origin facing +z; cells in front, behind and in its plane."""
+    from transient_mi.integrators._nlos_pair_kernels import test_pairs
+
+    X0 = np.zeros((1, 3))
+    n_sh = np.array([[0.0, 0.0, 1.0]])
+    cells = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+    S = np.array([[0.1, 0.0, 1.0], [0.1, 0.0, -1.0]])  # a spot in front, one behind
+
+    def traced(vs, cell_spot=(-1, -1, -1)):
+        return test_pairs(np.array([vs], dtype=np.uint8), 0, 1, X0, n_sh, cells, S,
+                          np.array(cell_spot, dtype=np.int64)).astype(int).tolist()
+
+    assert traced([15, 15]) == [1, 1, 1]  # each cell has a spot on its side
+    assert traced([15, 0]) == [1, 0, 1]  # the spot behind sees nothing: the cell behind carries no light
+    assert traced([0, 0]) == [0, 0, 0]  # no spot sees the element
+    assert traced([15, 15], cell_spot=(1, 1, 0)) == [0, 1, 1]  # confocal: the front cell with the spot behind
+
+
+def test_shared_pairs_agree_with_children_in_every_pair():
+    """A render gives each pair of a split element to the element or to its children as the pair's own visibility
+    asks (:class:`~transient_mi.integrators._nlos_pairs.Refinement`); the fit's forward model gives every pair to
+    the children (``pair_refinement=False``). On a target half hidden behind a smaller occluder (mixed visibility,
+    two refinement levels) both are estimates of the same capture: every pixel's total agrees within the sum of
+    their stated total errors (a pair counted twice, or dropped, would move a whole element's light), and so does
+    the whole histogram's largest bin difference within the sum of the largest per-bin errors. Deterministic."""
+    def scene():
+        return nlos_scene(width=3, height=3, footprint=0.05, include_wall_return=False, n_bins=256,
+                          bin_width_ps=16.0, t0_ps=8000.0,
+                          hidden=[square((0.0, 0.0, 0.5), 0.2, 0.7, id_="far"),
+                                  square((0.05, 0.05, 0.3), 0.08, 0.5, id_="near")])
+
+    shared = _render(scene(), element_size_m=0.02, patch_cells=2, refine_levels=2)
+    children = _render(scene(), element_size_m=0.02, patch_cells=2, refine_levels=2, pair_refinement=False)
+    assert shared.estimator_info["refine_levels"] == children.estimator_info["refine_levels"] >= 1
+    assert shared.estimator_info["elements"] > children.estimator_info["elements"]  # the split ones stay
+    a, b = (r.histogram.astype(np.float64) for r in (shared, children))
+    ta, tb = a.sum(-1), b.sum(-1)
+    assert tb.min() > 0
+    err = shared.total_error_bound.astype(np.float64) + children.total_error_bound.astype(np.float64)
+    assert (np.abs(ta - tb) <= err + 1e-6 * tb).all()
+    assert np.abs(a - b).max() <= float(shared.error_bound.max()) + float(children.error_bound.max())
+
+
 @pytest.mark.parametrize("capture", ["array", "confocal"])
 def test_general_bsdf_path_equals_the_lambertian_one(capture, monkeypatch):
     """Lambertian BSDFs are evaluated once per (element, spot) and per wall cell, each pair applying the hemisphere

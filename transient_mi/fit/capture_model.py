@@ -304,7 +304,7 @@ class CaptureModel:
         else:
             self.integrator.nlos_options.update(estimator="quadrature", element_size_m=self.element_size_m,
                                                 patch_cells=patch_cells, refine_levels=1,
-                                                error_estimate=error_estimate)
+                                                error_estimate=error_estimate, pair_refinement=False)
 
     def set_element_size(self, element_size_m: float) -> None:
         """The quadrature's element size for the next renders (coarse to fine; no effect with Monte Carlo)."""

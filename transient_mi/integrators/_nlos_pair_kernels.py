@@ -238,6 +238,94 @@ def mixed_lit(vc, vs, e0, X0, n_sh, cell_p, S, cell_spot, side_test, out):
             out[e] = True
 
 
+#: A cell and a spot count as on opposite sides of an element for :func:`test_pairs` when the product of their
+#: direction cosines with its shading normal is below minus this (the render's own side test, :func:`pairs_lit`,
+#: normalises otherwise: a margin, so no pair it lights is left untraced by a rounding).
+SIDE_COS_MARGIN = 1e-9
+
+
+@numba.njit(cache=True, parallel=True, fastmath=False)
+def test_pairs(vs, e0, ne, X0, n_sh, cell_p, S, cell_spot):
+    """The pairs of the visibility refinement's test that are traced from the cells: bool ``[C ne]`` (cell-major,
+    the elements ``e0:e0 + ne``), set where some spot that sees a sample of the element (``vs [n, G]``; a confocal
+    cell's own spot ``cell_spot[c]``, -1 for every spot) lies on the cell's side of its shading normal ``n_sh``
+    at the centroid ``X0`` (up to :data:`SIDE_COS_MARGIN`). The others carry no light for any spot
+    (:func:`pairs_lit`); their masks would be read by nothing. For Lambertian elements (the side test)."""
+    C = cell_p.shape[0]
+    G = S.shape[0]
+    out = np.zeros(C * ne, dtype=np.bool_)
+    for c in numba.prange(C):
+        s_lo = 0 if cell_spot[c] < 0 else cell_spot[c]
+        s_hi = G if cell_spot[c] < 0 else cell_spot[c] + 1
+        for j in range(ne):
+            e = e0 + j
+            cc = _cos_side(cell_p, c, X0, n_sh, e)
+            for s in range(s_lo, s_hi):
+                if vs[e, s] != 0 and cc * _cos_side(S, s, X0, n_sh, e) > -SIDE_COS_MARGIN:
+                    out[c * ne + j] = True
+                    break
+    return out
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _cos_side(P, i, X0, n_sh, e):
+    """The cosine between element ``e``'s shading normal and the direction from its centroid to ``P[i]``."""
+    dx, dy, dz = P[i, 0] - X0[e, 0], P[i, 1] - X0[e, 1], P[i, 2] - X0[e, 2]
+    r = np.sqrt(dx * dx + dy * dy + dz * dz)
+    return (dx * n_sh[e, 0] + dy * n_sh[e, 1] + dz * n_sh[e, 2]) / r if r > 0.0 else 0.0
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _partial(m) -> bool:
+    """A visibility mask that sees some of an element's four samples but not all."""
+    return m != 0 and m != 15
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _children_take(cm, sm, ct, cs, si) -> bool:
+    """Whether the pairs of a test cell ``ct`` with split element ``si`` (its column in ``cm [C_test, n_split]``,
+    row of ``sm [n_split, G]``) are integrated by its four children: the cell sees its samples partly, or its spot
+    ``cs`` does (every spot of the group, ``cs = -1``)."""
+    if _partial(cm[ct, si]):
+        return True
+    if cs >= 0:
+        return _partial(sm[si, cs])
+    for s in range(sm.shape[1]):
+        if _partial(sm[si, s]):
+            return True
+    return False
+
+
+@numba.njit(cache=True, fastmath=False)
+def refined_pairs(lit, e0, ne, parent, split_idx, cm, sm, cell_of, cell_spot):
+    """In place, clear ``lit`` (bool ``[C ne]``, cell-major pairs of the level's cells ``c`` with the elements
+    ``e0:e0 + ne``) for the pairs that the visibility refinement gives to other elements of the level, so that every
+    pair (cell, piece of surface) is integrated once, at the finest level its visibility asks for
+    (:func:`~._nlos_quadrature.refine_visibility`): a split element's pair goes to its four children where
+    :func:`_children_take` says so (its samples seen partly from the cell's test cell ``cell_of[c]`` or from the
+    pair's spot, ``cell_spot[c]``, -1 for any of the group), and stays with it otherwise; a child's pair is
+    integrated only where every ancestor's gives it away. ``parent [n]``: each element's parent (-1: none);
+    ``split_idx [n]``: the column of a split element in the test's masks ``cm [C_test, n_split]``, ``sm [n_split,
+    G]`` (-1: not split)."""
+    C = lit.shape[0] // max(ne, 1)
+    for c in range(C):
+        ct = cell_of[c]
+        cs = cell_spot[c]
+        for j in range(ne):
+            i = c * ne + j
+            if not lit[i]:
+                continue
+            e = e0 + j
+            si = split_idx[e]
+            keep = si < 0 or not _children_take(cm, sm, ct, cs, si)
+            a = parent[e]
+            while keep and a >= 0:
+                keep = _children_take(cm, sm, ct, cs, split_idx[a])
+                a = parent[a]
+            if not keep:
+                lit[i] = False
+
+
 @numba.njit(cache=True, fastmath=False, inline="always")
 def _side_of(P, i, X0, n_sh, e):
     """The side (+1, -1; 0 in the plane) of point ``P[i]`` with respect to element ``e``'s shading normal
