@@ -40,10 +40,11 @@ ESTIMATE_DIVISOR = 2.0 ** ESTIMATE_ORDER - 1.0
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
-def _rms_rows(a, b, reach, scale, out):
-    """``out[k, t] = scale * sqrt(mean_{|j| <= reach} (a - b)[k, t + j]^2)``, indices reflected at the row's ends
-    (``-1 -> 0``, ``T -> T - 1``: scipy's ``mode="reflect"``), one row per iteration in parallel; each window summed
-    in order from its first bin (same inputs, same bytes, whatever the threads)."""
+def _rms_rows(a, b, reach, scale, out, add):
+    """``out[k, t] = scale * sqrt(mean_{|j| <= reach} (a - b)[k, t + j]^2)`` (with ``add``: added to ``out[k, t]``),
+    indices reflected at the row's ends (``-1 -> 0``, ``T -> T - 1``: scipy's ``mode="reflect"``), one row per
+    iteration in parallel; each window summed in order from its first bin (same inputs, same bytes, whatever the
+    threads; added, the same bytes as adding the estimate afterwards)."""
     n, T = a.shape
     w = 2 * reach + 1
     inv_w = 1.0 / w
@@ -59,35 +60,47 @@ def _rms_rows(a, b, reach, scale, out):
                 while i < 0 or i >= T:  # (reflected; a row shorter than the window reflects more than once)
                     i = -i - 1 if i < 0 else 2 * T - i - 1
                 acc += sq[i]
-            out[k, t] = scale * np.sqrt(acc * inv_w)
+            v = scale * np.sqrt(acc * inv_w)
+            out[k, t] = out[k, t] + v if add else v
 
 
-def local_rms(d: np.ndarray, minus: np.ndarray | None = None, scale: float = 1.0) -> np.ndarray:
+def local_rms(d: np.ndarray, minus: np.ndarray | None = None, scale: float = 1.0,
+              add_to: np.ndarray | None = None) -> np.ndarray:
     """``scale`` times the root mean square of ``d - minus`` (``minus`` default 0) over ``2 ESTIMATE_REACH_BINS +
     1`` bins centred on each bin of the last axis (reflected at its ends, so the sum of squares of every row is
     kept), float64, the shape of ``d``; the difference is formed bin by bin inside the kernel (no temporaries of
-    the capture's size)."""
+    the capture's size). ``add_to`` (float64, C-contiguous, the shape of ``d``), optional: the estimate is added to
+    it in place and it is returned (the same bytes as ``add_to + local_rms(...)``, without a new array of the
+    capture's size)."""
     d = np.asarray(d, dtype=np.float64)
     shape = d.shape
     rows = np.ascontiguousarray(d.reshape(-1, shape[-1]) if d.ndim else d.reshape(1, 1))
     sub = (np.zeros_like(rows) if minus is None else
            np.ascontiguousarray(np.broadcast_to(np.asarray(minus, dtype=np.float64), shape).reshape(rows.shape)))
-    out = np.empty(rows.shape)
-    _rms_rows(rows, sub, ESTIMATE_REACH_BINS, float(scale), out)
+    if add_to is None:
+        out = np.empty(rows.shape)
+    else:
+        if add_to.shape != shape or add_to.dtype != np.float64 or not add_to.flags.c_contiguous:
+            raise ValueError(f"add_to: a C-contiguous float64 array of shape {shape} expected")
+        out = add_to.reshape(rows.shape)
+    _rms_rows(rows, sub, ESTIMATE_REACH_BINS, float(scale), out, add_to is not None)
     return out.reshape(shape)
 
 
-def discretisation_error(fine: np.ndarray, coarse: np.ndarray) -> np.ndarray:
+def discretisation_error(fine: np.ndarray, coarse: np.ndarray, add_to: np.ndarray | None = None) -> np.ndarray:
     """The fine level's estimated discretisation error per bin.
 
     Parameters
     ----------
     fine, coarse : ndarray, float64, shape (..., bins)
         Photons per pulse per bin of the fine (``h``, ``m`` cells) and coarse (``2h``, ``m/2``) levels.
+    add_to : ndarray, float64, shape of ``fine``, optional
+        Where to add the estimate in place (see :func:`local_rms`).
 
     Returns
     -------
     ndarray, float64, shape of ``fine``
-        ``local_rms(fine - coarse) / ESTIMATE_DIVISOR``, photons per pulse per bin (>= 0).
+        ``local_rms(fine - coarse) / ESTIMATE_DIVISOR``, photons per pulse per bin (>= 0), or ``add_to`` with it
+        added.
     """
-    return local_rms(fine, coarse, 1.0 / ESTIMATE_DIVISOR)
+    return local_rms(fine, coarse, 1.0 / ESTIMATE_DIVISOR, add_to)

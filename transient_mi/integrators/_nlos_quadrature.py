@@ -375,14 +375,15 @@ def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_p
 ROUNDING_RESIDUE = 1e-9
 
 
-def _clear_rounding_residue(h: np.ndarray, light: np.ndarray | None = None) -> np.ndarray:
+def _clear_rounding_residue(h: np.ndarray, light: np.ndarray | None = None, in_place: bool = False) -> np.ndarray:
     """``h [P, T]`` with the rounding residue of the bin masses removed: a mass is a difference of two CDF values,
     and where the CDF is flat (a pair's tails, 1 ps bins) their rounding can leave a bin a few 1e-14 of the pixel's
     largest below zero, which the capture writer refuses. Such bins (down to ``ROUNDING_RESIDUE`` of the pixel's
     largest bin of ``light``, default ``h`` itself) are set to 0; a larger negative value is left for the writer to
     refuse (it is no rounding). The error files take the light as ``light``: their mixed-visibility part is light
-    spread by the same masses (the 32 x 32 paper scene at 1 ps bins had bins of it at -1e-20)."""
-    h = np.array(h, dtype=np.float64)
+    spread by the same masses (the 32 x 32 paper scene at 1 ps bins had bins of it at -1e-20). ``in_place``: ``h``
+    (float64, C-contiguous) is cleared and returned, not a copy."""
+    h = h if in_place else np.array(h, dtype=np.float64)
     ref = h if light is None else np.ascontiguousarray(light, dtype=np.float64)
     _clear_rows(h.reshape(-1, h.shape[-1]), ref.reshape(-1, ref.shape[-1]), ROUNDING_RESIDUE)
     return h
@@ -476,18 +477,23 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     # error: the light of mixed visibility, plus the discretisation estimated from the coarse level
     bound = fine["bound"]
     parts = {"visibility": bound} if error_parts(options) else None
+    # (without the parts, each estimate is added to the bound in place: no array of the capture's size per part)
     if coarse is not None:
-        part = discretisation_error(fine["hist"], coarse["hist"])
-        bound = bound + part
-        if parts is not None:
+        if parts is None:
+            discretisation_error(fine["hist"], coarse["hist"], add_to=bound)
+        else:
+            part = discretisation_error(fine["hist"], coarse["hist"])
+            bound = bound + part
             parts["elements"] = part
     tot_bound = fine["vis_err"] + (np.abs(fine["steady"] - coarse["steady"]) if coarse is not None else 0.0)
     if cells is not None:
         # one cell per side: the coarse level's difference is the elements' part; the cells' part is the coarse
         # elements' one cell against CELL_ESTIMATE_CELLS (same local root mean square), scaled to the one cell's own error
-        part = local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR)
-        bound = bound + part
-        if parts is not None:
+        if parts is None:
+            local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR, add_to=bound)
+        else:
+            part = local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR)
+            bound = bound + part
             parts["cells"] = part
         tot_bound = tot_bound + np.abs(coarse["steady"] - cells["steady"]) * CELL_ESTIMATE_FACTOR
     # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)
@@ -507,8 +513,11 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
                 outside[gi, pix] += ph
     results = []
     for gi in range(G_out):
-        hk = _clear_rounding_residue(apply_kernel(hist[gi], g.taps) if g.pad else hist[gi])
-        ek = _clear_rounding_residue(apply_kernel(bound[gi], g.taps) if g.pad else bound[gi], hk)
+        # (the level's own rows are cleared in place: they are not read again)
+        hk = (_clear_rounding_residue(apply_kernel(hist[gi], g.taps)) if g.pad
+              else _clear_rounding_residue(hist[gi], in_place=True))
+        ek = (_clear_rounding_residue(apply_kernel(bound[gi], g.taps), hk) if g.pad
+              else _clear_rounding_residue(bound[gi], hk, in_place=parts is None))
         # (the parts as they are, float64 views where the film has no kernel: they only plan a refinement)
         ep = None if parts is None else {
             name: (apply_kernel(a[gi], g.taps) if g.pad else a[gi]).reshape(g.H, g.W, g.n_bins)
