@@ -50,8 +50,8 @@ from docgen.recon import (  # noqa: E402
     completion_limit_inline, completion_aspect_para, recon_quality_para, methods_trend_para,
 )
 from docgen.quadrature import (  # noqa: E402
-    PAPER_ESTIMATORS, QUADRATURE_PARTS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, REFINEMENT_RULE, SCENE_SETTINGS,
-    paper_estimators_table, quadrature_parts_table, quadrature_settings_table, quadrature_cost_inline,
+    PAPER_ESTIMATORS, PROFILE_COMPARE, QUADRATURE_PARTS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, REFINEMENT_RULE,
+    SCENE_SETTINGS, paper_estimators_table, profile_compare_inline, quadrature_parts_table, quadrature_settings_table, quadrature_cost_inline,
     quadrature_inline, quadrature_profile_inline, quadrature_table, refinement_rule_inline, scene_settings_table,
 )
 from docgen.nlos_quadrature import nlos_quadrature_table  # noqa: E402
@@ -113,6 +113,7 @@ GENERATORS = {
     "quadrature_cost": (quadrature_cost_inline, ["quadrature_cost"], True),
     "quadrature_profile": (quadrature_profile_inline, list(QUADRATURE_PROFILES), True),
     "refinement_rule": (refinement_rule_inline, [REFINEMENT_RULE], True),
+    "quadrature_profile_compare": (profile_compare_inline, list(PROFILE_COMPARE), True),
     "paper_estimators": (paper_estimators_table, list(PAPER_ESTIMATORS), False),
     "quadrature_settings": (quadrature_settings_table, [QUADRATURE_SETTINGS], False),
     "quadrature_parts": (quadrature_parts_table, [QUADRATURE_PARTS], False),

@@ -73,7 +73,7 @@ def quadrature_cost_inline(R) -> str:
 #: scene's cells (one per patch), the same with the code before the latest change to the bin masses (run right after
 #: it, the same load; its note names the commit), and at two per side (an earlier record).
 PAPER_ESTIMATORS = ("paper_estimators_a16_e10ms", "paper_estimators_a4_e1000ms", "paper_estimators_a32_e10ms",
-                    "paper_estimators_a32_e10ms_before_fma", "paper_estimators_a32_e10ms_cells2")
+                    "paper_estimators_a32_e10ms_before_pairs", "paper_estimators_a32_e10ms_cells2")
 
 
 def paper_estimators_table(R) -> str:
@@ -219,6 +219,19 @@ def quadrature_parts_table(R) -> str:
     return ("\n".join(rows) + "\n\n"
             f"({res['config']}, {res['exposure_ms']:g} ms per spot, the demo's target {res['target']:g}; "
             f"{res['ratio']}. {provenance(rec)})\n")
+
+
+#: The paper scene's render-call profile and the same with the code before the latest change to the quadrature (run
+#: right after it on the same machine; its note names the commit).
+PROFILE_COMPARE = ("quadrature_profile_paper", "quadrature_profile_paper_before_pairs")
+
+
+def profile_compare_inline(R) -> str:
+    """The paper scene's render call alone, this code against the code before (bench_quadrature_profile.py)."""
+    now, before = R(PROFILE_COMPARE[0]), R(PROFILE_COMPARE[1])
+    return (f"{now['result']['render_call']['wall_s']:.1f} s, {before['result']['render_call']['wall_s']:.1f} s for "
+            f"the code before, one run after the other: {provenance(now, short=True)}; "
+            f"{provenance(before, short=True)}")
 
 
 REFINEMENT_RULE = "refinement_rule"
