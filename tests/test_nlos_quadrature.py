@@ -353,11 +353,11 @@ def test_refined_pairs_give_each_pair_to_the_element_or_to_its_children():
 
 
 def test_refinement_test_traces_the_pairs_that_can_carry_light():
-    """:func:`~transient_mi.integrators._nlos_pair_kernels.test_pairs` (the refinement test's rays from the cells):
-    a cell is traced with an element when a spot that sees one of its samples lies on the cell's side of the
+    """:func:`~transient_mi.integrators._nlos_pair_kernels.refinement_test_pairs` (the refinement test's rays from
+    the cells): a cell is traced with an element when a spot that sees one of its samples lies on the cell's side of the
     element's shading normal, a cell in the element's plane always (the margin); a confocal cell with its own spot
     only. One element at the origin facing +z; cells in front, behind and in its plane."""
-    from transient_mi.integrators._nlos_pair_kernels import test_pairs
+    from transient_mi.integrators._nlos_pair_kernels import refinement_test_pairs
 
     X0 = np.zeros((1, 3))
     n_sh = np.array([[0.0, 0.0, 1.0]])
@@ -365,7 +365,7 @@ def test_refinement_test_traces_the_pairs_that_can_carry_light():
     S = np.array([[0.1, 0.0, 1.0], [0.1, 0.0, -1.0]])  # a spot in front, one behind
 
     def traced(vs, cell_spot=(-1, -1, -1)):
-        return test_pairs(np.array([vs], dtype=np.uint8), 0, 1, X0, n_sh, cells, S,
+        return refinement_test_pairs(np.array([vs], dtype=np.uint8), 0, 1, X0, n_sh, cells, S,
                           np.array(cell_spot, dtype=np.int64)).astype(int).tolist()
 
     assert traced([15, 15]) == [1, 1, 1]  # each cell has a spot on its side

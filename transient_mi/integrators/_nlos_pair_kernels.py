@@ -238,14 +238,14 @@ def mixed_lit(vc, vs, e0, X0, n_sh, cell_p, S, cell_spot, side_test, out):
             out[e] = True
 
 
-#: A cell and a spot count as on opposite sides of an element for :func:`test_pairs` when the product of their
-#: direction cosines with its shading normal is below minus this (the render's own side test, :func:`pairs_lit`,
+#: A cell and a spot count as on opposite sides of an element for :func:`refinement_test_pairs` when the product of
+#: their direction cosines with its shading normal is below minus this (the render's own side test, :func:`pairs_lit`,
 #: normalises otherwise: a margin, so no pair it lights is left untraced by a rounding).
 SIDE_COS_MARGIN = 1e-9
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
-def test_pairs(vs, e0, ne, X0, n_sh, cell_p, S, cell_spot):
+def refinement_test_pairs(vs, e0, ne, X0, n_sh, cell_p, S, cell_spot):
     """The pairs of the visibility refinement's test that are traced from the cells: bool ``[C ne]`` (cell-major,
     the elements ``e0:e0 + ne``), set where some spot that sees a sample of the element (``vs [n, G]``; a confocal
     cell's own spot ``cell_spot[c]``, -1 for every spot) lies on the cell's side of its shading normal ``n_sh``

@@ -19,7 +19,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from transient_mi.integrators._nlos_elements import sample_points
-from transient_mi.integrators._nlos_pair_kernels import pair_geometry, pairs_lit, refined_pairs, spot_knots, spread_group
+from transient_mi.integrators._nlos_pair_kernels import (pair_geometry, pairs_lit, refined_pairs, spot_knots,
+                                                          spread_group)
 from transient_mi.integrators._nlos_surfaces import ElementSurfaces, WallCells, spot_intensities, visibility_masks
 
 if TYPE_CHECKING:

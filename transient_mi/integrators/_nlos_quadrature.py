@@ -83,7 +83,7 @@ from transient_core.units import C_M_PER_PS
 from transient_mi.integrators._nlos_elements import (fine_provenance, mesh_triangles, provenance, sample_points, split4,
                                                      subdivide, subdivide_provenance)
 from transient_mi.integrators._nlos_error_estimate import discretisation_error, local_rms
-from transient_mi.integrators._nlos_pair_kernels import cell_terms, mixed_lit, test_pairs
+from transient_mi.integrators._nlos_pair_kernels import cell_terms, mixed_lit, refinement_test_pairs
 from transient_mi.integrators._nlos_pairs import (Chunk, LevelElements, Refinement, SpotSide, TracedVisibility,
                                                   chunk_starts, spot_masks)
 from transient_mi.integrators._nlos_surfaces import ElementSurfaces, WallCells, is_lambertian, visibility_masks
@@ -126,8 +126,8 @@ def pair_refinement(options: dict) -> bool:
     """Whether the visibility refinement gives each pair (cell, spot) of a split element to the element or to its
     children as that pair's own visibility asks (the default, :class:`~._nlos_pairs.Refinement`), or every pair to
     the children (``options["pair_refinement"] = False``, set by the fit, :mod:`transient_mi.fit.capture_model`,
-    not a scene parameter). Shared pairs cost less (on the paper scene's 32 x 32 capture the fine level's bin masses
-    fell by a quarter) and leave the pairs that see an element wholly or not at all with the element itself. The
+    not a scene parameter). Shared pairs cost less (on the paper scene's 32 x 32 capture the fine level's bin edges
+    fell from 3.7e9 to 2.8e9, a scratch count) and leave the pairs that see an element wholly or not at all with the element itself. The
     fit keeps the children in every pair: its elements are coarse (6 cm by default), its records and tests were
     measured with the children's finer time spread in every pair of a split element, and a fit with shared pairs
     is not yet measured."""
@@ -242,7 +242,7 @@ def _mixed_elements(scene, setup, g: _Geometry, spots, tri, keep_cells: bool = F
     vc_mixed = [np.empty((C, 0), dtype=np.uint8)]
     for e0, e1 in chunk_starts(4 * C, n):
         if side_test:  # (only the pairs that can carry light: the cell on a seen spot's side)
-            todo = np.flatnonzero(test_pairs(vs, e0, e1 - e0, X0, nrm, cell_p, S, cell_spot))
+            todo = np.flatnonzero(refinement_test_pairs(vs, e0, e1 - e0, X0, nrm, cell_p, S, cell_spot))
             v = np.zeros(C * (e1 - e0), dtype=np.uint8)
             v[todo] = visibility_masks(scene, g.cell_p, g.normal, pts, e0, e1, todo)
             v = v.reshape(C, e1 - e0)
@@ -305,7 +305,7 @@ def refine_visibility(scene, setup, g: _Geometry, spots, tri, src, refine_levels
     return tri, src, levels, prov, traced, split
 
 
-def test_cells_of(g: _Geometry, m_test: int) -> np.ndarray:
+def refinement_cells_of(g: _Geometry, m_test: int) -> np.ndarray:
     """The cell of the refinement test's geometry (``m_test`` cells per patch side) that holds each cell of ``g``
     (its centre), ``int64 [P g.m^2]`` (the identity when ``m_test == g.m``)."""
     m = g.m
@@ -359,7 +359,7 @@ def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_p
         hidden_ptrs=hidden_ptrs, confocal=confocal)
     refinement = None
     if split is not None and pair_refinement(options):
-        refinement = Refinement(*split, test_cells_of(g, m_test),
+        refinement = Refinement(*split, refinement_cells_of(g, m_test),
                                 np.asarray(g.cell_pixel if confocal else np.full(len(g.cell_p), -1), dtype=np.int64))
     elif split is not None:  # (the fit's forward model: the split elements leave, their children take every pair)
         keep = split[1] < 0
