@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
 """How many elements the quadrature's visibility refinement splits, by rule: the paper scene's fine elements at
 ``--array`` pixels and ``--element-size-m``, tested once from the coarse level's cells and every laser spot
-(:func:`transient_mi.integrators._nlos_quadrature._mixed_elements`), counted under three rules on the same traced
+(:func:`transient_mi.integrators._nlos_refinement.mixed_elements`), counted under three rules on the same traced
 masks:
 
 * ``any``: the samples seen partly from some cell alone or some spot alone (the rule before 2026-12-05);
 * ``combined``: some (cell, spot) pair sees them partly, the two masks combined (the samples seen from both);
 * ``lit`` (the rule in use): ``combined`` for the pairs that can carry light, the cell and the spot on one side of a
-  Lambertian element's shading normal (:func:`transient_mi.integrators._nlos_pair_kernels.mixed_lit`).
+  Lambertian element's shading normal (:func:`transient_mi.integrators._nlos_refinement.mixed_lit`).
 
     python bench/bench_refinement_rule.py --save   # bench/results/refinement_rule.json
 """
@@ -30,8 +30,9 @@ def measure(array: int, h: float) -> dict:
     import numpy as np
 
     from transient_mi.integrators import _nlos_quadrature as Q
+    from transient_mi.integrators import _nlos_refinement as R
     from transient_mi.integrators._nlos_elements import mesh_triangles, split4, subdivide
-    from transient_mi.integrators._nlos_pair_kernels import mixed_lit
+    from transient_mi.integrators._nlos_refinement import mixed_lit
     from transient_mi.integrators._nlos_surfaces import ElementSurfaces
     from transient_mi.paper import PaperConfig, scene_file
     from transient_mi.scene_io import load_scene
@@ -47,7 +48,7 @@ def measure(array: int, h: float) -> dict:
     spots = list(range(setup.n_spots))
     n_sh = ElementSurfaces(setup.hidden_shapes, mi.ShapePtr(setup.hidden_shapes), faces, tri, src).n_sh
     t0 = time.perf_counter()
-    lit, traced, _ = Q._mixed_elements(scene, setup, g, spots, tri, True, n_sh, False)
+    lit, traced, _ = R.mixed_elements(scene, setup, g, spots, tri, True, n_sh, False)
     test_s = time.perf_counter() - t0
     vs, vc = traced.spot, traced.cell  # [n, G], [C, n]
     part = lambda m: (m != 0) & (m != 15)  # noqa: E731

@@ -287,12 +287,12 @@ def test_occluded_target_agrees_with_monte_carlo():
 
 
 def test_visibility_refinement_splits_the_elements_whose_lit_pairs_are_mixed():
-    """The refinement's test (:func:`~transient_mi.integrators._nlos_pair_kernels.mixed_lit`) splits an element
+    """The refinement's test (:func:`~transient_mi.integrators._nlos_refinement.mixed_lit`) splits an element
     for a pair (cell, spot) that can carry light and sees its samples partly, as the render bounds it: the cell's
     and the spot's masks combined (a spot seeing samples 2-3 and a cell seeing 0-1 light nothing), the cell and the
     spot on one side of a Lambertian element's normal, and for a confocal capture each cell with its own pixel's
     spot only. One element at the origin facing +z."""
-    from transient_mi.integrators._nlos_pair_kernels import mixed_lit
+    from transient_mi.integrators._nlos_refinement import mixed_lit
 
     X0 = np.zeros((1, 3))
     n_sh = np.array([[0.0, 0.0, 1.0]])
@@ -318,11 +318,11 @@ def test_visibility_refinement_splits_the_elements_whose_lit_pairs_are_mixed():
 
 
 def test_refined_pairs_give_each_pair_to_the_element_or_to_its_children():
-    """:func:`~transient_mi.integrators._nlos_pair_kernels.refined_pairs`: a split element keeps the pairs whose test
+    """:func:`~transient_mi.integrators._nlos_refinement.refined_pairs`: a split element keeps the pairs whose test
     cell and spot see its samples wholly (or not at all) and gives the others to its four children, down the levels;
     so each cell covers the surface once. Element 0 split into 1-4, child 1 split again into 5-8; three cells: the
     first sees element 0 wholly, the second partly (child 1 wholly), the third partly (child 1 partly too)."""
-    from transient_mi.integrators._nlos_pair_kernels import refined_pairs
+    from transient_mi.integrators._nlos_refinement import refined_pairs
 
     parent = np.array([-1, 0, 0, 0, 0, 1, 1, 1, 1], dtype=np.int64)
     split_idx = np.array([0, 1, -1, -1, -1, -1, -1, -1, -1], dtype=np.int64)
@@ -353,11 +353,11 @@ def test_refined_pairs_give_each_pair_to_the_element_or_to_its_children():
 
 
 def test_refinement_test_traces_the_pairs_that_can_carry_light():
-    """:func:`~transient_mi.integrators._nlos_pair_kernels.refinement_test_pairs` (the refinement test's rays from
+    """:func:`~transient_mi.integrators._nlos_refinement.refinement_test_pairs` (the refinement test's rays from
     the cells): a cell is traced with an element when a spot that sees one of its samples lies on the cell's side of the
     element's shading normal, a cell in the element's plane always (the margin); a confocal cell with its own spot
     only. One element at the origin facing +z; cells in front, behind and in its plane."""
-    from transient_mi.integrators._nlos_pair_kernels import refinement_test_pairs
+    from transient_mi.integrators._nlos_refinement import refinement_test_pairs
 
     X0 = np.zeros((1, 3))
     n_sh = np.array([[0.0, 0.0, 1.0]])
@@ -376,7 +376,7 @@ def test_refinement_test_traces_the_pairs_that_can_carry_light():
 
 def test_shared_pairs_agree_with_children_in_every_pair():
     """A render gives each pair of a split element to the element or to its children as the pair's own visibility
-    asks (:class:`~transient_mi.integrators._nlos_pairs.Refinement`); the fit's forward model gives every pair to
+    asks (:class:`~transient_mi.integrators._nlos_refinement.Refinement`); the fit's forward model gives every pair to
     the children (``pair_refinement=False``). On a target half hidden behind a smaller occluder (mixed visibility,
     two refinement levels) both are estimates of the same capture: every pixel's total agrees within the sum of
     their stated total errors (a pair counted twice, or dropped, would move a whole element's light), and so does

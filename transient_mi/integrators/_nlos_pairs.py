@@ -19,8 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from transient_mi.integrators._nlos_elements import sample_points
-from transient_mi.integrators._nlos_pair_kernels import (pair_geometry, pairs_lit, refined_pairs, spot_knots,
-                                                          spread_group)
+from transient_mi.integrators._nlos_pair_kernels import pair_geometry, pairs_lit, spot_knots, spread_group
 from transient_mi.integrators._nlos_surfaces import ElementSurfaces, WallCells, spot_intensities, visibility_masks
 
 if TYPE_CHECKING:
@@ -55,7 +54,7 @@ def spot_masks(scene, setup, spots, pts: np.ndarray) -> np.ndarray:
 
 class TracedVisibility:
     """Visibility masks already traced for the first ``n`` elements of a level (by the refinement test,
-    :func:`~._nlos_quadrature.refine_visibility`): from the laser spots ``spots`` (``spot``, ``uint8 [n, G]``, as
+    :func:`~._nlos_refinement.refine_visibility`): from the laser spots ``spots`` (``spot``, ``uint8 [n, G]``, as
     :func:`spot_masks`) and, where that test used the level's own cells, from the cells ``cell_p`` (``cell``,
     ``uint8 [C, n]``, as :func:`~._nlos_surfaces.visibility_masks`; ``None`` otherwise). :class:`SpotSide` and
     :class:`Chunk` take them instead of tracing the same rays again (each ray's result does not depend on the
@@ -77,39 +76,15 @@ class TracedVisibility:
         return TracedVisibility(self.spots, np.concatenate([self.spot, more.spot]), self.cell_p, cell)
 
 
-class Refinement:
-    """Which element of a level integrates each pair after the visibility refinement
-    (:func:`~._nlos_quadrature.refine_visibility`): a split element stays in the level beside its four children,
-    and each of its pairs (cell, spot) is integrated by it where the test's cell (``cell_of``) and the spot see its
-    samples wholly or not at all, by its children otherwise (:func:`~._nlos_pair_kernels.refined_pairs`).
-
-    ``parent [n]`` (int64, -1: none), ``split_idx [n]`` (int64: a split element's column in the masks, -1 for the
-    others), the split elements' masks from the test's cells ``cell_masks [C_test, n_split]`` and from the spots
-    ``spot_masks [n_split, G]`` (uint8), the test cell of every cell of the level ``cell_of [C]`` and each cell's
-    spot ``cell_spot [C]`` (its pixel's for a confocal capture, -1: every spot of the group)."""
-
-    def __init__(self, parent, split_idx, cell_masks, spot_masks_, cell_of, cell_spot):
-        self.parent, self.split_idx = parent, split_idx
-        self.cell_masks, self.spot_masks = cell_masks, spot_masks_
-        self.cell_of, self.cell_spot = np.ascontiguousarray(cell_of), np.ascontiguousarray(cell_spot)
-        self.n_split = cell_masks.shape[1]
-
-    def restrict(self, lit: np.ndarray, e0: int, ne: int) -> None:
-        """Clear, in place, the pairs of ``lit`` (bool ``[C ne]``, cells with the elements ``e0:e0 + ne``) that other
-        elements of the level integrate."""
-        refined_pairs(lit, e0, ne, self.parent, self.split_idx, self.cell_masks, self.spot_masks, self.cell_of,
-                      self.cell_spot)
-
-
 class LevelElements:
     """A level's elements: vertices ``tri [n, 3, 3]``, source triangles ``src`` (rows of the
     :class:`~._nlos_elements.Faces`), visibility samples, areas, normals and the surfaces at the centroids
     (:class:`~._nlos_surfaces.ElementSurfaces`); ``traced``, optional: the :class:`TracedVisibility` of its first
-    elements; ``refinement``, optional: the :class:`Refinement` that shares the pairs between split elements and
-    their children."""
+    elements; ``refinement``, optional: the :class:`~._nlos_refinement.Refinement` that shares the pairs between
+    split elements and their children."""
 
     def __init__(self, setup, faces, hidden_ptrs, tri: np.ndarray, src: np.ndarray,
-                 traced: TracedVisibility | None = None, refinement: Refinement | None = None):
+                 traced: TracedVisibility | None = None, refinement=None):
         self.n = len(tri)
         self.tri, self.src = tri, src
         self.pts, self.area, self.nrm = element_terms(tri)

@@ -35,10 +35,10 @@ Here it is integrated by quadrature instead of sampling:
   surface lies before ``1 - 1e-4`` of its distance: :func:`~._nlos_surfaces.visibility_masks`; from a cell
   only for pairs that can carry light, :func:`~._nlos_pair_kernels.pairs_lit`). Elements with a pair (cell,
   spot) that can carry light and sees their samples partly (tested from the coarse level's cell centres:
-  :func:`~._nlos_pair_kernels.mixed_lit`) are split in four, up to ``refine_levels`` times. A split element stays
+  :func:`~._nlos_refinement.mixed_lit`) are split in four, up to ``refine_levels`` times. A split element stays
   in the level: each of its pairs (cell, spot) is integrated by it where the test's cell and the spot see all its
-  samples or none, and by its four children where they see them partly (:class:`~._nlos_pairs.Refinement`), so
-  the pairs that did not ask for the split cost one pair, not four. A pair still mixed then contributes the
+  samples or none, and by its four children where they see them partly
+  (:class:`~._nlos_refinement.Refinement`), so the pairs that did not ask for the split cost one pair, not four. A pair still mixed then contributes the
   visible share of its samples (centroid 1/2, corners 1/6 each).
   Visibility is assumed constant over an element whose samples agree (an occluder smaller than an element
   can be missed: keep ``element_size_m`` below the smallest feature).
@@ -80,13 +80,13 @@ import numba
 import numpy as np
 
 from transient_core.units import C_M_PER_PS
-from transient_mi.integrators._nlos_elements import (fine_provenance, mesh_triangles, provenance, sample_points, split4,
-                                                     subdivide, subdivide_provenance)
+from transient_mi.integrators._nlos_elements import (fine_provenance, mesh_triangles, provenance, split4, subdivide,
+                                                     subdivide_provenance)
 from transient_mi.integrators._nlos_error_estimate import discretisation_error, local_rms
-from transient_mi.integrators._nlos_pair_kernels import cell_terms, mixed_lit, refinement_test_pairs
-from transient_mi.integrators._nlos_pairs import (Chunk, LevelElements, Refinement, SpotSide, TracedVisibility,
-                                                  chunk_starts, spot_masks)
-from transient_mi.integrators._nlos_surfaces import ElementSurfaces, WallCells, is_lambertian, visibility_masks
+from transient_mi.integrators._nlos_pair_kernels import cell_terms
+from transient_mi.integrators._nlos_pairs import Chunk, LevelElements, SpotSide, chunk_starts
+from transient_mi.integrators._nlos_refinement import Refinement, refine_visibility, refinement_cells_of
+from transient_mi.integrators._nlos_surfaces import WallCells
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
 
@@ -124,8 +124,8 @@ def error_parts(options: dict) -> bool:
 
 def pair_refinement(options: dict) -> bool:
     """Whether the visibility refinement gives each pair (cell, spot) of a split element to the element or to its
-    children as that pair's own visibility asks (the default, :class:`~._nlos_pairs.Refinement`), or every pair to
-    the children (``options["pair_refinement"] = False``, set by the fit, :mod:`transient_mi.fit.capture_model`,
+    children as that pair's own visibility asks (the default, :class:`~._nlos_refinement.Refinement`), or every pair
+    to the children (``options["pair_refinement"] = False``, set by the fit, :mod:`transient_mi.fit.capture_model`,
     not a scene parameter). Shared pairs cost less (on the paper scene's 32 x 32 capture the fine level's bin edges
     fell from 3.7e9 to 2.8e9, a scratch count) and leave the pairs that see an element wholly or not at all with the element itself. The
     fit keeps the children in every pair: its elements are coarse (6 cm by default), its records and tests were
@@ -213,108 +213,6 @@ class _Geometry:
         return _Geometry(self._setup, self._film, cells)
 
 
-def _mixed_elements(scene, setup, g: _Geometry, spots, tri, keep_cells: bool = False, n_sh=None,
-                    confocal: bool = False):
-    """Elements with a pair (cell of ``g``, spot) that can carry light and whose visibility samples it sees partly
-    (:func:`~._nlos_pair_kernels.mixed_lit`: the pairs the render bounds as mixed): ``(mixed, traced, cells)``,
-    bool ``[n]``, the masks traced for the test (:class:`~._nlos_pairs.TracedVisibility`; its cells' masks only
-    with ``keep_cells``) and the cells' masks of the mixed elements, ``uint8 [C, n_mixed]`` (what
-    :class:`~._nlos_pairs.Refinement` reads). ``n_sh [n, 3]``: the elements' shading normals where they are
-    Lambertian (a pair then carries light only with the cell and the spot on one side), ``None`` otherwise;
-    ``confocal``: each cell pairs with its pixel's spot only.
-
-    The test asked before whether the samples disagreed for some cell or some spot alone. On the paper scene (16 x
-    16, 2.1 cm elements, the first test) that split 8605 of 33,732 elements; the masks combined (samples seen from
-    both) leave 7188, and the side test 5719. Splitting the others changed no bound, only the count."""
-    pts = sample_points(tri)
-    vs = np.ascontiguousarray(spot_masks(scene, setup, spots, pts))
-    n = len(tri)
-    mixed = np.zeros(n, dtype=bool)
-    C = len(g.cell_p)
-    X0 = np.ascontiguousarray(pts[:, 0])
-    side_test = n_sh is not None
-    nrm = np.ascontiguousarray(n_sh if side_test else np.zeros((n, 3)), dtype=np.float64)
-    S = np.ascontiguousarray(np.asarray(setup.spots, dtype=np.float64)[list(spots)])
-    cell_spot = (np.ascontiguousarray(g.cell_pixel, dtype=np.int64) if confocal
-                 else np.full(C, -1, dtype=np.int64))
-    cell_p = np.ascontiguousarray(g.cell_p, dtype=np.float64)
-    vc = np.empty((C, n), dtype=np.uint8) if keep_cells else None
-    vc_mixed = [np.empty((C, 0), dtype=np.uint8)]
-    for e0, e1 in chunk_starts(4 * C, n):
-        if side_test:  # (only the pairs that can carry light: the cell on a seen spot's side)
-            todo = np.flatnonzero(refinement_test_pairs(vs, e0, e1 - e0, X0, nrm, cell_p, S, cell_spot))
-            v = np.zeros(C * (e1 - e0), dtype=np.uint8)
-            v[todo] = visibility_masks(scene, g.cell_p, g.normal, pts, e0, e1, todo)
-            v = v.reshape(C, e1 - e0)
-        else:
-            v = np.ascontiguousarray(visibility_masks(scene, g.cell_p, g.normal, pts, e0, e1).reshape(C, e1 - e0))
-        mixed_lit(v, vs, e0, X0, nrm, cell_p, S, cell_spot, side_test, mixed)
-        vc_mixed.append(v[:, np.flatnonzero(mixed[e0:e1])])
-        if keep_cells:
-            vc[:, e0:e1] = v
-    return (mixed, TracedVisibility(spots, vs, g.cell_p if keep_cells else None, vc),
-            np.ascontiguousarray(np.concatenate(vc_mixed, axis=1)))
-
-
-def refine_visibility(scene, setup, g: _Geometry, spots, tri, src, refine_levels: int, prov=None,
-                      keep_cells: bool = False, faces=None, hidden_ptrs=None, confocal: bool = False):
-    """Split mixed-visibility elements (and ``prov``) in four, ``refine_levels`` times at most: ``(tri, src, levels,
-    prov, traced, split)`` (``src``: each element's source triangle, a row of the :class:`~._nlos_elements.Faces`;
-    ``traced``: the masks of the tests, of the elements they tested, which come first, as
-    :class:`~._nlos_pairs.TracedVisibility` (cells' masks with ``keep_cells``), or ``None`` without a test;
-    ``split``: ``(parent, split_idx, cell_masks, spot_masks)`` as :class:`~._nlos_pairs.Refinement` takes them,
-    or ``None`` when nothing was split).
-
-    A split element stays in the list and its four children are appended: each pair (cell, spot) is integrated by
-    the element or by its children as its own visibility asks (:func:`~._nlos_pair_kernels.refined_pairs`), so the
-    pairs that see the element wholly or not at all cost one pair, not four. Each test after the first traces the
-    children of the one before only (the elements tested already keep their masks: the same rays). With ``faces``
-    and ``hidden_ptrs`` (the :class:`~._nlos_elements.Faces` and the hidden shapes) the test reads Lambertian
-    elements' shading normals (a pair carries light with the cell and the spot on one side); ``confocal``: each
-    cell pairs with its pixel's spot (:func:`_mixed_elements`)."""
-    levels = 0
-    traced = None
-    lambertian = faces is not None and all(is_lambertian(sh.bsdf()) for sh in setup.hidden_shapes)
-    parent = np.full(len(tri), -1, dtype=np.int64)
-    split_idx = np.full(len(tri), -1, dtype=np.int64)
-    split_cell, split_spot = [], []
-    n_split = 0
-    for _ in range(refine_levels):
-        # (the elements tested already come first, their masks in ``traced``: only the children appended since
-        # are tested)
-        n0 = 0 if traced is None else traced.n
-        n_sh = (ElementSurfaces(setup.hidden_shapes, hidden_ptrs, faces, tri[n0:], src[n0:]).n_sh if lambertian
-                else None)
-        mixed, new, vc_mixed = _mixed_elements(scene, setup, g, spots, tri[n0:], keep_cells, n_sh, confocal)
-        traced = new if traced is None else traced.then(new)
-        if not mixed.any():
-            break
-        idx = n0 + np.flatnonzero(mixed)
-        split_idx[idx] = n_split + np.arange(len(idx))
-        n_split += len(idx)
-        split_cell.append(vc_mixed)
-        split_spot.append(new.spot[mixed])
-        tri = np.concatenate([tri, split4(tri[idx])])
-        src = np.concatenate([src, np.repeat(src[idx], 4)])
-        prov = None if prov is None else np.concatenate([prov, split4(prov[idx])])
-        parent = np.concatenate([parent, np.repeat(idx, 4)])
-        split_idx = np.concatenate([split_idx, np.full(4 * len(idx), -1, dtype=np.int64)])
-        levels += 1
-    split = None if n_split == 0 else (parent, split_idx, np.ascontiguousarray(np.concatenate(split_cell, axis=1)),
-                                       np.ascontiguousarray(np.concatenate(split_spot)))
-    return tri, src, levels, prov, traced, split
-
-
-def refinement_cells_of(g: _Geometry, m_test: int) -> np.ndarray:
-    """The cell of the refinement test's geometry (``m_test`` cells per patch side) that holds each cell of ``g``
-    (its centre), ``int64 [P g.m^2]`` (the identity when ``m_test == g.m``)."""
-    m = g.m
-    c = np.arange(len(g.cell_p))
-    k, r = np.divmod(c, m * m)
-    iv, iu = np.divmod(r, m)
-    return k * m_test * m_test + ((2 * iv + 1) * m_test) // (2 * m) * m_test + ((2 * iu + 1) * m_test) // (2 * m)
-
-
 # ------------------------------------------------------------------ the render
 
 
@@ -337,7 +235,7 @@ def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_p
     one split in four, then refined where visibility is mixed; the provenance: :func:`~._nlos_elements.provenance`).
 
     A render keeps each split element beside its children and gives every pair to one of them
-    (:class:`~._nlos_pairs.Refinement`); without :func:`pair_refinement` (the fit's forward model) the split
+    (:class:`~._nlos_refinement.Refinement`); without :func:`pair_refinement` (the fit's forward model) the split
     elements leave and their children take every pair."""
     h = float(options.get("element_size_m", DEFAULT_ELEMENT_SIZE_M))
     faces = mesh_triangles(setup.hidden_shapes)
