@@ -25,8 +25,11 @@ def upload(a, T=None):
     loaded with the buffer's alignment, which varies from call to call and changes the kernel (a recompilation
     at every call)."""
     T = mi.Float if T is None else T
-    x = T(np.ascontiguousarray(a)) + dr.opaque(T, 0)  # (a real operation: dr.copy returns the mapped buffer)
+    src = np.ascontiguousarray(a)
+    x = T(src) + dr.opaque(T, 0)  # (a real operation: dr.copy returns the mapped buffer)
     dr.eval(x)
+    dr.sync_thread()  # (the copy has run before ``src`` can be freed: the LLVM backend launches it asynchronously)
+    del src
     return x
 
 

@@ -32,9 +32,14 @@ WALL_OFFSET_M = 1e-6
 def _up(T, a, dtype):
     """A numpy array as a Dr.Jit array of type ``T`` in Dr.Jit's own memory: an array mapped from numpy memory is
     loaded with that buffer's alignment, which varies between calls and changes the kernel (a recompilation at
-    every call; as :func:`~._nlos_ad_terms.upload`)."""
-    x = T(np.ascontiguousarray(a, dtype=dtype)) + dr.opaque(T, 0)
+    every call; as :func:`~._nlos_ad_terms.upload`). The copy has run when this returns (``dr.sync_thread``): the
+    LLVM backend launches it asynchronously, and the numpy buffer it reads (a converted temporary, here) is freed
+    with this frame. A dataset worker died once in such a copy, reading an unmapped page."""
+    src = np.ascontiguousarray(a, dtype=dtype)
+    x = T(src) + dr.opaque(T, 0)
     dr.eval(x)
+    dr.sync_thread()
+    del src
     return x
 
 
