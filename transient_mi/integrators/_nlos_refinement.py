@@ -185,8 +185,7 @@ class Refinement:
                       self.cell_spot)
 
 
-def mixed_elements(scene, setup, g, spots, tri, keep_cells: bool = False, n_sh=None,
-                    confocal: bool = False):
+def mixed_elements(scene, setup, g, spots, tri, keep_cells: bool = False, n_sh=None, confocal: bool = False):
     """Elements with a pair (cell of ``g``, spot) that can carry light and whose visibility samples it sees partly
     (:func:`mixed_lit`: the pairs the render bounds as mixed): ``(mixed, traced, cells)``,
     bool ``[n]``, the masks traced for the test (:class:`~._nlos_pairs.TracedVisibility`; its cells' masks only
