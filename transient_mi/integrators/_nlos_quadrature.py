@@ -391,10 +391,7 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
             local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR, add_to=bound)
         else:
             part = local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR)
-            if bound is parts["visibility"]:
-                bound = bound + part
-            else:  # (the sum is this render's own array already)
-                bound += part
+            bound += part  # (the cells' level comes with the coarse one: the sum is this render's own array)
             parts["cells"] = part
         tot_bound = tot_bound + np.abs(coarse["steady"] - cells["steady"]) * CELL_ESTIMATE_FACTOR
     # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)

@@ -176,7 +176,6 @@ class Refinement:
         self.parent, self.split_idx = parent, split_idx
         self.cell_masks, self.spot_masks = cell_masks, spot_masks_
         self.cell_of, self.cell_spot = np.ascontiguousarray(cell_of), np.ascontiguousarray(cell_spot)
-        self.n_split = cell_masks.shape[1]
 
     def restrict(self, lit: np.ndarray, e0: int, ne: int) -> None:
         """Clear, in place, the pairs of ``lit`` (bool ``[C ne]``, cells with the elements ``e0:e0 + ne``) that other
