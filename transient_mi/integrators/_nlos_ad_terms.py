@@ -15,22 +15,16 @@ import numpy as np
 from transient_core.units import C_M_PER_PS
 from transient_mi.integrators._lanes import LaneHistogram, LaneLayout, to_mono
 from transient_mi.integrators._nlos_render import GroupHistogram
+from transient_mi.integrators._nlos_surfaces import upload as upload_to
 
 #: AD flags: a term that no parameter being differentiated reaches is not an error
 _FLAGS = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
 
 
 def upload(a, T=None):
-    """A numpy array as a Dr.Jit array in Dr.Jit's own (aligned) memory: arrays made from numpy memory are
-    loaded with the buffer's alignment, which varies from call to call and changes the kernel (a recompilation
-    at every call)."""
-    T = mi.Float if T is None else T
-    src = np.ascontiguousarray(a)
-    x = T(src) + dr.opaque(T, 0)  # (a real operation: dr.copy returns the mapped buffer)
-    dr.eval(x)
-    dr.sync_thread()  # (the copy has run before ``src`` can be freed: the LLVM backend launches it asynchronously)
-    del src
-    return x
+    """A numpy array as a Dr.Jit array (default ``mi.Float``) in Dr.Jit's own (aligned) memory, its copy done:
+    :func:`~._nlos_surfaces.upload`."""
+    return upload_to(mi.Float if T is None else T, a)
 
 
 class TimeKernel:

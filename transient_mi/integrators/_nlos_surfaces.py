@@ -29,12 +29,14 @@ VISIBILITY_REL_TOL = 1e-4
 WALL_OFFSET_M = 1e-6
 
 
-def _up(T, a, dtype):
-    """A numpy array as a Dr.Jit array of type ``T`` in Dr.Jit's own memory: an array mapped from numpy memory is
-    loaded with that buffer's alignment, which varies between calls and changes the kernel (a recompilation at
-    every call; as :func:`~._nlos_ad_terms.upload`). The copy has run when this returns (``dr.sync_thread``): the
-    LLVM backend launches it asynchronously, and the numpy buffer it reads (a converted temporary, here) is freed
-    with this frame. A dataset worker died once in such a copy, reading an unmapped page."""
+def upload(T, a, dtype=None):
+    """A numpy array as a Dr.Jit array of type ``T`` in Dr.Jit's own memory (``dtype``: the numpy type it is converted
+    to first, default its own): an array mapped from numpy memory is loaded with that buffer's alignment, which varies
+    between calls and changes the kernel (a recompilation at every call), so it is copied by a real operation
+    (``dr.copy`` returns the mapped buffer). The copy has run when this returns (``dr.sync_thread``): the LLVM backend
+    launches it asynchronously, and the numpy buffer it reads (a converted temporary, say) may be freed with this
+    frame. A dataset worker died once in such a copy, reading an unmapped page. The one upload of the NLOS
+    integrators (:func:`~._nlos_ad_terms.upload` calls it)."""
     src = np.ascontiguousarray(a, dtype=dtype)
     x = T(src) + dr.opaque(T, 0)
     dr.eval(x)
@@ -44,11 +46,11 @@ def _up(T, a, dtype):
 
 
 def _f(a) -> "mi.Float":
-    return _up(mi.Float, a, np.float32)
+    return upload(mi.Float, a, np.float32)
 
 
 def _u(a) -> "mi.UInt32":
-    return _up(mi.UInt32, a, np.uint32)
+    return upload(mi.UInt32, a, np.uint32)
 
 
 def _v3(a) -> "mi.Vector3f":
@@ -59,7 +61,7 @@ def _v3(a) -> "mi.Vector3f":
 def _d3(a) -> list:
     """``[n, 3]`` float64 numpy -> three ``mi.Float64`` columns (positions kept in double precision)."""
     a = np.asarray(a, dtype=np.float64)
-    return [_up(mi.Float64, a[:, i], np.float64) for i in range(3)]
+    return [upload(mi.Float64, a[:, i], np.float64) for i in range(3)]
 
 
 def _gather3(cols: list, index) -> list:
