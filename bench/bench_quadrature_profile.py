@@ -8,8 +8,8 @@ and CPU time (every thread of the process) of each stage, taken by wrapping the 
 * ``levels``: each level's integration (:func:`~transient_mi.integrators._nlos_quadrature._level`: the fine one,
   the coarse one, and with one cell per patch the cells' level), and inside them
 * ``bin masses and deposits`` (``spread_group``: every pair with every spot, the exact bin masses and the
-  deposits), ``pair geometry`` (``pair_geometry``), ``visibility rays`` (``visibility_masks`` from the cells and
-  ``spot_masks`` from the spots), ``lit pairs`` (``pairs_lit``), ``laser-side knots`` (``spot_knots``);
+  deposits), ``pair geometry`` (``pair_geometry``, with the test of which pairs can carry light), ``visibility rays``
+  (``visibility_masks`` from the cells and ``spot_masks`` from the spots), ``laser-side knots`` (``spot_knots``);
 * ``elements and visibility refinement`` (``level_elements``), ``error estimate`` (``discretisation_error`` and the
   cells' ``local_rms``), ``rounding residue`` (``_clear_rounding_residue``);
 * ``render call``: the whole ``render`` (setup, the quadrature, writing the capture and its error files).
@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: (module, function, stage) of every wrapped function; ``_level`` is recorded per call (fine, coarse, cells).
 STAGES = (("_nlos_pairs", "spread_group", "bin masses and deposits"), ("_nlos_pairs", "pair_geometry", "pair geometry"),
           ("_nlos_pairs", "visibility_masks", "visibility rays"), ("_nlos_pairs", "spot_masks", "visibility rays"),
-          ("_nlos_pairs", "pairs_lit", "lit pairs"), ("_nlos_pairs", "spot_knots", "laser-side knots"),
+          ("_nlos_pairs", "spot_knots", "laser-side knots"),
           ("_nlos_quadrature", "level_elements", "elements and visibility refinement"),
           ("_nlos_quadrature", "discretisation_error", "error estimate"),
           ("_nlos_quadrature", "local_rms", "error estimate"),
@@ -132,8 +132,8 @@ def main(argv=None) -> int:
               "the scene's quadrature defaults",
               "settings": info, "render_call": {"wall_s": round(total[0], 2), "cpu_s": round(total[1], 2)},
               "stages": stages,
-              "note": "stages nest: the levels hold the bin masses, pair geometry, visibility from the cells, lit pairs "
-                      "and knots; CPU is every thread of the process (numba's two)"}
+              "note": "stages nest: the levels hold the bin masses, pair geometry (with the lit pairs' test), "
+                      "visibility from the cells and knots; CPU is every thread of the process (numba's two)"}
     print(json.dumps(result, indent=1))
     name = f"quadrature_profile_{a.scene}" + ("" if a.bin_width_ps == 1.0 else f"_{a.bin_width_ps:g}ps")
     _record.maybe_save(a, name, result, load_start=load_start)

@@ -785,9 +785,11 @@ def test_cell_tilt_keeps_the_weight_non_negative():
     X0 = tri.mean(axis=1)
     nrm = np.array([[0.0, 0.0, -1.0]])
     bin_m = 0.3e-3  # 1 ps
-    geo, cos_p, A, w1, w2, tilt, side_x = pair_geometry(
+    geo, cos_p, A, w1, w2, tilt, side_x, lit = pair_geometry(
         cell_p, np.array([1.0]), *cell_terms(cell_p, D, ax, ay, 1.0, ap_n, wall_n), X0, tri, nrm, np.array([5e-5]),
-        nrm, np.array([[0.0, 0.0, 1.0]]), np.array([1], dtype=np.int8), 0, 1, ax, ay, 1.0, bin_m, 1.0, True, wall_n)
+        nrm, np.array([[0.0, 0.0, 1.0]]), np.array([1], dtype=np.int8), 0, 1, ax, ay, 1.0, bin_m, 1.0, True, wall_n,
+        1, np.full((1, 1), 15, dtype=np.uint8), np.ones((1, 1), dtype=np.int8), True, True, False)
+    assert lit[0]  # (a spot on the cell's side sees the element)
     assert abs(tilt[0, 0]) + abs(tilt[0, 1]) == pytest.approx(MAX_TILT_SUM)  # it was scaled
     t = np.sort(A[0])
     buf = np.zeros(4096)

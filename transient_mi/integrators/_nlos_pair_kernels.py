@@ -173,32 +173,6 @@ def adjoint_group(g, grad_ext, per_pixel, e0, ne, vis_p, A, w1, w2, tilt, vis_s,
                 g[row, i] = _SHARE[m] * acc
 
 
-@numba.njit(cache=True, fastmath=False)
-def pairs_lit(geo, cos_p, side_x, e0, ne, per_pixel, vis_s, side_s, wall_lambertian, lambertian, confocal):
-    """Which pairs of a chunk can carry light for some spot of the group, by geometry alone (so a zero BSDF value
-    or intensity still gets its derivative): ``geo > 0``, the element in front of a Lambertian wall (``cos_p >
-    0``), and a spot that sees one of the element's samples, on the cell's side of a Lambertian element. The
-    others have no light and no derivative whatever their visibility from the cell, so it is not tested (bool
-    ``[n]``; arguments as :func:`spread_group`). Single-threaded: a few comparisons per pair, about 5 ns (1 ms for
-    the 196,608 pairs of the confocal 32 x 32 benchmark at 57 mm), where a parallel region took 9-16 ms on the
-    shared 2-core machine (its threads wait for a core)."""
-    n = geo.shape[0]
-    G = side_s.shape[1]
-    lit = np.zeros(n, dtype=np.bool_)
-    for i in range(n):
-        if geo[i] == 0.0 or (wall_lambertian and cos_p[i] == 0.0):
-            continue
-        e = e0 + i % ne
-        k = i // per_pixel
-        s_lo = k if confocal else 0
-        s_hi = k + 1 if confocal else G
-        for s in range(s_lo, s_hi):
-            if vis_s[e, s] != 0 and (not lambertian or side_x[i] * side_s[e, s] > 0):
-                lit[i] = True
-                break
-    return lit
-
-
 def cell_terms(cell_p: np.ndarray, D: np.ndarray, ax: np.ndarray, ay: np.ndarray, fl: float, ap_n: np.ndarray,
                wall_n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What :func:`pair_geometry` needs of each cell alone (cells ``[C, 3]``, edge vectors ``ax``, ``ay``):
@@ -245,11 +219,16 @@ PARALLEL_MIN_PAIRS = 1 << 18
 
 
 def pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, area, n_sh, wall_n_sh, wall_side, e0, e1,
-                  ax, ay, fl, bin_m, photons, has_cells, wall_n):
+                  ax, ay, fl, bin_m, photons, has_cells, wall_n, per_pixel, vis_s, side_s, wall_lambertian, lambertian,
+                  confocal, out=None):
     """:func:`_pair_geometry` (its docstring has the arguments and results), on one thread for a chunk of fewer than
-    :data:`PARALLEL_MIN_PAIRS` pairs."""
+    :data:`PARALLEL_MIN_PAIRS` pairs. ``out``, optional: :func:`pair_results` of at least the chunk's pairs, which
+    the results are written to (their first rows; a level's chunks reuse one set: see :func:`pair_results`)."""
+    n = len(cell_p) * (e1 - e0)
+    out = pair_results(n) if out is None else tuple(a[:n] for a in out)
     args = (cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, area, n_sh, wall_n_sh, wall_side, e0, e1, ax,
-            ay, fl, bin_m, photons, has_cells, wall_n)
+            ay, fl, bin_m, photons, has_cells, wall_n, per_pixel, vis_s, side_s, wall_lambertian, lambertian, confocal,
+            *out)
     if len(cell_p) * (e1 - e0) >= PARALLEL_MIN_PAIRS:
         return _pair_geometry(*args)
     threads = numba.get_num_threads()
@@ -260,11 +239,33 @@ def pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, are
         numba.set_num_threads(threads)
 
 
+def pair_results(n: int) -> tuple:
+    """Arrays for :func:`pair_geometry`'s results of ``n`` pairs: ``geo``, ``cos_p``, ``A [n, 3]``, ``w1``, ``w2``,
+    ``tilt [n, 2]`` (float64), ``side_x`` (int8), ``lit`` (bool); uninitialised (the kernel writes every row).
+
+    Allocated by numpy, which asks the kernel for huge pages for large arrays (``madvise``), and reused by a level's
+    chunks: first touching fresh 4 KiB pages for about 75 bytes a pair (a chunk of 2^20 pairs: 80 MB), chunk after
+    chunk, cost more system time than the geometry itself took (the paper scene's 32 x 32 capture: 1.2 million page
+    faults a render and 6 s of system time over its two cores, when the kernel allocated them)."""
+    return (np.empty(n), np.empty(n), np.empty((n, 3)), np.empty(n), np.empty(n), np.empty((n, 2)),
+            np.empty(n, dtype=np.int8), np.empty(n, dtype=np.bool_))
+
+
 @numba.njit(cache=True, parallel=True, fastmath=False)
 def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, area, n_sh, wall_n_sh, wall_side, e0,
-                   e1, ax, ay, fl, bin_m, photons, has_cells, wall_n):
+                   e1, ax, ay, fl, bin_m, photons, has_cells, wall_n, per_pixel, vis_s, side_s, wall_lambertian,
+                   lambertian, confocal, geo, cos_p, A, w1, w2, tilt, side_x, lit):
     """Detector-side geometry of the chunk's pairs (cells x elements ``e0:e1``, cell-major), float64, one pair per
-    iteration in parallel; ``rd_c``, ``uq_c``, ``w0_c``, ``corner_d``: :func:`cell_terms`.
+    iteration in parallel; ``rd_c``, ``uq_c``, ``w0_c``, ``corner_d``: :func:`cell_terms`; ``per_pixel`` (pairs
+    per pixel), ``vis_s``, ``side_s``, ``lambertian``, ``confocal``: as :func:`spread_group`, ``wall_lambertian``
+    whether the wall's BSDF is Lambertian.
+
+    Which pairs can carry light for some spot of the group is decided first, by geometry alone (so a zero BSDF
+    value or intensity still gets its derivative): ``geo > 0``, the element in front of a Lambertian wall
+    (``cos_p > 0``), and a spot that sees one of the element's samples, on the cell's side of a Lambertian element.
+    The others (about half of the paper mannequin's: the elements facing away from the wall) have no light and no
+    derivative whatever their visibility from the cell: their knots, widths and slopes are not computed (0; every
+    kernel skips a pair without light before reading them), and ``lit`` (bool ``[n]``) says which are which.
 
     Returns ``geo`` (photons per pulse before the two BSDFs and the spot leg: ``N W0_cell A_e cos(theta_X) /
     r_px^2``), ``cos_p`` (the wall's ``|cos|`` towards the element where it lies on the side of the wall's
@@ -278,18 +279,13 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
     varies, its albedo not) and ``side_x`` int8 (the side of the element's shading normal ``n_sh`` the cell
     centre lies on). The cell's shift is the mean deviation of the detector-side path length from its tangent
     plane over the cell: for a quadratic, 1/3 of the corner mean minus the centre (m). ``wall_n``: the wall's
-    unit normal.
+    unit normal. ``lit`` last. The results are written to the last eight arguments, in that order (``n = C ne``
+    rows, every one written).
     """
     C = cell_p.shape[0]
     ne = e1 - e0
     n = C * ne
-    geo = np.empty(n)
-    cos_p = np.empty(n)
-    A = np.empty((n, 3))
-    w1 = np.empty(n)
-    w2 = np.empty(n)
-    tilt = np.zeros((n, 2))
-    side_x = np.empty(n, dtype=np.int8)
+    G = side_s.shape[1]
     inv_bin = 1.0 / bin_m
     for i in numba.prange(n):
         c = i // ne
@@ -306,6 +302,25 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
         cw = wall_n_sh[c, 0] * dx + wall_n_sh[c, 1] * dy + wall_n_sh[c, 2] * dz
         cos_p[i] = abs(cw) if _side(cw) * wall_side[c] > 0 else 0.0
         side_x[i] = _side(-(n_sh[e, 0] * dx + n_sh[e, 1] * dy + n_sh[e, 2] * dz))
+        on = False
+        if geo[i] != 0.0 and not (wall_lambertian and cos_p[i] == 0.0):
+            k = i // per_pixel
+            s_lo = k if confocal else 0
+            s_hi = k + 1 if confocal else G
+            for s in range(s_lo, s_hi):
+                if vis_s[e, s] != 0 and (not lambertian or side_x[i] * side_s[e, s] > 0):
+                    on = True
+                    break
+        lit[i] = on
+        tilt[i, 0] = 0.0
+        tilt[i, 1] = 0.0
+        if not on:
+            A[i, 0] = 0.0
+            A[i, 1] = 0.0
+            A[i, 2] = 0.0
+            w1[i] = 0.0
+            w2[i] = 0.0
+            continue
         r_pv0 = np.sqrt((tri[e, 0, 0] - px) ** 2 + (tri[e, 0, 1] - py) ** 2 + (tri[e, 0, 2] - pz) ** 2)
         r_pv1 = np.sqrt((tri[e, 1, 0] - px) ** 2 + (tri[e, 1, 1] - py) ** 2 + (tri[e, 1, 2] - pz) ** 2)
         r_pv2 = np.sqrt((tri[e, 2, 0] - px) ** 2 + (tri[e, 2, 1] - py) ** 2 + (tri[e, 2, 2] - pz) ** 2)
@@ -351,7 +366,7 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
         A[i, 0] = (base + r_pv0) * inv_bin
         A[i, 1] = (base + r_pv1) * inv_bin
         A[i, 2] = (base + r_pv2) * inv_bin
-    return geo, cos_p, A, w1, w2, tilt, side_x
+    return geo, cos_p, A, w1, w2, tilt, side_x, lit
 
 
 def spot_knots(tri: np.ndarray, X0: np.ndarray, S: np.ndarray, spot_opl: np.ndarray, bin_m: float,

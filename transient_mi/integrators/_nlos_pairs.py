@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from transient_mi.integrators._nlos_elements import sample_points
-from transient_mi.integrators._nlos_pair_kernels import pair_geometry, pairs_lit, spot_knots, spread_group
+from transient_mi.integrators._nlos_pair_kernels import pair_geometry, spot_knots, spread_group
 from transient_mi.integrators._nlos_surfaces import ElementSurfaces, WallCells, spot_intensities, visibility_masks
 
 if TYPE_CHECKING:
@@ -148,25 +148,25 @@ class Chunk:
     ``i // ne``, element ``e0 + i % ne``): :func:`~._nlos_pair_kernels.pair_geometry`'s arrays, the wall's BSDF
     ``f_p`` (per cell times ``cos_p`` for a Lambertian wall, per pair otherwise) and the visibility of the element's
     samples from the cell ``vis_p [n]`` (masks), tested for the pairs that can carry light for a spot of ``side``
-    (:func:`~._nlos_pair_kernels.pairs_lit`; 0 for the others, which the kernels then skip as they skip any pair
-    without light)."""
+    (``lit`` of :func:`~._nlos_pair_kernels.pair_geometry`; 0 for the others, which the kernels then skip as they skip any pair
+    without light). ``out``, optional: :func:`~._nlos_pair_kernels.pair_results` the geometry is written to (views of
+    it become the chunk's arrays: a chunk using them must be gone before the next one is made)."""
 
     def __init__(self, scene, g, lv: LevelElements, wall: WallCells, e0: int, e1: int, side: SpotSide,
-                 confocal: bool):
+                 confocal: bool, out: tuple | None = None):
         C = len(g.cell_p)
         self.e0, self.e1, self.ne = e0, e1, e1 - e0
         self.n = C * self.ne
         self.per_pixel = g.m * g.m * self.ne
-        (self.geo, self.cos_p, self.A, self.w1, self.w2, self.tilt,
-         self.side_x) = pair_geometry(g.cell_p, g.cell_w0, *g.cell_terms, lv.X0, lv.tri, lv.nrm, lv.area, lv.surf.n_sh,
-                                      wall.n_sh, wall.side, e0, e1, g.cell_ax, g.cell_ay, g.fl, g.bin_m, g.N,
-                                      g.cell_half_diag > 0, g.normal)
+        (self.geo, self.cos_p, self.A, self.w1, self.w2, self.tilt, self.side_x,
+         lit) = pair_geometry(g.cell_p, g.cell_w0, *g.cell_terms, lv.X0, lv.tri, lv.nrm, lv.area, lv.surf.n_sh,
+                              wall.n_sh, wall.side, e0, e1, g.cell_ax, g.cell_ay, g.fl, g.bin_m, g.N,
+                              g.cell_half_diag > 0, g.normal, self.per_pixel, side.vis, side.side_s, wall.lambertian,
+                              lv.surf.lambertian, confocal, out)
         if wall.lambertian:
             self.f_p = (wall.value[:, None] * self.cos_p.reshape(C, self.ne)).reshape(-1)
         else:
             self.f_p = np.asarray(wall.pair_values(g.cell_p, lv.X0, e0, e1), dtype=np.float64)
-        lit = pairs_lit(self.geo, self.cos_p, self.side_x, e0, self.ne, self.per_pixel, side.vis, side.side_s,
-                        wall.lambertian, lv.surf.lambertian, confocal)
         if lv.refinement is not None:  # (each pair once: with a split element or with its children)
             lv.refinement.restrict(lit, e0, self.ne)
         known = lv.traced_cells(g.cell_p, e0, e1)  # [C, k]: the first k elements' masks, traced already

@@ -33,7 +33,7 @@ Here it is integrated by quadrature instead of sampling:
 * **Visibility.** ``V(p, X)`` and ``V(X, S)`` are tested by ray casts at the centroid and at three points
   near the element's corners (each leg from the cell centre and from the spot; a sample is visible when no
   surface lies before ``1 - 1e-4`` of its distance: :func:`~._nlos_surfaces.visibility_masks`; from a cell
-  only for pairs that can carry light, :func:`~._nlos_pair_kernels.pairs_lit`). Elements with a pair (cell,
+  only for pairs that can carry light, ``lit`` of :func:`~._nlos_pair_kernels.pair_geometry`). Elements with a pair (cell,
   spot) that can carry light and sees their samples partly (tested from the coarse level's cell centres:
   :func:`~._nlos_refinement.mixed_lit`) are split in four, up to ``refine_levels`` times. A split element stays
   in the level: each of its pairs (cell, spot) is integrated by it where the test's cell and the spot see all its
@@ -83,7 +83,7 @@ from transient_core.units import C_M_PER_PS
 from transient_mi.integrators._nlos_elements import (fine_provenance, mesh_triangles, provenance, split4, subdivide,
                                                      subdivide_provenance)
 from transient_mi.integrators._nlos_error_estimate import discretisation_error, local_rms
-from transient_mi.integrators._nlos_pair_kernels import cell_terms
+from transient_mi.integrators._nlos_pair_kernels import cell_terms, pair_results
 from transient_mi.integrators._nlos_pairs import Chunk, LevelElements, SpotSide, chunk_starts
 from transient_mi.integrators._nlos_refinement import Refinement, refine_visibility, refinement_cells_of
 from transient_mi.integrators._nlos_surfaces import WallCells
@@ -456,8 +456,11 @@ def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_
            "pairs": 0}
     side = SpotSide(scene, setup, g, spot_ids, lv)
     wall = WallCells(scene, setup, g.cell_p, g.D) if wall is None else wall
-    for e0, e1 in chunk_starts(len(g.cell_p), lv.n):
-        ch = Chunk(scene, g, lv, wall, e0, e1, side, confocal)
+    starts = chunk_starts(len(g.cell_p), lv.n)
+    # (one set of pair arrays for every chunk: each chunk is gone before the next is made)
+    buffers = pair_results(len(g.cell_p) * max((e1 - e0 for e0, e1 in starts), default=0))
+    for e0, e1 in starts:
+        ch = Chunk(scene, g, lv, wall, e0, e1, side, confocal, buffers)
         ch.spread(out, lv, side, confocal, ch.fx_pairs(g, lv, side, confocal))
         out["pairs"] += ch.n * (1 if confocal else len(spot_ids))
         del ch
