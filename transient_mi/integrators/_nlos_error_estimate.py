@@ -51,7 +51,7 @@ def _rms_rows(a, b, reach, scale, out, add):
     for k in numba.prange(n):
         sq = np.empty(T)
         for t in range(T):
-            d = a[k, t] - b[k, t]
+            d = float(a[k, t]) - float(b[k, t])  # (float64 whatever the rows' type)
             sq[t] = d * d
         for t in range(T):
             acc = 0.0
@@ -64,19 +64,25 @@ def _rms_rows(a, b, reach, scale, out, add):
             out[k, t] = out[k, t] + v if add else v
 
 
+def _floats(x) -> np.ndarray:
+    """``x`` as a float32 or float64 array as it is (no copy of a capture-sized level), anything else as float64."""
+    x = np.asarray(x)
+    return x if x.dtype in (np.float32, np.float64) else x.astype(np.float64)
+
+
 def local_rms(d: np.ndarray, minus: np.ndarray | None = None, scale: float = 1.0,
               add_to: np.ndarray | None = None) -> np.ndarray:
     """``scale`` times the root mean square of ``d - minus`` (``minus`` default 0) over ``2 ESTIMATE_REACH_BINS +
     1`` bins centred on each bin of the last axis (reflected at its ends, so the sum of squares of every row is
-    kept), float64, the shape of ``d``; the difference is formed bin by bin inside the kernel (no temporaries of
-    the capture's size). ``add_to`` (float64, C-contiguous, the shape of ``d``), optional: the estimate is added to
+    kept), float64, the shape of ``d``; the difference is formed bin by bin inside the kernel, in float64 from
+    float32 or float64 inputs (no temporaries of the capture's size). ``add_to`` (float64, C-contiguous, the shape of ``d``), optional: the estimate is added to
     it in place and it is returned (the same bytes as ``add_to + local_rms(...)``, without a new array of the
     capture's size)."""
-    d = np.asarray(d, dtype=np.float64)
+    d = _floats(d)
     shape = d.shape
     rows = np.ascontiguousarray(d.reshape(-1, shape[-1]) if d.ndim else d.reshape(1, 1))
     sub = (np.zeros_like(rows) if minus is None else
-           np.ascontiguousarray(np.broadcast_to(np.asarray(minus, dtype=np.float64), shape).reshape(rows.shape)))
+           np.ascontiguousarray(np.broadcast_to(_floats(minus), shape).reshape(rows.shape)))
     if add_to is None:
         out = np.empty(rows.shape)
     else:
