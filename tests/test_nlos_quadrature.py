@@ -576,7 +576,7 @@ def test_error_parts_sum_to_the_error_and_change_nothing_else():
     assert all(float(a.max()) > 0 for a in parted.error_parts.values())
     total = sum(a.astype(np.float64) for a in parted.error_parts.values())
     np.testing.assert_allclose(total, parted.error_bound, rtol=1e-6, atol=1e-6 * float(parted.error_bound.max()))
-    assert all(a.dtype == np.float64 and a.shape == parted.error_bound.shape for a in parted.error_parts.values())
+    assert all(a.dtype == np.float32 and a.shape == parted.error_bound.shape for a in parted.error_parts.values())
     for name in ("histogram", "error_bound", "total_error_bound", "steady"):
         assert getattr(plain, name).tobytes() == getattr(parted, name).tobytes(), name
 

@@ -71,20 +71,21 @@ def _floats(x) -> np.ndarray:
 
 
 def local_rms(d: np.ndarray, minus: np.ndarray | None = None, scale: float = 1.0,
-              add_to: np.ndarray | None = None) -> np.ndarray:
+              add_to: np.ndarray | None = None, dtype=np.float64) -> np.ndarray:
     """``scale`` times the root mean square of ``d - minus`` (``minus`` default 0) over ``2 ESTIMATE_REACH_BINS +
     1`` bins centred on each bin of the last axis (reflected at its ends, so the sum of squares of every row is
     kept), float64, the shape of ``d``; the difference is formed bin by bin inside the kernel, in float64 from
     float32 or float64 inputs (no temporaries of the capture's size). ``add_to`` (float64, C-contiguous, the shape of ``d``), optional: the estimate is added to
     it in place and it is returned (the same bytes as ``add_to + local_rms(...)``, without a new array of the
-    capture's size)."""
+    capture's size). Without ``add_to`` the estimate is returned as ``dtype`` (float32: each value the float64
+    one rounded)."""
     d = _floats(d)
     shape = d.shape
     rows = np.ascontiguousarray(d.reshape(-1, shape[-1]) if d.ndim else d.reshape(1, 1))
     sub = (np.zeros_like(rows) if minus is None else
            np.ascontiguousarray(np.broadcast_to(_floats(minus), shape).reshape(rows.shape)))
     if add_to is None:
-        out = np.empty(rows.shape)
+        out = np.empty(rows.shape, dtype=dtype)
     else:
         if add_to.shape != shape or add_to.dtype != np.float64 or not add_to.flags.c_contiguous:
             raise ValueError(f"add_to: a C-contiguous float64 array of shape {shape} expected")
@@ -93,7 +94,8 @@ def local_rms(d: np.ndarray, minus: np.ndarray | None = None, scale: float = 1.0
     return out.reshape(shape)
 
 
-def discretisation_error(fine: np.ndarray, coarse: np.ndarray, add_to: np.ndarray | None = None) -> np.ndarray:
+def discretisation_error(fine: np.ndarray, coarse: np.ndarray, add_to: np.ndarray | None = None,
+                         dtype=np.float64) -> np.ndarray:
     """The fine level's estimated discretisation error per bin.
 
     Parameters
@@ -102,11 +104,13 @@ def discretisation_error(fine: np.ndarray, coarse: np.ndarray, add_to: np.ndarra
         Photons per pulse per bin of the fine (``h``, ``m`` cells) and coarse (``2h``, ``m/2``) levels.
     add_to : ndarray, float64, shape of ``fine``, optional
         Where to add the estimate in place (see :func:`local_rms`).
+    dtype : float64 or float32
+        The returned array's type without ``add_to``.
 
     Returns
     -------
-    ndarray, float64, shape of ``fine``
+    ndarray, shape of ``fine``
         ``local_rms(fine - coarse) / ESTIMATE_DIVISOR``, photons per pulse per bin (>= 0), or ``add_to`` with it
         added.
     """
-    return local_rms(fine, coarse, 1.0 / ESTIMATE_DIVISOR, add_to)
+    return local_rms(fine, coarse, 1.0 / ESTIMATE_DIVISOR, add_to, dtype)

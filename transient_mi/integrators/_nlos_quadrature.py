@@ -101,6 +101,9 @@ CELL_ESTIMATE_FACTOR = 4.0 / 3.0
 #: over a bin's deposits), is far below the differences the estimate takes of them (the cells' part, the smallest,
 #: about 1e-3 of the light on that capture). Their totals (``steady``) stay float64.
 ESTIMATE_DTYPE = np.float32
+#: The error's parts (``error_parts``: they only plan a refinement) are returned in float32: a fifth of the float64
+#: parts' memory, which also made the error a new array (the paper scene's 32 x 32 capture at 1 ps bins: 1.1 GB).
+PARTS_DTYPE = np.float32
 #: Default longest element edge, m.
 DEFAULT_ELEMENT_SIZE_M = 0.01
 #: Default cells per patch side.
@@ -122,8 +125,8 @@ def error_parts(options: dict) -> bool:
     ``render --noise-target``'s refinement, :func:`transient_mi.noise_target_quadrature.render_group_quadrature`, not a scene
     parameter): ``TransientResult.error_parts`` then maps ``visibility`` (the mixed-visibility bound),
     ``elements`` (the elements' discretisation estimate, with its cells' where the coarse level halves them) and,
-    with one cell per patch side, ``cells`` to float64 arrays shaped as ``error_bound``, which is their sum (up to
-    its float32 rounding and the rounding residue it clears)."""
+    with one cell per patch side, ``cells`` to :data:`PARTS_DTYPE` arrays shaped as ``error_bound``, which is their
+    sum (up to float32 rounding and the rounding residue it clears)."""
     return bool(options.get("error_parts", False))
 
 
@@ -380,25 +383,20 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     outside = fine["outside"]
     # error: the light of mixed visibility, plus the discretisation estimated from the coarse level
     bound = fine["bound"]
-    parts = {"visibility": bound} if error_parts(options) else None
-    # (without the parts, each estimate is added to the bound in place: no array of the capture's size per part)
+    parts = {"visibility": bound.astype(PARTS_DTYPE)} if error_parts(options) else None
+    # (each estimate is added to the bound in place: no float64 array of the capture's size per part; the parts,
+    # asked for, are computed again on their own, in PARTS_DTYPE)
     if coarse is not None:
-        if parts is None:
-            discretisation_error(fine["hist"], coarse["hist"], add_to=bound)
-        else:
-            part = discretisation_error(fine["hist"], coarse["hist"])
-            bound = bound + part
-            parts["elements"] = part
+        discretisation_error(fine["hist"], coarse["hist"], add_to=bound)
+        if parts is not None:
+            parts["elements"] = discretisation_error(fine["hist"], coarse["hist"], dtype=PARTS_DTYPE)
     tot_bound = fine["vis_err"] + (np.abs(fine["steady"] - coarse["steady"]) if coarse is not None else 0.0)
     if cells is not None:
         # one cell per side: the coarse level's difference is the elements' part; the cells' part is the coarse
         # elements' one cell against CELL_ESTIMATE_CELLS (same local root mean square), scaled to the one cell's own error
-        if parts is None:
-            local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR, add_to=bound)
-        else:
-            part = local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR)
-            bound += part  # (the cells' level comes with the coarse one: the sum is this render's own array)
-            parts["cells"] = part
+        local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR, add_to=bound)
+        if parts is not None:
+            parts["cells"] = local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR, dtype=PARTS_DTYPE)
         tot_bound = tot_bound + np.abs(coarse["steady"] - cells["steady"]) * CELL_ESTIMATE_FACTOR
     # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)
     wr = setup.wall_return
@@ -421,10 +419,10 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
         hk = (_clear_rounding_residue(apply_kernel(hist[gi], g.taps)) if g.pad
               else _clear_rounding_residue(hist[gi], in_place=True))
         ek = (_clear_rounding_residue(apply_kernel(bound[gi], g.taps), hk) if g.pad
-              else _clear_rounding_residue(bound[gi], hk, in_place=parts is None))
-        # (the parts as they are, float64 views where the film has no kernel: they only plan a refinement)
+              else _clear_rounding_residue(bound[gi], hk, in_place=True))
+        # (the parts as they are, views where the film has no kernel: they only plan a refinement)
         ep = None if parts is None else {
-            name: (apply_kernel(a[gi], g.taps) if g.pad else a[gi]).reshape(g.H, g.W, g.n_bins)
+            name: (apply_kernel(a[gi], g.taps).astype(PARTS_DTYPE) if g.pad else a[gi]).reshape(g.H, g.W, g.n_bins)
             for name, a in parts.items()}
         in_hist = float(hk.sum())
         tot = float(steady[gi].sum())
