@@ -70,10 +70,10 @@ def quadrature_cost_inline(R) -> str:
 #: bench/bench_paper_estimators.py's records quoted in quadrature.md ("When Monte Carlo is still used"): 16 x 16 pixels
 #: at the demo's 1 ps bins and 10 ms to a target of 0.01 (both estimators), then 4 x 4 pixels at 1 s per spot (Monte
 #: Carlo alone: its samples reach the cap), then the paper's 32 x 32 array by the quadrature alone, at the paper
-#: scene's cells (one per patch), the same with the code before the latest change to the bin masses (run right after
-#: it, the same load; its note names the commit), and at two per side (an earlier record).
+#: scene's cells (one per patch), the same with the code before the latest change to the quadrature's speed (run right
+#: before it, the same load; its note names the commit), and at two per side (an earlier record).
 PAPER_ESTIMATORS = ("paper_estimators_a16_e10ms", "paper_estimators_a4_e1000ms", "paper_estimators_a32_e10ms",
-                    "paper_estimators_a32_e10ms_before_pairs", "paper_estimators_a32_e10ms_cells2")
+                    "paper_estimators_a32_e10ms_before_pages", "paper_estimators_a32_e10ms_cells2")
 
 
 def paper_estimators_table(R) -> str:
@@ -223,7 +223,7 @@ def quadrature_parts_table(R) -> str:
 
 #: The paper scene's render-call profile and the same with the code before the latest change to the quadrature (run
 #: right after it on the same machine; its note names the commit).
-PROFILE_COMPARE = ("quadrature_profile_paper", "quadrature_profile_paper_before_pairs")
+PROFILE_COMPARE = ("quadrature_profile_paper", "quadrature_profile_paper_before_pages")
 
 
 def profile_compare_inline(R) -> str:
