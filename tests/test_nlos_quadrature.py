@@ -822,3 +822,59 @@ def test_render_command_reports_a_quadrature_noise_target(tmp_path):
     nt = stack.read_manifest(tmp_path / "nt")["render"]["noise_target"]
     worst = max(s["ratio"] for s in nt["spots"])
     assert f"quadrature: stated error ratio up to {worst:.3g} for noise target 0.1: met" in r.stdout, r.stdout
+
+
+def _random_chunk(rng, C: int, ne: int, G: int):
+    """Arguments of ``pair_geometry`` for ``C`` cells on the wall (z = 0, normal +z) and ``ne`` small triangles in
+    front of it with random orientations (some face away from the wall), ``G`` spots' masks and sides at random."""
+    from transient_mi.integrators._nlos_pair_kernels import cell_terms
+
+    D = np.array([-0.9, 0.05, 1.2])
+    ax, ay, wall_n = np.array([0.03, 0.0, 0.0]), np.array([0.0, 0.03, 0.0]), np.array([0.0, 0.0, 1.0])
+    cell_p = np.column_stack([rng.uniform(-0.4, 0.4, (C, 2)), np.zeros(C)])
+    X0 = np.column_stack([rng.uniform(-0.3, 0.3, (ne, 2)), rng.uniform(0.3, 0.6, ne)])
+    nrm = rng.normal(size=(ne, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    tri = X0[:, None, :] + rng.uniform(-0.01, 0.01, (ne, 3, 3))
+    vis_s = rng.integers(0, 16, (ne, G)).astype(np.uint8)
+    vis_s[rng.random((ne, G)) < 0.3] = 0
+    side_s = rng.choice(np.array([-1, 0, 1], dtype=np.int8), (ne, G))
+    wall_side = rng.choice(np.array([-1, 1], dtype=np.int8), C)
+    wall_n_sh = np.tile(wall_n, (C, 1))
+    head = (cell_p, np.full(C, 1e-3), *cell_terms(cell_p, D, ax, ay, 1.0, -D / np.linalg.norm(D), wall_n), X0, tri,
+            nrm, rng.uniform(1e-5, 1e-4, ne), nrm, wall_n_sh, wall_side)
+    return head, (ax, ay, 1.0, 0.3e-3, 1.0, True, wall_n), vis_s, side_s
+
+
+@pytest.mark.parametrize("confocal,lambertian,wall_lambertian", [(False, True, True), (True, True, True),
+                                                                  (False, False, True), (False, True, False)])
+def test_pair_geometry_lit_is_the_stated_rule_and_reused_buffers_change_nothing(confocal, lambertian,
+                                                                                 wall_lambertian):
+    """``pair_geometry``'s ``lit`` is the rule it states, checked pair by pair in Python: ``geo > 0``, the element
+    in front of a Lambertian wall (``cos_p > 0``), and a spot (a confocal pixel's own) that sees a sample of the
+    element on the cell's side of a Lambertian element. An unlit pair's knots, widths and slopes are 0. Written
+    into one set of buffers chunk after chunk (as a level does), each chunk's results are the same bytes as fresh
+    ones. Deterministic (a fixed seed)."""
+    from transient_mi.integrators._nlos_pair_kernels import pair_geometry, pair_results
+
+    rng = np.random.default_rng(5)
+    C, ne, G = 6, 40, 6 if confocal else 3
+    head, tail, vis_s, side_s = _random_chunk(rng, C, ne, G)
+    buffers = pair_results(C * ne)
+    for e0, e1 in ((0, 40), (5, 17), (0, 40)):  # (a smaller chunk between two whole ones: stale rows must not leak)
+        n_e = e1 - e0  # (one cell per pixel: a pixel's pairs are its cell's)
+        args = head + (e0, e1) + tail + (n_e, vis_s, side_s, wall_lambertian, lambertian, confocal)
+        fresh = pair_geometry(*args)
+        reused = pair_geometry(*args, out=buffers)
+        for a, b in zip(fresh, reused):
+            assert a.tobytes() == b.tobytes()
+        geo, cos_p, A, w1, w2, tilt, side_x, lit = fresh
+        for i in range(C * n_e):
+            e, k = e0 + i % n_e, i // n_e
+            spots = [k] if confocal else range(G)
+            want = (geo[i] != 0.0 and not (wall_lambertian and cos_p[i] == 0.0)
+                    and any(vis_s[e, s] != 0 and (not lambertian or side_x[i] * side_s[e, s] > 0) for s in spots))
+            assert bool(lit[i]) == want, i
+            if not want:
+                assert not A[i].any() and w1[i] == 0.0 and w2[i] == 0.0 and not tilt[i].any()
+        assert 0 < int(lit.sum()) < C * n_e  # (both kinds of pairs were met)
