@@ -75,9 +75,9 @@ def local_rms(d: np.ndarray, minus: np.ndarray | None = None, scale: float = 1.0
     """``scale`` times the root mean square of ``d - minus`` (``minus`` default 0) over ``2 ESTIMATE_REACH_BINS +
     1`` bins centred on each bin of the last axis (reflected at its ends, so the sum of squares of every row is
     kept), float64, the shape of ``d``; the difference is formed bin by bin inside the kernel, in float64 from
-    float32 or float64 inputs (no temporaries of the capture's size). ``add_to`` (float64, C-contiguous, the shape of ``d``), optional: the estimate is added to
-    it in place and it is returned (the same bytes as ``add_to + local_rms(...)``, without a new array of the
-    capture's size). Without ``add_to`` the estimate is returned as ``dtype`` (float32: each value the float64
+    float32 or float64 inputs (no temporaries of the capture's size). ``add_to`` (float64, C-contiguous, the shape
+    of ``d``), optional: the estimate is added to it in place and it is returned (the same bytes as ``add_to +
+    local_rms(...)``, without a new array of the capture's size). Without ``add_to`` the estimate is returned as ``dtype`` (float32: each value the float64
     one rounded)."""
     d = _floats(d)
     shape = d.shape

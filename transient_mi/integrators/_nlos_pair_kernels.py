@@ -229,7 +229,7 @@ def pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, are
     args = (cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, area, n_sh, wall_n_sh, wall_side, e0, e1, ax,
             ay, fl, bin_m, photons, has_cells, wall_n, per_pixel, vis_s, side_s, wall_lambertian, lambertian, confocal,
             *out)
-    if len(cell_p) * (e1 - e0) >= PARALLEL_MIN_PAIRS:
+    if n >= PARALLEL_MIN_PAIRS:
         return _pair_geometry(*args)
     threads = numba.get_num_threads()
     numba.set_num_threads(1)

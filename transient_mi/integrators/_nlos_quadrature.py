@@ -33,8 +33,8 @@ Here it is integrated by quadrature instead of sampling:
 * **Visibility.** ``V(p, X)`` and ``V(X, S)`` are tested by ray casts at the centroid and at three points
   near the element's corners (each leg from the cell centre and from the spot; a sample is visible when no
   surface lies before ``1 - 1e-4`` of its distance: :func:`~._nlos_surfaces.visibility_masks`; from a cell
-  only for pairs that can carry light, ``lit`` of :func:`~._nlos_pair_kernels.pair_geometry`). Elements with a pair (cell,
-  spot) that can carry light and sees their samples partly (tested from the coarse level's cell centres:
+  only for pairs that can carry light, ``lit`` of :func:`~._nlos_pair_kernels.pair_geometry`). Elements with a
+  pair (cell, spot) that can carry light and sees their samples partly (tested from the coarse level's cell centres:
   :func:`~._nlos_refinement.mixed_lit`) are split in four, up to ``refine_levels`` times. A split element stays
   in the level: each of its pairs (cell, spot) is integrated by it where the test's cell and the spot see all its
   samples or none, and by its four children where they see them partly
@@ -97,9 +97,9 @@ CELL_ESTIMATE_CELLS = 2
 #: ``2^2 / (2^2 - 1)`` (``I_c - I_c/2 = (1 - 1/4) (I_c - I)``).
 CELL_ESTIMATE_FACTOR = 4.0 / 3.0
 #: The bins of the levels that only feed the error estimate (coarse, cells): float32 halves their memory (the
-#: paper scene's 32 x 32 capture at 1 ps bins: 377 MB less); their rounding, about 1e-7 of a bin (a few 1e-6 summed
-#: over a bin's deposits), is far below the differences the estimate takes of them (the cells' part, the smallest,
-#: about 1e-3 of the light on that capture). Their totals (``steady``) stay float64.
+#: paper scene's 32 x 32 capture at 1 ps bins: 377 MB less). Their rounding, about 1e-7 of a bin per deposit, moved
+#: the error estimate of the paper scene's 8 x 8 capture at 4 ps by at most 1.1e-5 of its largest bin (the capture
+#: itself by nothing). Their totals (``steady``) stay float64.
 ESTIMATE_DTYPE = np.float32
 #: The error's parts (``error_parts``: they only plan a refinement) are returned in float32: a fifth of the float64
 #: parts' memory, which also made the error a new array (the paper scene's 32 x 32 capture at 1 ps bins: 1.1 GB).
@@ -455,7 +455,8 @@ def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_
     was deposited for).
     """
     P = g.W * g.H
-    out = {"hist": np.zeros((G_out, P, g.n_ext), dtype=dtype), "bound": np.zeros((G_out, P, g.n_ext if with_bound else 0)),
+    out = {"hist": np.zeros((G_out, P, g.n_ext), dtype=dtype),
+           "bound": np.zeros((G_out, P, g.n_ext if with_bound else 0)),
            "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)), "outside": np.zeros((G_out, P)),
            "pairs": 0}
     side = SpotSide(scene, setup, g, spot_ids, lv)

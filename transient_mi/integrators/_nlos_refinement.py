@@ -31,8 +31,8 @@ def mixed_lit(vc, vs, e0, X0, n_sh, cell_p, S, cell_spot, side_test, out):
     """The visibility refinement's test (:func:`refine_visibility`) for the elements ``e0:e0 +
     k``: ``out[e0 + j]`` is set when some cell ``c`` and spot ``s`` whose pair can carry light see the element's
     samples partly, ``m = vc[c, j] & vs[e0 + j, s]`` neither 0 nor all four: the pairs :func:`~._nlos_pair_kernels.spread_group` bounds
-    as mixed. A pair can carry light as ``lit`` of :func:`~._nlos_pair_kernels.pair_geometry` says by geometry: with ``side_test`` (Lambertian
-    elements) the cell and the spot lie on the same side of the element's shading normal ``n_sh [n, 3]`` at its
+    as mixed. A pair can carry light as ``lit`` of :func:`~._nlos_pair_kernels.pair_geometry` says by geometry:
+    with ``side_test`` (Lambertian elements) the cell and the spot lie on the same side of the element's shading normal ``n_sh [n, 3]`` at its
     centroid ``X0 [n, 3]``. ``vc [C, k]``, ``vs [n, G]`` uint8 masks; ``cell_p [C, 3]``, ``S [G, 3]`` (m);
     ``cell_spot [C]``: the one spot each cell pairs with (confocal captures: its pixel's), -1 for every spot."""
     C, k = vc.shape
@@ -66,8 +66,8 @@ def mixed_lit(vc, vs, e0, X0, n_sh, cell_p, S, cell_spot, side_test, out):
 
 
 #: A cell and a spot count as on opposite sides of an element for :func:`refinement_test_pairs` when the product of
-#: their direction cosines with its shading normal is below minus this (the render's own side test, ``lit`` of :func:`~._nlos_pair_kernels.pair_geometry`,
-#: normalises otherwise: a margin, so no pair it lights is left untraced by a rounding).
+#: their direction cosines with its shading normal is below minus this (the render's own side test, ``lit`` of
+#: :func:`~._nlos_pair_kernels.pair_geometry`, normalises otherwise: a margin, so no pair it lights is left untraced by a rounding).
 SIDE_COS_MARGIN = 1e-9
 
 
@@ -77,7 +77,8 @@ def refinement_test_pairs(vs, e0, ne, X0, n_sh, cell_p, S, cell_spot):
     the elements ``e0:e0 + ne``), set where some spot that sees a sample of the element (``vs [n, G]``; a confocal
     cell's own spot ``cell_spot[c]``, -1 for every spot) lies on the cell's side of its shading normal ``n_sh``
     at the centroid ``X0`` (up to :data:`SIDE_COS_MARGIN`). The others carry no light for any spot
-    (``lit`` of :func:`~._nlos_pair_kernels.pair_geometry`); their masks would be read by nothing. For Lambertian elements (the side test)."""
+    (``lit`` of :func:`~._nlos_pair_kernels.pair_geometry`); their masks would be read by nothing. For Lambertian
+    elements (the side test)."""
     C = cell_p.shape[0]
     G = S.shape[0]
     out = np.zeros(C * ne, dtype=np.bool_)
