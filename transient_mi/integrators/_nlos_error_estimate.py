@@ -40,14 +40,16 @@ ESTIMATE_DIVISOR = 2.0 ** ESTIMATE_ORDER - 1.0
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
-def _rms_rows(a, b, reach, scale, out, add):
-    """``out[k, t] = scale * sqrt(mean_{|j| <= reach} (a - b)[k, t + j]^2)`` (with ``add``: added to ``out[k, t]``),
-    indices reflected at the row's ends (``-1 -> 0``, ``T -> T - 1``: scipy's ``mode="reflect"``), one row per
-    iteration in parallel; each window summed in order from its first bin (same inputs, same bytes, whatever the
-    threads; added, the same bytes as adding the estimate afterwards)."""
+def _rms_rows(a, b, reach, scale, out, add, part):
+    """``out[k, t] = scale * sqrt(mean_{|j| <= reach} (a - b)[k, t + j]^2)`` (with ``add``: added to ``out[k, t]``;
+    ``part`` with rows: each value written there too, in its type), indices reflected at the row's ends (``-1 ->
+    0``, ``T -> T - 1``: scipy's ``mode="reflect"``), one row per iteration in parallel; each window summed in order
+    from its first bin (same inputs, same bytes, whatever the threads; added, the same bytes as adding the estimate
+    afterwards)."""
     n, T = a.shape
     w = 2 * reach + 1
     inv_w = 1.0 / w
+    keep = part.shape[0] > 0
     for k in numba.prange(n):
         sq = np.empty(T)
         for t in range(T):
@@ -62,6 +64,8 @@ def _rms_rows(a, b, reach, scale, out, add):
                 acc += sq[i]
             v = scale * np.sqrt(acc * inv_w)
             out[k, t] = out[k, t] + v if add else v
+            if keep:
+                part[k, t] = v
 
 
 def _floats(x) -> np.ndarray:
@@ -71,31 +75,44 @@ def _floats(x) -> np.ndarray:
 
 
 def local_rms(d: np.ndarray, minus: np.ndarray | None = None, scale: float = 1.0,
-              add_to: np.ndarray | None = None, dtype=np.float64) -> np.ndarray:
+              add_to: np.ndarray | None = None, part: np.ndarray | None = None) -> np.ndarray:
     """``scale`` times the root mean square of ``d - minus`` (``minus`` default 0) over ``2 ESTIMATE_REACH_BINS +
     1`` bins centred on each bin of the last axis (reflected at its ends, so the sum of squares of every row is
     kept), float64, the shape of ``d``; the difference is formed bin by bin inside the kernel, in float64 from
-    float32 or float64 inputs (no temporaries of the capture's size). ``add_to`` (float64, C-contiguous, the shape
-    of ``d``), optional: the estimate is added to it in place and it is returned (the same bytes as ``add_to +
-    local_rms(...)``, without a new array of the capture's size). Without ``add_to`` the estimate is returned as ``dtype`` (float32: each value the float64
-    one rounded)."""
+    float32 or float64 inputs (no temporaries of the capture's size).
+
+    ``add_to`` (float64, C-contiguous, the shape of ``d``), optional: the estimate is added to it in place and it is
+    returned (the same bytes as ``add_to + local_rms(...)``, without a new array of the capture's size). ``part``
+    (float32 or float64, C-contiguous, the shape of ``d``), optional: the estimate is also written there, each value
+    rounded to its type (the error's parts beside their sum, in one pass)."""
     d = _floats(d)
     shape = d.shape
     rows = np.ascontiguousarray(d.reshape(-1, shape[-1]) if d.ndim else d.reshape(1, 1))
     sub = (np.zeros_like(rows) if minus is None else
            np.ascontiguousarray(np.broadcast_to(_floats(minus), shape).reshape(rows.shape)))
     if add_to is None:
-        out = np.empty(rows.shape, dtype=dtype)
+        out = np.empty(rows.shape)
     else:
-        if add_to.shape != shape or add_to.dtype != np.float64 or not add_to.flags.c_contiguous:
-            raise ValueError(f"add_to: a C-contiguous float64 array of shape {shape} expected")
+        _check_out("add_to", add_to, shape, (np.float64,))
         out = add_to.reshape(rows.shape)
-    _rms_rows(rows, sub, ESTIMATE_REACH_BINS, float(scale), out, add_to is not None)
+    if part is None:
+        part_rows = np.empty((0, 0))
+    else:
+        _check_out("part", part, shape, (np.float32, np.float64))
+        part_rows = part.reshape(rows.shape)
+    _rms_rows(rows, sub, ESTIMATE_REACH_BINS, float(scale), out, add_to is not None, part_rows)
     return out.reshape(shape)
 
 
+def _check_out(name: str, a: np.ndarray, shape: tuple, dtypes: tuple) -> None:
+    """An output array of :func:`local_rms`: C-contiguous, of ``shape`` and one of ``dtypes``."""
+    if a.shape != shape or a.dtype not in dtypes or not a.flags.c_contiguous:
+        raise ValueError(f"{name}: a C-contiguous array of shape {shape} and type "
+                         f"{' or '.join(np.dtype(t).name for t in dtypes)} expected")
+
+
 def discretisation_error(fine: np.ndarray, coarse: np.ndarray, add_to: np.ndarray | None = None,
-                         dtype=np.float64) -> np.ndarray:
+                         part: np.ndarray | None = None) -> np.ndarray:
     """The fine level's estimated discretisation error per bin.
 
     Parameters
@@ -104,13 +121,13 @@ def discretisation_error(fine: np.ndarray, coarse: np.ndarray, add_to: np.ndarra
         Photons per pulse per bin of the fine (``h``, ``m`` cells) and coarse (``2h``, ``m/2``) levels.
     add_to : ndarray, float64, shape of ``fine``, optional
         Where to add the estimate in place (see :func:`local_rms`).
-    dtype : float64 or float32
-        The returned array's type without ``add_to``.
+    part : ndarray, float32 or float64, shape of ``fine``, optional
+        Where to write the estimate as well (see :func:`local_rms`).
 
     Returns
     -------
-    ndarray, shape of ``fine``
+    ndarray, float64, shape of ``fine``
         ``local_rms(fine - coarse) / ESTIMATE_DIVISOR``, photons per pulse per bin (>= 0), or ``add_to`` with it
         added.
     """
-    return local_rms(fine, coarse, 1.0 / ESTIMATE_DIVISOR, add_to, dtype)
+    return local_rms(fine, coarse, 1.0 / ESTIMATE_DIVISOR, add_to, part)

@@ -384,19 +384,21 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     # error: the light of mixed visibility, plus the discretisation estimated from the coarse level
     bound = fine["bound"]
     parts = {"visibility": bound.astype(PARTS_DTYPE)} if error_parts(options) else None
-    # (each estimate is added to the bound in place: no float64 array of the capture's size per part; the parts,
-    # asked for, are computed again on their own, in PARTS_DTYPE)
+
+    def part(name):  # (where an estimate is written beside its sum, when the parts are asked for)
+        if parts is None:
+            return None
+        parts[name] = np.empty(bound.shape, dtype=PARTS_DTYPE)
+        return parts[name]
+
+    # (each estimate is added to the bound in place: no float64 array of the capture's size per part)
     if coarse is not None:
-        discretisation_error(fine["hist"], coarse["hist"], add_to=bound)
-        if parts is not None:
-            parts["elements"] = discretisation_error(fine["hist"], coarse["hist"], dtype=PARTS_DTYPE)
+        discretisation_error(fine["hist"], coarse["hist"], add_to=bound, part=part("elements"))
     tot_bound = fine["vis_err"] + (np.abs(fine["steady"] - coarse["steady"]) if coarse is not None else 0.0)
     if cells is not None:
         # one cell per side: the coarse level's difference is the elements' part; the cells' part is the coarse
         # elements' one cell against CELL_ESTIMATE_CELLS (same local root mean square), scaled to the one cell's own error
-        local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR, add_to=bound)
-        if parts is not None:
-            parts["cells"] = local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR, dtype=PARTS_DTYPE)
+        local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR, add_to=bound, part=part("cells"))
         tot_bound = tot_bound + np.abs(coarse["steady"] - cells["steady"]) * CELL_ESTIMATE_FACTOR
     # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)
     wr = setup.wall_return
