@@ -51,7 +51,8 @@ from docgen.recon import (  # noqa: E402
 )
 from docgen.quadrature import (  # noqa: E402
     PAPER_ESTIMATORS, PROFILE_COMPARE, QUADRATURE_PARTS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, REFINEMENT_RULE,
-    SCENE_SETTINGS, paper_estimators_table, profile_compare_inline, quadrature_parts_table, quadrature_settings_table, quadrature_cost_inline,
+    SCENE_SETTINGS, paper_estimators_table, profile_compare_inline, quadrature_parts_table, quadrature_settings_table,
+    quadrature_cost_inline,
     quadrature_inline, quadrature_profile_inline, quadrature_table, refinement_rule_inline, scene_settings_table,
 )
 from docgen.nlos_quadrature import nlos_quadrature_table  # noqa: E402

@@ -149,8 +149,9 @@ class Chunk:
     ``f_p`` (per cell times ``cos_p`` for a Lambertian wall, per pair otherwise) and the visibility of the element's
     samples from the cell ``vis_p [n]`` (masks), tested for the pairs that can carry light for a spot of ``side``
     (``lit`` of :func:`~._nlos_pair_kernels.pair_geometry`; 0 for the others, which the kernels then skip as they
-    skip any pair without light). ``out``, optional: :func:`~._nlos_pair_kernels.pair_results` the geometry is written to (views of
-    it become the chunk's arrays: a chunk using them must be gone before the next one is made)."""
+    skip any pair without light). ``out``, optional: :func:`~._nlos_pair_kernels.pair_results` the geometry is
+    written to (views of it become the chunk's arrays: a chunk using them must be gone before the next one is
+    made)."""
 
     def __init__(self, scene, g, lv: LevelElements, wall: WallCells, e0: int, e1: int, side: SpotSide,
                  confocal: bool, out: tuple | None = None):

@@ -38,8 +38,8 @@ Here it is integrated by quadrature instead of sampling:
   :func:`~._nlos_refinement.mixed_lit`) are split in four, up to ``refine_levels`` times. A split element stays
   in the level: each of its pairs (cell, spot) is integrated by it where the test's cell and the spot see all its
   samples or none, and by its four children where they see them partly
-  (:class:`~._nlos_refinement.Refinement`), so the pairs that did not ask for the split cost one pair, not four. A pair still mixed then contributes the
-  visible share of its samples (centroid 1/2, corners 1/6 each).
+  (:class:`~._nlos_refinement.Refinement`), so the pairs that did not ask for the split cost one pair, not four. A
+  pair still mixed then contributes the visible share of its samples (centroid 1/2, corners 1/6 each).
   Visibility is assumed constant over an element whose samples agree (an occluder smaller than an element
   can be missed: keep ``element_size_m`` below the smallest feature).
 
@@ -85,7 +85,7 @@ from transient_mi.integrators._nlos_elements import (fine_provenance, mesh_trian
 from transient_mi.integrators._nlos_error_estimate import discretisation_error, local_rms
 from transient_mi.integrators._nlos_pair_kernels import cell_terms, pair_results
 from transient_mi.integrators._nlos_pairs import Chunk, LevelElements, SpotSide, chunk_starts
-from transient_mi.integrators._nlos_refinement import Refinement, refine_visibility, refinement_cells_of
+from transient_mi.integrators._nlos_refinement import Refinement, cell_spots, refine_visibility, refinement_cells_of
 from transient_mi.integrators._nlos_surfaces import WallCells
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
@@ -135,10 +135,10 @@ def pair_refinement(options: dict) -> bool:
     children as that pair's own visibility asks (the default, :class:`~._nlos_refinement.Refinement`), or every pair
     to the children (``options["pair_refinement"] = False``, set by the fit, :mod:`transient_mi.fit.capture_model`,
     not a scene parameter). Shared pairs cost less (on the paper scene's 32 x 32 capture the fine level's bin edges
-    fell from 3.7e9 to 2.8e9, a scratch count) and leave the pairs that see an element wholly or not at all with the element itself. The
-    fit keeps the children in every pair: its elements are coarse (6 cm by default), its records and tests were
-    measured with the children's finer time spread in every pair of a split element, and a fit with shared pairs
-    is not yet measured."""
+    fell from 3.7e9 to 2.8e9, a scratch count) and leave the pairs that see an element wholly or not at all with the
+    element itself. The fit keeps the children in every pair: its elements are coarse (6 cm by default), its records
+    and tests were measured with the children's finer time spread in every pair of a split element, and a fit with
+    shared pairs is not yet measured."""
     return bool(options.get("pair_refinement", True))
 
 
@@ -265,8 +265,7 @@ def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_p
         hidden_ptrs=hidden_ptrs, confocal=confocal)
     refinement = None
     if split is not None and pair_refinement(options):
-        refinement = Refinement(*split, refinement_cells_of(g, m_test),
-                                np.asarray(g.cell_pixel if confocal else np.full(len(g.cell_p), -1), dtype=np.int64))
+        refinement = Refinement(*split, refinement_cells_of(g, m_test), cell_spots(g, confocal))
     elif split is not None:  # (the fit's forward model: the split elements leave, their children take every pair)
         keep = split[1] < 0
         tri_f, src_f = tri_f[keep], src_f[keep]
@@ -397,7 +396,8 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
     tot_bound = fine["vis_err"] + (np.abs(fine["steady"] - coarse["steady"]) if coarse is not None else 0.0)
     if cells is not None:
         # one cell per side: the coarse level's difference is the elements' part; the cells' part is the coarse
-        # elements' one cell against CELL_ESTIMATE_CELLS (same local root mean square), scaled to the one cell's own error
+        # elements' one cell against CELL_ESTIMATE_CELLS (same local root mean square), scaled to the one cell's own
+        # error
         local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR, add_to=bound, part=part("cells"))
         tot_bound = tot_bound + np.abs(coarse["steady"] - cells["steady"]) * CELL_ESTIMATE_FACTOR
     # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)

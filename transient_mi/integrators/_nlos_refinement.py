@@ -30,11 +30,11 @@ from transient_mi.integrators._nlos_surfaces import ElementSurfaces, is_lamberti
 def mixed_lit(vc, vs, e0, X0, n_sh, cell_p, S, cell_spot, side_test, out):
     """The visibility refinement's test (:func:`refine_visibility`) for the elements ``e0:e0 +
     k``: ``out[e0 + j]`` is set when some cell ``c`` and spot ``s`` whose pair can carry light see the element's
-    samples partly, ``m = vc[c, j] & vs[e0 + j, s]`` neither 0 nor all four: the pairs :func:`~._nlos_pair_kernels.spread_group` bounds
-    as mixed. A pair can carry light as ``lit`` of :func:`~._nlos_pair_kernels.pair_geometry` says by geometry:
-    with ``side_test`` (Lambertian elements) the cell and the spot lie on the same side of the element's shading normal ``n_sh [n, 3]`` at its
-    centroid ``X0 [n, 3]``. ``vc [C, k]``, ``vs [n, G]`` uint8 masks; ``cell_p [C, 3]``, ``S [G, 3]`` (m);
-    ``cell_spot [C]``: the one spot each cell pairs with (confocal captures: its pixel's), -1 for every spot."""
+    samples partly, ``m = vc[c, j] & vs[e0 + j, s]`` neither 0 nor all four: the pairs
+    :func:`~._nlos_pair_kernels.spread_group` bounds as mixed. A pair can carry light as ``lit`` of
+    :func:`~._nlos_pair_kernels.pair_geometry` says by geometry: with ``side_test`` (Lambertian elements) the cell and
+    the spot lie on the same side of the element's shading normal ``n_sh [n, 3]`` at its centroid ``X0 [n, 3]``.
+    ``vc [C, k]``, ``vs [n, G]`` uint8 masks; ``cell_p [C, 3]``, ``S [G, 3]`` (m); ``cell_spot [C]``: the one spot each cell pairs with (confocal captures: its pixel's), -1 for every spot."""
     C, k = vc.shape
     G = vs.shape[1]
     for j in numba.prange(k):
@@ -67,7 +67,8 @@ def mixed_lit(vc, vs, e0, X0, n_sh, cell_p, S, cell_spot, side_test, out):
 
 #: A cell and a spot count as on opposite sides of an element for :func:`refinement_test_pairs` when the product of
 #: their direction cosines with its shading normal is below minus this (the render's own side test, ``lit`` of
-#: :func:`~._nlos_pair_kernels.pair_geometry`, normalises otherwise: a margin, so no pair it lights is left untraced by a rounding).
+#: :func:`~._nlos_pair_kernels.pair_geometry`, normalises otherwise: a margin, so no pair it lights is left untraced
+#: by a rounding).
 SIDE_COS_MARGIN = 1e-9
 
 
@@ -206,8 +207,7 @@ def mixed_elements(scene, setup, g, spots, tri, keep_cells: bool = False, n_sh=N
     side_test = n_sh is not None
     nrm = np.ascontiguousarray(n_sh if side_test else np.zeros((n, 3)), dtype=np.float64)
     S = np.ascontiguousarray(np.asarray(setup.spots, dtype=np.float64)[list(spots)])
-    cell_spot = (np.ascontiguousarray(g.cell_pixel, dtype=np.int64) if confocal
-                 else np.full(C, -1, dtype=np.int64))
+    cell_spot = cell_spots(g, confocal)
     cell_p = np.ascontiguousarray(g.cell_p, dtype=np.float64)
     vc = np.empty((C, n), dtype=np.uint8) if keep_cells else None
     vc_mixed = [np.empty((C, 0), dtype=np.uint8)]
@@ -274,6 +274,13 @@ def refine_visibility(scene, setup, g, spots, tri, src, refine_levels: int, prov
     split = None if n_split == 0 else (parent, split_idx, np.ascontiguousarray(np.concatenate(split_cell, axis=1)),
                                        np.ascontiguousarray(np.concatenate(split_spot)))
     return tri, src, levels, prov, traced, split
+
+
+def cell_spots(g, confocal: bool) -> np.ndarray:
+    """The one spot each cell of ``g`` pairs with, ``int64 [C]``: its pixel's for a confocal capture, -1 (every spot
+    of the group) otherwise."""
+    return (np.ascontiguousarray(g.cell_pixel, dtype=np.int64) if confocal
+            else np.full(len(g.cell_p), -1, dtype=np.int64))
 
 
 def refinement_cells_of(g, m_test: int) -> np.ndarray:
