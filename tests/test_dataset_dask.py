@@ -149,7 +149,32 @@ def test_killed_worker_item_is_redone_with_no_partial_item(killed_run):
     retried = [ln for ln in r.stderr.splitlines() if "redone by worker" in ln]
     assert len(retried) == 1 and retried[0].startswith(f"{name}: redone by worker {res['worker']}"), r.stderr
     assert Path(state["tmp_dir"]).name in retried[0]
+    assert "(a worker died in it;" in retried[0] and str(out / "cluster.log") in retried[0]
     assert f"1 item(s) redone after a worker died ({name})" in r.stdout
+    # the nanny's own word on the death is kept (the console shows errors only)
+    log = (out / "cluster.log").read_text()
+    assert f"Worker process {state['pid']} was killed by signal 9" in log, log
+
+
+def test_attempt_alive_tells_a_running_worker_from_a_dead_one(tmp_path):
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    from transient_mi.dataset.worker import attempt_alive
+
+    host = socket.gethostname()
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        assert attempt_alive(f".tmp-item_000003-{host}-{child.pid}-0a1b2c3d")
+        assert not attempt_alive(f".tmp-item_000003-other-host-{child.pid}-0a1b2c3d")  # cannot be asked
+        assert not attempt_alive(f".tmp-item_000003-{host}-{os.getpid()}-0a1b2c3d")  # this process
+    finally:
+        child.kill()
+        child.wait()
+    assert not attempt_alive(f".tmp-item_000003-{host}-{child.pid}-0a1b2c3d")  # dead (and reaped)
+    assert not attempt_alive(".tmp-item_000003-garbage")
 
 
 def test_scheduler_address_runs_on_an_existing_cluster(scheduler_run, cluster):

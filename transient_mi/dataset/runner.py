@@ -18,7 +18,9 @@ resume records) and read in order as one procedure.
    each, drjit threads = cores / workers) or connect to ``--scheduler``,
    lock the output directory, delete temporary directories left by
    interrupted runs, submit the missing items and follow them with a
-   progress bar, rewriting the index as items finish.
+   progress bar, rewriting the index as items finish. The cluster's warnings
+   (a worker process killed by a signal or restarted, a worker lost) go to
+   ``cluster.log`` in the output directory, made by the first one only.
 """
 
 from __future__ import annotations
@@ -51,6 +53,8 @@ DATASET_FORMAT_VERSION = 1
 DATASET_JSON = "dataset.json"
 ITEMS_DIR = "items"
 LOCK_NAME = ".dataset.lock"
+#: The cluster's warnings of a run (appended; created by the first warning).
+CLUSTER_LOG = "cluster.log"
 #: Most scene loads spent on checking the ends of varied parameters before work.
 MAX_PROBES = 64
 #: Seconds between rewrites of the index while items finish.
@@ -492,10 +496,12 @@ def run_dataset(spec_file: str | Path, out_dir: str | Path, *, scheduler: str | 
             _write_dataset_json(out, spec, len(items), variant)
             say(f"{len(items)} items: {len(existing.valid)} already done, {len(todo)} to build on {conn.description}")
             try:
-                _submit_and_wait(conn.client, todo, items_dir, str(spec.scene_file), threads, report, out, items,
-                                 progress, say)
+                with cluster_log(out):
+                    _submit_and_wait(conn.client, todo, items_dir, str(spec.scene_file), threads, report, out,
+                                     items, progress, say)
+                    conn.close()  # local workers stop before their temporary directories are removed
             finally:
-                conn.close()  # local workers stop before their temporary directories are removed
+                conn.close()
                 report.cleaned_tmp += clean_temporaries(items_dir)
                 rows = _rows(out, items)
                 write_index(out, rows)
@@ -523,6 +529,31 @@ def _locked_output(out: Path):
     out.mkdir(exist_ok=True)
     with output_lock(out):
         yield
+
+
+def _cluster_record(record: logging.LogRecord) -> bool:
+    """Warnings and errors, and the nanny's word on a worker process that ended badly (``Worker process PID was
+    killed by signal N`` / ``exited with status N``, which Dask logs at INFO)."""
+    return record.levelno >= logging.WARNING or (
+        record.name == "distributed.nanny" and record.getMessage().startswith("Worker process "))
+
+
+@contextmanager
+def cluster_log(out: Path):
+    """Append the ``distributed`` loggers' warnings of this process (the local cluster's nannies and scheduler: a
+    worker process killed by a signal, restarted or lost; :func:`_cluster_record`) to ``out/cluster.log`` for the
+    ``with`` block. The file
+    is opened by the first warning, so a quiet run leaves none; the console keeps only errors."""
+    handler = logging.FileHandler(out / CLUSTER_LOG, delay=True)
+    handler.addFilter(_cluster_record)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s"))
+    logger = logging.getLogger("distributed")
+    logger.addHandler(handler)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        handler.close()
 
 
 def _remove_item(path: Path) -> None:
@@ -557,6 +588,16 @@ def _rows(out: Path, items: list[Item]) -> dict[str, dict]:
     return rows
 
 
+def _retry_line(name: str, res: dict, out: Path) -> str:
+    """One line on an item built again: which attempts were left, and whether their workers died or still ran
+    (the scheduler took a worker on this host for lost; its unfinished attempt is discarded)."""
+    earlier, alive = res["earlier_attempts"], set(res.get("earlier_alive", ()))
+    why = (f"the scheduler lost the worker of {', '.join(sorted(alive))}, still running on its host"
+           if alive else "a worker died in it")
+    return (f"{name}: redone by worker {res['worker']} after {len(earlier)} unfinished attempt(s) ({why}; left "
+            f"{', '.join(earlier)}; the cluster's warnings, if any: {out / CLUSTER_LOG})")
+
+
 def _submit_and_wait(client, todo, items_dir, scene_file, threads, report, out, items, progress, say) -> None:
     from distributed import as_completed
 
@@ -581,8 +622,7 @@ def _submit_and_wait(client, todo, items_dir, scene_file, threads, report, out, 
                 else:
                     if res.get("earlier_attempts"):
                         report.retried.append((it.name, res["worker"], list(res["earlier_attempts"])))
-                        say(f"{it.name}: redone by worker {res['worker']} after {len(res['earlier_attempts'])} "
-                            f"unfinished attempt(s) (a worker died in it; left {', '.join(res['earlier_attempts'])})")
+                        say(_retry_line(it.name, res, out))
                     if res["status"] == "built":
                         report.built += 1
                     else:

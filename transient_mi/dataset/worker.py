@@ -198,7 +198,9 @@ def build_item(task: dict) -> dict:
         ``item``, ``status`` (``"built"`` or ``"existed"``), ``worker``,
         ``total_time_s`` and (unless it existed before) ``earlier_attempts``: the
         temporary directories of unfinished earlier attempts at this item
-        (a worker died in it), which make this run a retry.
+        (a worker died in it), which make this run a retry, and
+        ``earlier_alive``: those whose process still runs on this host (the
+        scheduler took its worker for lost: :func:`attempt_alive`).
 
     Raises
     ------
@@ -218,6 +220,7 @@ def build_item(task: dict) -> dict:
         # temporary directories of this item already there are earlier attempts that did not finish (their
         # worker died and the scheduler gave the item to this one): the runner logs the retry
         earlier = sorted(p.name for p in items_dir.glob(f"{TMP_PREFIX}{rec['item']}-*"))
+        alive = [name for name in earlier if attempt_alive(name)]
         tmp = items_dir / f"{TMP_PREFIX}{rec['item']}-{socket.gethostname()}-{os.getpid()}-{secrets.token_hex(4)}"
         tmp.mkdir()
         try:
@@ -233,12 +236,30 @@ def build_item(task: dict) -> dict:
                                     "and is not a valid item") from None
                 shutil.rmtree(tmp, ignore_errors=True)
                 return {"item": rec["item"], "status": "existed", "worker": _worker_id(), "total_time_s": 0.0,
-                        "earlier_attempts": earlier}
+                        "earlier_attempts": earlier, "earlier_alive": alive}
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
     return {"item": rec["item"], "status": "built", "worker": result["worker"],
-            "total_time_s": result["total_time_s"], "earlier_attempts": earlier}
+            "total_time_s": result["total_time_s"], "earlier_attempts": earlier, "earlier_alive": alive}
+
+
+def attempt_alive(tmp_name: str) -> bool:
+    """Whether the process that made the temporary item directory ``tmp_name`` (``.tmp-<item>-<host>-<pid>-<hex>``)
+    runs on this host now (another process than this one). False for another host: it cannot be asked."""
+    parts = tmp_name.rsplit("-", 2)
+    if len(parts) != 3 or not parts[1].isdigit():
+        return False
+    pid, host = int(parts[1]), parts[0].split("-", 2)[-1]
+    if host != socket.gethostname() or pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # it exists, owned by another user
+        return True
+    return True
 
 
 def _worker_id() -> str:
