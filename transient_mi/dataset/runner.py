@@ -542,8 +542,8 @@ def _cluster_record(record: logging.LogRecord) -> bool:
 def cluster_log(out: Path):
     """Append the ``distributed`` loggers' warnings of this process (the local cluster's nannies and scheduler: a
     worker process killed by a signal, restarted or lost; :func:`_cluster_record`) to ``out/cluster.log`` for the
-    ``with`` block. The file
-    is opened by the first warning, so a quiet run leaves none; the console keeps only errors."""
+    ``with`` block. The file is opened by the first warning, so a quiet run leaves none; the console keeps only
+    errors."""
     handler = logging.FileHandler(out / CLUSTER_LOG, delay=True)
     handler.addFilter(_cluster_record)
     handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s"))
