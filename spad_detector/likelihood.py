@@ -70,28 +70,33 @@ class ExpectedCounts:
         self.model = model
         self.n_pulses = float(n_pulses)
 
-    def _probabilities(self, ideal: np.ndarray):
+    def probabilities(self, ideal: np.ndarray) -> tuple:
+        """``(lam, survive, p)``, each ``[P, slots]`` float64: the detected intensity per slot, the chance of no
+        event before the slot, and of the cycle's first event in it. :meth:`__call__` and :meth:`vjp` compute them
+        from ``ideal``; a caller that needs both for one ``ideal`` (a fit's iteration) passes them in once made."""
         lam = self.model.intensity(np.asarray(ideal, dtype=np.float64))  # [P, slots]
         before = np.cumsum(lam, axis=-1) - lam
         survive = np.exp(-before)  # S_j: no event before slot j
         p = survive * -np.expm1(-lam)
         return lam, survive, p
 
-    def __call__(self, ideal: np.ndarray) -> np.ndarray:
-        """Mean counts ``[P, T]`` (float64)."""
+
+    def __call__(self, ideal: np.ndarray, probabilities: tuple | None = None) -> np.ndarray:
+        """Mean counts ``[P, T]`` (float64); ``probabilities``: :meth:`probabilities` of ``ideal``, if made."""
         T = self.model.grid.n_bins
-        _, _, p = self._probabilities(ideal)
+        _, _, p = probabilities or self.probabilities(ideal)
         m = self.model
         return self.n_pulses * apply_jitter_kernel(p[:, :T], m.kernel_first, m.kernel)
 
-    def vjp(self, ideal: np.ndarray, grad_mean: np.ndarray) -> np.ndarray:
-        """``d<grad_mean, mean(ideal)> / d ideal``, shape ``[P, T]`` (float64)."""
+    def vjp(self, ideal: np.ndarray, grad_mean: np.ndarray, probabilities: tuple | None = None) -> np.ndarray:
+        """``d<grad_mean, mean(ideal)> / d ideal``, shape ``[P, T]`` (float64); ``probabilities``: as
+        :meth:`__call__`."""
         m = self.model
         T = m.grid.n_bins
         g = np.asarray(grad_mean, dtype=np.float64)
         g_p = np.zeros((g.shape[0], m.grid.n_slots))
         g_p[:, :T] = self.n_pulses * _jitter_adjoint(g, m.kernel_first, m.kernel)
-        lam, survive, p = self._probabilities(ideal)
+        lam, survive, p = probabilities or self.probabilities(ideal)
         gp_p = g_p * p
         later = np.cumsum(gp_p[:, ::-1], axis=-1)[:, ::-1] - gp_p  # sum_{j > k} g_p_j p_j
         g_lam = g_p * survive * np.exp(-lam) - later
@@ -117,11 +122,14 @@ class RenewalExpectedCounts(ExpectedCounts):
     a long exposure) it is as large as the rest (the total count ``N P / (1 + m P)`` saturates at ``N / m``).
     """
 
-    def blind(self, ideal: np.ndarray) -> np.ndarray:
-        """``[P]`` whole cycles blinded after a detection (-1 where the regime is not ``clean``)."""
+    def blind(self, ideal: np.ndarray, lam: np.ndarray | None = None) -> np.ndarray:
+        """``[P]`` whole cycles blinded after a detection (-1 where the regime is not ``clean``); ``lam``: the
+        detected intensity of ``ideal`` (:meth:`probabilities`' first), if made."""
         from .engines.analytic import CLEAN, NONE, classify
 
-        c = classify(self.model, self.model.intensity(np.asarray(ideal, dtype=np.float64)), int(self.n_pulses))
+        if lam is None:
+            lam = self.model.intensity(np.asarray(ideal, dtype=np.float64))
+        c = classify(self.model, lam, int(self.n_pulses))
         return np.where(c["regime"] == NONE, 0, np.where(c["regime"] == CLEAN, c["blind"], -1))
 
     def _factor(self, p: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -130,32 +138,34 @@ class RenewalExpectedCounts(ExpectedCounts):
         D = max(mod.spad_dead_time_ps, mod.tcspc_dead_time_ps) / mod.grid.period_ps - 1.0
         return np.where(m >= 0, 1.0 / (1.0 + np.maximum(m, 0) * P), 1.0 / (1.0 + max(D, 0.0) * P))
 
-    def __call__(self, ideal: np.ndarray) -> np.ndarray:
-        """Mean counts ``[P, T]`` (float64)."""
-        _, _, p = self._probabilities(ideal)
-        return super().__call__(ideal) * self._factor(p, self.blind(ideal))[:, None]
+    def __call__(self, ideal: np.ndarray, probabilities: tuple | None = None) -> np.ndarray:
+        """Mean counts ``[P, T]`` (float64); ``probabilities``: :meth:`probabilities` of ``ideal``, if made."""
+        pr = probabilities or self.probabilities(ideal)
+        return super().__call__(ideal, pr) * self._factor(pr[2], self.blind(ideal, pr[0]))[:, None]
 
-    def vjp(self, ideal: np.ndarray, grad_mean: np.ndarray) -> np.ndarray:
-        """``d<grad_mean, mean(ideal)> / d ideal``, shape ``[P, T]`` (float64)."""
-        m = self.blind(ideal)
-        _, _, p = self._probabilities(ideal)
+    def vjp(self, ideal: np.ndarray, grad_mean: np.ndarray, probabilities: tuple | None = None) -> np.ndarray:
+        """``d<grad_mean, mean(ideal)> / d ideal``, shape ``[P, T]`` (float64); ``probabilities``: as
+        :meth:`__call__`."""
+        pr = probabilities or self.probabilities(ideal)
+        m = self.blind(ideal, pr[0])
+        p = pr[2]
         s = self._factor(p, m)
         g = np.asarray(grad_mean, dtype=np.float64)
-        base = super().__call__(ideal)  # N jitter(p)
+        base = super().__call__(ideal, pr)  # N jitter(p)
         # d mean_j / d p_k = s (N jitter)_jk - N jitter(p)_j m s^2: the second term is the same for every
         # slot k, i.e. a constant added to dL/dp; ExpectedCounts.vjp takes dL/d(N jitter(p)), so the constant
         # enters as a per-slot gradient c, carried through the Coates chain by _vjp_p.
         c = -np.where(m >= 0, np.maximum(m, 0), 0) * s * s * np.sum(g * base, axis=-1)
-        return self._vjp_p(ideal, s[:, None] * g, c)
+        return self._vjp_p(ideal, s[:, None] * g, c, pr)
 
-    def _vjp_p(self, ideal: np.ndarray, g: np.ndarray, c: np.ndarray) -> np.ndarray:
+    def _vjp_p(self, ideal: np.ndarray, g: np.ndarray, c: np.ndarray, probabilities: tuple) -> np.ndarray:
         """``d/d ideal`` of ``<g, N jitter(p)> + sum_k c p_k`` (``c [P]`` per pixel, over every slot)."""
         mod = self.model
         T = mod.grid.n_bins
         g_p = np.zeros((g.shape[0], mod.grid.n_slots))
         g_p[:, :T] = self.n_pulses * _jitter_adjoint(g, mod.kernel_first, mod.kernel)
         g_p += c[:, None]
-        lam, survive, p = self._probabilities(ideal)
+        lam, survive, p = probabilities
         gp_p = g_p * p
         later = np.cumsum(gp_p[:, ::-1], axis=-1)[:, ::-1] - gp_p
         g_lam = g_p * survive * np.exp(-lam) - later

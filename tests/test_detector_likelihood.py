@@ -125,6 +125,20 @@ def test_renewal_mean_is_the_analytic_engines_mean():
     assert info["pixels_by_regime"]["whole_blind_cycles"] == 64, info
     total, sd = float(mean.sum()), float(np.sqrt(mean.sum()))
     assert abs(counts.sum() - total) <= 5 * sd, (counts.sum(), total, sd)
-    first_order = float((ExpectedCounts(layer.model, layer.n_pulses)(x) / (1 + 1.5 * layer._probabilities(x)[2].sum(
+    first_order = float((ExpectedCounts(layer.model, layer.n_pulses)(x) / (1 + 1.5 * layer.probabilities(x)[2].sum(
         -1, keepdims=True))).sum())
     assert abs(first_order - total) > 50 * sd
+
+
+@pytest.mark.parametrize("renewal", [False, True])
+def test_probabilities_made_once_give_the_same_bytes(renewal):
+    """A caller's :meth:`probabilities` passed to the mean and its vector-Jacobian product (the fit makes them once
+    an iteration) change nothing: the same bytes as each computing its own."""
+    layer = _layer()
+    if renewal:
+        layer = RenewalExpectedCounts(layer.model, layer.n_pulses)
+    x = _ideal(2e-2)
+    g = np.random.default_rng(3).standard_normal((3, T))
+    pr = layer.probabilities(x)
+    assert np.array_equal(layer(x, pr), layer(x))
+    assert np.array_equal(layer.vjp(x, g, pr), layer.vjp(x, g))

@@ -118,7 +118,10 @@ def test_face_reflectance_gradient_against_central_differences(two_tone):
     factor = np.ones_like(ideal)
 
     class _Identity:  # (the derivative of <w, ideal> itself: no detector layer)
-        def vjp(self, ref, g):
+        def probabilities(self, ref):
+            return None
+
+        def vjp(self, ref, g, probabilities=None):
             return g
 
     cap.layers = [_Identity() for _ in range(cap.n_spots)]

@@ -152,6 +152,8 @@ class CaptureModel:
         self._scene_setup(render, faces, n_vertices, albedo)
         self._choose_estimator(estimator, element_size_m, int(patch_cells), bool(error_estimate))
         self._blurred = {}
+        self._weights = {}
+        self._probs = None
         self._keep = None
 
     # --- detector ---------------------------------------------------------------------------------------
@@ -202,15 +204,25 @@ class CaptureModel:
         if D <= 0:
             return np.ones((ideal.shape[0], ideal.shape[1], 1))
         out = []
-        for g in range(self.n_spots):
-            _, _, prob = self.layers[g]._probabilities(ideal[g])
+        for g, (_, _, prob) in enumerate(self._probabilities(ideal)):
             out.append(1.0 / (1.0 + prob.sum(axis=-1, keepdims=True) * D))
         return np.stack(out)
+
+    def _probabilities(self, ideal: np.ndarray) -> list:
+        """Per spot, the detector layer's :meth:`~spad_detector.likelihood.ExpectedCounts.probabilities` of
+        ``ideal [G, P, T]``, kept for the last ``ideal`` array (by identity: one iteration's dead-time factor,
+        expected counts and derivative share them; an ideal capture is never changed in place here). On the demo's
+        32 x 32 capture they were made three times an iteration, about 0.3 s of it."""
+        if self._probs is None or self._probs[0] is not ideal:
+            self._probs = None  # (the last ones freed first)
+            self._probs = (ideal, [self.layers[g].probabilities(ideal[g]) for g in range(self.n_spots)])
+        return self._probs[1]
 
     def expected_counts(self, ideal: np.ndarray, factor: np.ndarray | None = None) -> np.ndarray:
         """``[G, P, T]`` expected counts of an ideal capture (photons per pulse) in the fit's bins."""
         f = self.dead_time_factor(ideal) if factor is None else factor
-        return np.stack([self.layers[g](ideal[g]) for g in range(self.n_spots)]) * f
+        pr = self._probabilities(ideal)
+        return np.stack([self.layers[g](ideal[g], pr[g]) for g in range(self.n_spots)]) * f
 
     def counts_blurred(self, sigma_ps: float) -> np.ndarray:
         """The counts blurred to a total temporal spread ``sigma_ps`` (>= the jitter's)."""
@@ -348,9 +360,17 @@ class CaptureModel:
         return self._render(seed, spp)
 
     def weights(self, sigma_ps: float) -> np.ndarray:
-        """``1 / (k + k_floor)`` per bin (see the module docstring)."""
+        """``1 / (k + k_floor)`` per bin (see the module docstring), kept beside the blurred counts it is made from
+        (an iteration asks for the weights of two blurs twice each)."""
         k = self.counts_blurred(sigma_ps)
-        return 1.0 / (k + self.k_floor)
+        key = round(float(sigma_ps), 6)
+        w = self._weights.get(key)
+        if w is None or w[0] is not k:
+            if key not in self._weights and len(self._weights) >= 2:  # (as the blurred counts: the end blur and
+                # the current one)
+                self._weights.pop(next(x for x in self._weights if x != self._keep))
+            w = self._weights[key] = (k, 1.0 / (k + self.k_floor))
+        return w[1]
 
 
     def objective(self, mu: np.ndarray, sigma_ps: float) -> tuple[float, np.ndarray]:
@@ -376,7 +396,8 @@ class CaptureModel:
         from transient_mi.integrators._nlos_ad import nlos_backward
 
         f = self.dead_time_factor(ideal_ref) if factor is None else factor
-        g_ideal = np.stack([self.layers[g].vjp(ideal_ref[g], grad_mu[g] * f[g]) for g in range(self.n_spots)])
+        pr = self._probabilities(ideal_ref)
+        g_ideal = np.stack([self.layers[g].vjp(ideal_ref[g], grad_mu[g] * f[g], pr[g]) for g in range(self.n_spots)])
         self._set_sigma(sigma_ps)
         v, r = self.params[self.vkey], self.params[self.rkey]
         dr.enable_grad(v)
