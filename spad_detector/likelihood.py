@@ -80,7 +80,6 @@ class ExpectedCounts:
         p = survive * -np.expm1(-lam)
         return lam, survive, p
 
-
     def __call__(self, ideal: np.ndarray, probabilities: tuple | None = None) -> np.ndarray:
         """Mean counts ``[P, T]`` (float64); ``probabilities``: :meth:`probabilities` of ``ideal``, if made."""
         T = self.model.grid.n_bins

@@ -203,10 +203,7 @@ class CaptureModel:
         D = max(m.spad_dead_time_ps, m.tcspc_dead_time_ps) / m.grid.period_ps - 1.0
         if D <= 0:
             return np.ones((ideal.shape[0], ideal.shape[1], 1))
-        out = []
-        for g, (_, _, prob) in enumerate(self._probabilities(ideal)):
-            out.append(1.0 / (1.0 + prob.sum(axis=-1, keepdims=True) * D))
-        return np.stack(out)
+        return np.stack([1.0 / (1.0 + p.sum(axis=-1, keepdims=True) * D) for _, _, p in self._probabilities(ideal)])
 
     def _probabilities(self, ideal: np.ndarray) -> list:
         """Per spot, the detector layer's :meth:`~spad_detector.likelihood.ExpectedCounts.probabilities` of
@@ -366,8 +363,7 @@ class CaptureModel:
         key = round(float(sigma_ps), 6)
         w = self._weights.get(key)
         if w is None or w[0] is not k:
-            if key not in self._weights and len(self._weights) >= 2:  # (as the blurred counts: the end blur and
-                # the current one)
+            if key not in self._weights and len(self._weights) >= 2:  # (two, as the blurred counts)
                 self._weights.pop(next(x for x in self._weights if x != self._keep))
             w = self._weights[key] = (k, 1.0 / (k + self.k_floor))
         return w[1]
