@@ -495,17 +495,16 @@ def run_dataset(spec_file: str | Path, out_dir: str | Path, *, scheduler: str | 
             report.redone_damaged = len(existing.damaged)
             _write_dataset_json(out, spec, len(items), variant)
             say(f"{len(items)} items: {len(existing.valid)} already done, {len(todo)} to build on {conn.description}")
-            try:
-                with cluster_log(out):
+            with cluster_log(out):  # (the workers' shutdown included)
+                try:
                     _submit_and_wait(conn.client, todo, items_dir, str(spec.scene_file), threads, report, out,
                                      items, progress, say)
+                finally:
                     conn.close()  # local workers stop before their temporary directories are removed
-            finally:
-                conn.close()
-                report.cleaned_tmp += clean_temporaries(items_dir)
-                rows = _rows(out, items)
-                write_index(out, rows)
-                _noise_summary(report, rows)
+                    report.cleaned_tmp += clean_temporaries(items_dir)
+                    rows = _rows(out, items)
+                    write_index(out, rows)
+                    _noise_summary(report, rows)
     finally:
         conn.close()
     report.elapsed_s = time.perf_counter() - t0

@@ -257,8 +257,8 @@ def attempt_alive(tmp_name: str) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except PermissionError:  # it exists, owned by another user
-        return True
+    except PermissionError:  # (it exists, owned by another user)
+        pass
     return True
 
 

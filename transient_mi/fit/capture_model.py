@@ -152,7 +152,6 @@ class CaptureModel:
         self._scene_setup(render, faces, n_vertices, albedo)
         self._choose_estimator(estimator, element_size_m, int(patch_cells), bool(error_estimate))
         self._blurred = {}
-        self._weights = {}
         self._probs = None
         self._keep = None
 
@@ -221,15 +220,21 @@ class CaptureModel:
         pr = self._probabilities(ideal)
         return np.stack([self.layers[g](ideal[g], pr[g]) for g in range(self.n_spots)]) * f
 
-    def counts_blurred(self, sigma_ps: float) -> np.ndarray:
-        """The counts blurred to a total temporal spread ``sigma_ps`` (>= the jitter's)."""
+    def _blurred_entry(self, sigma_ps: float) -> tuple:
+        """``(counts blurred to sigma_ps, their weights)``, made once per blur and kept for two blurs (the fixed end
+        blur and the current one)."""
         key = round(float(sigma_ps), 6)
         if key not in self._blurred:
             extra = math.sqrt(max(sigma_ps ** 2 - self.jitter_sigma_ps ** 2, 0.0)) / self.bin_width_ps
-            if len(self._blurred) >= 2:  # (the fixed end blur and the current one)
+            if len(self._blurred) >= 2:
                 self._blurred.pop(next(k for k in self._blurred if k != self._keep))
-            self._blurred[key] = _blur_time(self.counts, extra)
+            k = _blur_time(self.counts, extra)
+            self._blurred[key] = (k, 1.0 / (k + self.k_floor))
         return self._blurred[key]
+
+    def counts_blurred(self, sigma_ps: float) -> np.ndarray:
+        """The counts blurred to a total temporal spread ``sigma_ps`` (>= the jitter's)."""
+        return self._blurred_entry(sigma_ps)[0]
 
     def keep_blur(self, sigma_ps: float) -> None:
         """Keep the counts blurred to ``sigma_ps`` cached (the blur every iteration also evaluates)."""
@@ -357,16 +362,9 @@ class CaptureModel:
         return self._render(seed, spp)
 
     def weights(self, sigma_ps: float) -> np.ndarray:
-        """``1 / (k + k_floor)`` per bin (see the module docstring), kept beside the blurred counts it is made from
-        (an iteration asks for the weights of two blurs twice each)."""
-        k = self.counts_blurred(sigma_ps)
-        key = round(float(sigma_ps), 6)
-        w = self._weights.get(key)
-        if w is None or w[0] is not k:
-            if key not in self._weights and len(self._weights) >= 2:  # (two, as the blurred counts)
-                self._weights.pop(next(x for x in self._weights if x != self._keep))
-            w = self._weights[key] = (k, 1.0 / (k + self.k_floor))
-        return w[1]
+        """``1 / (k + k_floor)`` per bin (see the module docstring), made with the blurred counts ``k`` (an iteration
+        asks for the weights of two blurs twice each)."""
+        return self._blurred_entry(sigma_ps)[1]
 
 
     def objective(self, mu: np.ndarray, sigma_ps: float) -> tuple[float, np.ndarray]:

@@ -34,7 +34,8 @@ def mixed_lit(vc, vs, e0, X0, n_sh, cell_p, S, cell_spot, side_test, out):
     :func:`~._nlos_pair_kernels.spread_group` bounds as mixed. A pair can carry light as ``lit`` of
     :func:`~._nlos_pair_kernels.pair_geometry` says by geometry: with ``side_test`` (Lambertian elements) the cell and
     the spot lie on the same side of the element's shading normal ``n_sh [n, 3]`` at its centroid ``X0 [n, 3]``.
-    ``vc [C, k]``, ``vs [n, G]`` uint8 masks; ``cell_p [C, 3]``, ``S [G, 3]`` (m); ``cell_spot [C]``: the one spot each cell pairs with (confocal captures: its pixel's), -1 for every spot."""
+    ``vc [C, k]``, ``vs [n, G]`` uint8 masks; ``cell_p [C, 3]``, ``S [G, 3]`` (m); ``cell_spot [C]``: the one spot
+    each cell pairs with (:func:`cell_spots`)."""
     C, k = vc.shape
     G = vs.shape[1]
     for j in numba.prange(k):
