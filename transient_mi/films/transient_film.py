@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload_tensor
 from transient_mi.props import PluginParameterError, get_choice, get_float, get_int
 from transient_mi.time_axis import TimeAxis, gaussian_kernel_taps
 
@@ -249,7 +250,7 @@ class TransientFilm(mi.Film):
         """The last render's histograms as ``mi.TensorXf [height, width, n_bins]``."""
         if self.result is None:
             raise RuntimeError(f"{self.NAME}: nothing rendered yet (render with the transient_path or transient_nlos_path integrator)")
-        return mi.TensorXf(self.result.histogram)
+        return upload_tensor(self.result.histogram)
 
     # Mitsuba's C++ integrators would call these; they cannot fill a transient film.
     def prepare(self, aovs):

@@ -46,6 +46,8 @@ import numpy as np
 from transient_core.errors import UserInputError
 from transient_core.stack import read_manifest, read_spot
 
+from transient_mi._upload import upload
+
 __all__ = ["CaptureModel"]
 
 #: The quadrature's settings of the models' fits (``mannequin``, ``patches``: :func:`~transient_mi.fit.api.fit_capture`):
@@ -267,7 +269,7 @@ class CaptureModel:
             self.mesh.add_attribute(FACE_REFLECTANCE, 1, np.broadcast_to(
                 np.asarray(albedo, dtype=np.float64).ravel(), (len(faces),)).astype(np.float32).tolist())
         mp = mi.traverse(self.mesh)
-        mp["faces"] = mi.UInt32(np.asarray(faces, dtype=np.uint32).ravel())
+        mp["faces"] = upload(mi.UInt32, faces)
         mp["vertex_positions"] = dr.zeros(mi.Float, 3 * int(n_vertices))
         mp.update()
         scene_dict = {"type": "scene", "integrator": src.integrator(), "sensor": sensor, "relay_wall": wall[0],
@@ -336,10 +338,10 @@ class CaptureModel:
     def set_mesh(self, vertices: np.ndarray, albedo) -> None:
         """Model mesh vertices ``[V, 3]`` (metres, world frame) and reflectance (a float; with
         ``reflectance="face"`` a float for every face or ``[F]``)."""
-        self.params[self.vkey] = mi.Float(np.asarray(vertices, dtype=np.float32).ravel())
+        self.params[self.vkey] = upload(mi.Float, vertices)
         if self.reflectance == "face":
             n = dr.width(self.params[self.rkey])
-            self.params[self.rkey] = mi.Float(np.broadcast_to(np.asarray(albedo, dtype=np.float32).ravel(), (n,)))
+            self.params[self.rkey] = upload(mi.Float, np.broadcast_to(np.ravel(albedo), (n,)))
         else:
             self.params[self.rkey] = type(self.params[self.rkey])(float(albedo))
         self.params.update()

@@ -31,6 +31,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload
 from transient_mi.scenes.mannequin_skeleton import JOINT_RANGES_DEG, JOINTS, pose_joint_angles
 
 __all__ = ["MannequinModel", "PatchesModel", "MODELS"]
@@ -44,7 +45,8 @@ def _chain(vertices, theta, grad_vertices: np.ndarray, grad_albedo: float) -> np
         dr.enable_grad(x)
     v = vertices(t)
     g = np.asarray(grad_vertices, dtype=np.float32)
-    dr.backward_from(dr.sum(v.x * mi.Float(g[:, 0]) + v.y * mi.Float(g[:, 1]) + v.z * mi.Float(g[:, 2])))
+    gx, gy, gz = (upload(mi.Float, g[:, k]) for k in range(3))
+    dr.backward_from(dr.sum(v.x * gx + v.y * gy + v.z * gz))
     out = np.array([float(dr.grad(x)[0]) for x in t])
     out[-1] = grad_albedo
     return out

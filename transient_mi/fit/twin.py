@@ -21,6 +21,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload
 from transient_mi.scenes.mannequin import _rest_primitives, _to_world, posed_primitives
 from transient_mi.scenes.mannequin_skeleton import BONES, ELBOW_DROP, HIP, JOINTS, KNEE, SHOULDER
 
@@ -105,8 +106,8 @@ class MannequinTwin:
         self.rest = np.concatenate(verts)  # [V, 3] float64, body frame, units of the height
         self.faces = np.concatenate(faces).astype(np.uint32)
         self.n_vertices = len(self.rest)
-        self._bone = mi.UInt32(np.concatenate(bones))
-        self._rest = mi.Point3f(*(mi.Float(self.rest[:, k].astype(np.float32)) for k in range(3)))
+        self._bone = upload(mi.UInt32, np.concatenate(bones))
+        self._rest = mi.Point3f(*(upload(mi.Float, self.rest[:, k]) for k in range(3)))
 
     def vertices(self, joints_deg: dict, position, rotation_deg, height_m) -> mi.Point3f:
         """World-frame vertex positions ``[V]`` (metres) as a Dr.Jit expression of the parameters.

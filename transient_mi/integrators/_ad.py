@@ -51,6 +51,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload, upload_tensor
 from transient_mi.integrators._lanes import (ChannelHistogram, LaneHistogram, LaneLayout, as_list,
                                              channel_values, choose_streams, seed_rng)
 from transient_mi.integrators._ad_geometry import TimeAdjoint, TimeTangent, check_geometry, replay_geometry
@@ -101,7 +102,7 @@ class _Adjoint:
 
     def __init__(self, delta: np.ndarray, binner: LaneHistogram, K: int):
         self.P, self.T_ext, self.C = delta.shape
-        self.delta = mi.Float(delta.ravel())
+        self.delta = upload(mi.Float, delta)
         self.binner = binner
         self.K = K
         #: spectral variants: the values are per (channel, wavelength), ``N_WL`` wavelengths per channel
@@ -219,7 +220,7 @@ def render_forward(integrator, scene, params, sensor, seed, spp, replay=None, de
         hist.evaluate(rng)
     h, _, _, _ = hist.collect(taps)
     H, W = film.height, film.width
-    return mi.TensorXf(h.reshape((H, W, axis.n_bins) + h.shape[2:]))
+    return upload_tensor(h.reshape((H, W, axis.n_bins) + h.shape[2:]))
 
 
 def _detached(on: bool):
@@ -266,7 +267,7 @@ def _geometry_forward(integrator, scene, sensor, film, layout, axis, taps, chann
     h = np.asarray(h, dtype=np.float64).reshape(layout.n_pixels, axis.n_bins, n_ch) + tt.collect(layout)
     H, W = film.height, film.width
     shape = (H, W, axis.n_bins) if channels is None else (H, W, axis.n_bins, n_ch)
-    return mi.TensorXf(h.astype(np.float32).reshape(shape))
+    return upload_tensor(h.reshape(shape))
 
 
 def _accumulate(adj, lane, acc, opl, le, act_le, opl_em, lr, act_em):

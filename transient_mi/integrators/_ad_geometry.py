@@ -50,6 +50,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload
 from transient_mi.integrators._lanes import as_list, channel_values
 from transient_mi.integrators._mis import detached_mis_weight as _mis
 from transient_mi.integrators._nlos_ad_terms import TimeKernel
@@ -107,7 +108,7 @@ class TimeAdjoint:
         self.T, self.C, self.K = axis.n_bins, n_ch, K
         P = film.width * film.height
         d = np.asarray(grad_in, dtype=np.float32).reshape(P * self.T * n_ch)
-        self.delta = mi.Float(d) + dr.opaque(mi.Float, 0)  # (Dr.Jit's own memory: one compiled kernel)
+        self.delta = upload(mi.Float, d)
         self.kernel = TimeKernel(axis, film.kernel_sigma_ps, film.kernel_taps())
 
     def weights(self, lane, opl, values, active) -> list:

@@ -46,6 +46,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload
+
 #: Most window interfaces a device leg crosses (a pane has two); a leg still on a window after that many
 #: is dropped (throughput 0).
 MAX_INTERFACES = 8
@@ -173,8 +175,8 @@ def leg_jacobian(scene, origin, direction, eps: float = JACOBIAN_EPS_RAD):
     dirs = np.concatenate([d + eps * u, d - eps * u, d + eps * v, d - eps * v])
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     o = np.broadcast_to(np.asarray(origin, dtype=np.float64), dirs.shape)
-    si, thr, _ = trace_leg(scene, mi.Point3f(*[mi.Float(c) for c in o.T]),
-                           mi.Vector3f(*[mi.Float(c) for c in dirs.T]))
+    si, thr, _ = trace_leg(scene, mi.Point3f(*[upload(mi.Float, c) for c in o.T]),
+                           mi.Vector3f(*[upload(mi.Float, c) for c in dirs.T]))
     p = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in si.p], axis=1)
     ok = np.asarray(si.is_valid().numpy(), dtype=bool) & (np.asarray(thr.numpy()) > 0)
     dpa = (p[:n] - p[n:2 * n]) / (2 * eps)
@@ -194,8 +196,8 @@ def trace_legs_np(scene, origins, directions) -> dict:
     o = np.asarray(origins, dtype=np.float64)
     d = np.asarray(directions, dtype=np.float64)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    si, thr, opl = trace_leg(scene, mi.Point3f(*[mi.Float(c) for c in o.T]),
-                             mi.Vector3f(*[mi.Float(c) for c in d.T]))
+    si, thr, opl = trace_leg(scene, mi.Point3f(*[upload(mi.Float, c) for c in o.T]),
+                             mi.Vector3f(*[upload(mi.Float, c) for c in d.T]))
     valid = np.asarray(si.is_valid().numpy(), dtype=bool)
     p = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in si.p], axis=1)
     nrm = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in si.n], axis=1)

@@ -66,6 +66,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload_tensor
 from transient_mi.integrators._lanes import LaneLayout, seed_rng
 from transient_mi.integrators._nlos_ad_paths import connect, deeper, first_bounce
 from transient_mi.integrators._nlos_ad_terms import (Backward, Forward, TimeKernel, check_sensor_and_variant,
@@ -313,4 +314,4 @@ def nlos_forward(integrator, scene, params, sensor, seed: int, spp: int, spots=N
         if tsum is not None:
             out[g] += tsum[:, g, :]
     shape = (setup.height, setup.width, T) if G == 1 else (G, setup.height, setup.width, T)
-    return mi.TensorXf(out.astype(np.float32).reshape(shape))
+    return upload_tensor(out.reshape(shape))

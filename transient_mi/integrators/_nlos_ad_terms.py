@@ -13,18 +13,12 @@ import mitsuba as mi
 import numpy as np
 
 from transient_core.units import C_M_PER_PS
+from transient_mi._upload import upload
 from transient_mi.integrators._lanes import LaneHistogram, LaneLayout, to_mono
 from transient_mi.integrators._nlos_render import GroupHistogram
-from transient_mi.integrators._nlos_surfaces import upload as upload_to
 
 #: AD flags: a term that no parameter being differentiated reaches is not an error
 _FLAGS = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
-
-
-def upload(a, T=None):
-    """A numpy array as a Dr.Jit array (default ``mi.Float``) in Dr.Jit's own (aligned) memory, its copy done:
-    :func:`~._nlos_surfaces.upload`."""
-    return upload_to(mi.Float if T is None else T, a)
 
 
 class TimeKernel:
@@ -69,8 +63,8 @@ class Backward:
             from scipy.ndimage import convolve1d  # adjoint of the primal's convolution (symmetric taps)
             d_ext = convolve1d(d_ext, taps, axis=1, mode="constant", cval=0.0)
         self.T_ext = self.T + 2 * pad
-        self.delta_ext = upload(d_ext.astype(np.float32).ravel())
-        self.delta = upload(d.astype(np.float32).ravel())
+        self.delta_ext = upload(mi.Float, d_ext)
+        self.delta = upload(mi.Float, d)
         self.binner = LaneHistogram(LaneLayout(1, 1, 1), axis, pad)
         self.K, self.P = layout_K, P
         self.time = time
@@ -164,14 +158,13 @@ def wall_return_inputs(setup, spots):
     d = S - Lo
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     n = len(S)
-    f32 = np.float32
-    return {"pixel": upload(pix[sel].astype(np.uint32), mi.UInt32), "sub": upload(sub[sel], mi.UInt32),
-            "opl": upload(wr["opl_m"][all_spots][sel].astype(f32)), "n": n,
-            "ray": mi.Ray3f(mi.Point3f(*[upload(np.full(n, Lo[i], f32)) for i in range(3)]),
-                            mi.Vector3f(*[upload(d[:, i].astype(f32)) for i in range(3)])),
-            "detector": mi.Point3f(*[upload(np.full(n, D[i], f32)) for i in range(3)]),
-            "w": mi.Vector3f(*[upload(c.astype(f32)) for c in w.T]),
-            "geometric": upload((setup.aperture_area_m2 * cos_ap / dist ** 2).astype(f32))}
+    return {"pixel": upload(mi.UInt32, pix[sel]), "sub": upload(mi.UInt32, sub[sel]),
+            "opl": upload(mi.Float, wr["opl_m"][all_spots][sel]), "n": n,
+            "ray": mi.Ray3f(mi.Point3f(*[upload(mi.Float, np.full(n, Lo[i])) for i in range(3)]),
+                            mi.Vector3f(*[upload(mi.Float, d[:, i]) for i in range(3)])),
+            "detector": mi.Point3f(*[upload(mi.Float, np.full(n, D[i])) for i in range(3)]),
+            "w": mi.Vector3f(*[upload(mi.Float, c) for c in w.T]),
+            "geometric": upload(mi.Float, setup.aperture_area_m2 * cos_ap / dist ** 2)}
 
 
 def wall_return_photons(scene, wall_bsdf, inp, n_att):

@@ -17,6 +17,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload
 from transient_mi.integrators._device_legs import beam_spot, trace_leg
 from transient_mi.integrators._lanes import to_mono
 from transient_mi.integrators._nlos_samples import PixelQMC, lane_pixels
@@ -192,11 +193,11 @@ class KernelScene:
             d = tg - Lo
             d = d / np.linalg.norm(d, axis=1, keepdims=True)
             if setup.laser.divergence_mrad > 0:
-                axes = mi.Vector3f(*[mi.Float(d[:, i]) for i in range(3)])
+                axes = mi.Vector3f(*[upload(mi.Float, d[:, i]) for i in range(3)])
                 dr.eval(axes)
                 return cls(hidden_ptrs, distr, wall_ptr, (axes,))
-            ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.full(len(tg), Lo[i])) for i in range(3)]),
-                           mi.Vector3f(*[mi.Float(d[:, i]) for i in range(3)]))
+            ray = mi.Ray3f(mi.Point3f(*[upload(mi.Float, np.full(len(tg), Lo[i])) for i in range(3)]),
+                           mi.Vector3f(*[upload(mi.Float, d[:, i]) for i in range(3)]))
             if setup.windows:
                 si_g, thr_g, opl_g = trace_leg(scene, ray.o, ray.d)
                 si_g.t = opl_g  # what the record adds for the laser leg (first_last_factor * t)

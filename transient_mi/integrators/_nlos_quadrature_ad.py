@@ -43,8 +43,9 @@ import mitsuba as mi
 import numpy as np
 from scipy.ndimage import correlate1d
 
+from transient_mi._upload import upload, upload_tensor
 from transient_mi.integrators._ad_geometry import geometry_keys
-from transient_mi.integrators._nlos_ad_terms import (Backward, TimeKernel, check_sensor_and_variant, upload,
+from transient_mi.integrators._nlos_ad_terms import (Backward, TimeKernel, check_sensor_and_variant,
                                                      wall_return_backward, wall_return_inputs, wall_return_photons)
 from transient_mi.integrators._nlos_pair_kernels import adjoint_group, spread_group
 from transient_mi.integrators._nlos_pairs import Chunk, SpotSide, chunk_starts
@@ -235,9 +236,9 @@ def _backward(scene, setup, options, sensor, grad_in, geometry: bool, spots) -> 
                     B += np.bincount(t["es"], np.where(t["match"], gg * ch.f_p * sw, 0.0), minlength=n_es)
                 with dr.resume_grad():
                     if not lv.wall.lambertian:
-                        dr.backward_from(upload((gg * f_x * sw).astype(np.float32)) * lv.f_p_ad(ch), flags=_FLAGS)
+                        dr.backward_from(upload(mi.Float, gg * f_x * sw) * lv.f_p_ad(ch), flags=_FLAGS)
                     if not lv.lambertian:
-                        dr.backward_from(upload((gg * ch.f_p * sw).astype(np.float32)) * lv.f_x_ad(ch, row),
+                        dr.backward_from(upload(mi.Float, gg * ch.f_p * sw) * lv.f_x_ad(ch, row),
                                          flags=_FLAGS)
                 if geometry:
                     lv.geometry(g_elem, grad_ext, ch, t, row, lengths)
@@ -245,7 +246,7 @@ def _backward(scene, setup, options, sensor, grad_in, geometry: bool, spots) -> 
             for coef, value in ((C, lambda: lv.side.intensity_ad(scene, lv.lv.X0)),
                                 (A, lv.wall.value_ad), (B, lambda: lv.lv.surf.toward_ad(lv.side.S))):
                 if np.any(coef != 0.0):
-                    dr.backward_from(upload(coef.astype(np.float32)) * value(), flags=_FLAGS)
+                    dr.backward_from(upload(mi.Float, coef) * value(), flags=_FLAGS)
             if total != 0.0:
                 dr.backward_from(n_att() * (total / lv.g.N), flags=_FLAGS)
         if geometry:
@@ -321,4 +322,4 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
                          np.ones(ch.n), ch.vis_p, ch.A, ch.w1, ch.w2, ch.tilt, ch.side_x, np.ones((1, ch.n)),
                          lv.side.vis, lv.side.B, ones_es, ones_es, lv.side.side_s, False, lv.confocal)
     out = apply_kernel(hist[0], taps) if g.pad else hist[0]
-    return mi.TensorXf(out.astype(np.float32).reshape(setup.height, setup.width, axis.n_bins))
+    return upload_tensor(out.reshape(setup.height, setup.width, axis.n_bins))

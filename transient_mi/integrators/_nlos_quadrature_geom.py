@@ -49,6 +49,7 @@ import mitsuba as mi
 import numba
 import numpy as np
 
+from transient_mi._upload import upload
 from transient_mi.props import PluginParameterError
 
 from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
@@ -422,4 +423,4 @@ def vertex_backward(shapes, grads, flags) -> None:
         for s, g in zip(shapes, grads):
             buf = s.vertex_positions_buffer()
             if dr.grad_enabled(buf) and np.any(g):
-                dr.backward_from(buf * mi.Float(g.astype(np.float32).ravel()), flags=flags)
+                dr.backward_from(buf * upload(mi.Float, g), flags=flags)

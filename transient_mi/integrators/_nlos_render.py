@@ -16,6 +16,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload
 from transient_mi.integrators._lanes import (NLOS_GROUP_TARGET_LANES, LaneHistogram, LaneLayout, dropped_fraction,
                                              seed_rng, streams_for, sum_strided)
 from transient_mi.integrators._nlos_kernel import KernelConstants, KernelScene, nlos_pass
@@ -349,8 +350,8 @@ def _render_replicate(setup: "NLOSSetup", scene, film, options: dict, *, seed: i
     for r in range(int(rounds.max()) + 1 if len(sel) else 0):
         e = sel[rounds == r]
         ph = photons[e] / setup.photons_per_pulse  # N is applied below
-        hist.record(mi.UInt32((pix[e] * K).astype(np.uint32)), mi.Float(opl[e]), mi.Float(ph * spp), mi.Bool(True),
-                    sub=mi.UInt32(sub[e]))
+        hist.record(upload(mi.UInt32, pix[e] * K), upload(mi.Float, opl[e]), upload(mi.Float, ph * spp),
+                    mi.Bool(True), sub=upload(mi.UInt32, sub[e]))
         hist.evaluate()
 
     out = list(hist.collect_all(taps, scale=setup.photons_per_pulse))

@@ -21,28 +21,13 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload
 from transient_mi.integrators._lanes import to_mono
 
 #: Relative tolerance on a hit distance for a point to count as visible (as the Monte Carlo estimator).
 VISIBILITY_REL_TOL = 1e-4
 #: Offset of ray origins on the relay wall along its normal (m): no self-hit.
 WALL_OFFSET_M = 1e-6
-
-
-def upload(T, a, dtype=None):
-    """A numpy array as a Dr.Jit array of type ``T`` in Dr.Jit's own memory (``dtype``: the numpy type it is converted
-    to first, default its own): an array mapped from numpy memory is loaded with that buffer's alignment, which varies
-    between calls and changes the kernel (a recompilation at every call), so it is copied by a real operation
-    (``dr.copy`` returns the mapped buffer). The copy has run when this returns (``dr.sync_thread``): the LLVM backend
-    launches it asynchronously, and the numpy buffer it reads (a converted temporary, say) may be freed with this
-    frame. A dataset worker died once in such a copy, reading an unmapped page. The one upload of the NLOS
-    integrators (:func:`~._nlos_ad_terms.upload` calls it)."""
-    src = np.ascontiguousarray(a, dtype=dtype)
-    x = T(src) + dr.opaque(T, 0)
-    dr.eval(x)
-    dr.sync_thread()
-    del src
-    return x
 
 
 def _f(a) -> "mi.Float":

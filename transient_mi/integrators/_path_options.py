@@ -12,6 +12,7 @@ from __future__ import annotations
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload_tensor
 from transient_mi.props import PluginParameterError, get_bool, get_choice, get_float, get_int
 from transient_mi.integrators._sensor_checks import check_rfilter, check_sampler
 
@@ -126,4 +127,4 @@ def render_tensor(integrator, scene, sensor, seed, spp, progress):
     if hasattr(sensor, "forget_nlos_setup"):
         sensor.forget_nlos_setup()
     result = integrator.render_transient(scene, sensor, seed=as_int(seed), spp=as_int(spp), progress=progress)
-    return mi.TensorXf(result.histogram)
+    return upload_tensor(result.histogram)

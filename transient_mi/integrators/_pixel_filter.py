@@ -29,6 +29,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload
+
 #: Intervals of the tabulated filter.
 TABLE_INTERVALS = 4096
 
@@ -45,9 +47,9 @@ class PixelFilter:
         if not self.is_box:
             r = float(rfilter.radius())
             x = np.linspace(-r, r, TABLE_INTERVALS + 1)
-            w = np.maximum(np.asarray(rfilter.eval(mi.Float(x)), dtype=np.float64), 0.0)
+            w = np.maximum(np.asarray(rfilter.eval(upload(mi.Float, x)), dtype=np.float64), 0.0)
             self.radius = r
-            self.dist = mi.ContinuousDistribution(mi.ScalarVector2f(-r, r), mi.Float(w.astype(np.float32)))
+            self.dist = mi.ContinuousDistribution(mi.ScalarVector2f(-r, r), upload(mi.Float, w))
 
     def bounds(self, p, n: int):
         """Per-lane constants for pixels ``p`` (mi.Float, column or row index) of a film ``n`` pixels wide:

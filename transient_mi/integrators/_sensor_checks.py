@@ -27,6 +27,7 @@ from __future__ import annotations
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload
 from transient_mi.props import PluginParameterError
 
 #: Mitsuba class name -> plug-in name, for the messages.
@@ -75,7 +76,7 @@ def negative_lobe(rfilter):
     or None if it is non-negative there."""
     r = float(rfilter.radius())
     x = np.linspace(-r, r, NEGATIVE_CHECK_POINTS)
-    w = np.asarray(rfilter.eval(mi.Float(x)), dtype=np.float64)
+    w = np.asarray(rfilter.eval(upload(mi.Float, x)), dtype=np.float64)
     i = int(np.argmin(w))
     return (float(x[i]), float(w[i])) if w[i] < 0 else None
 

@@ -16,6 +16,7 @@ from statistics import NormalDist
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload
 from transient_mi.integrators import _device_legs as legs
 from transient_mi.integrators._lanes import to_mono
 from transient_mi.props import PluginParameterError
@@ -321,15 +322,15 @@ class NLOSSetup:
         # f_s(S; w_L, w_SD) cos, evaluated by Mitsuba on the spot's surface interaction
         Lo = self.laser_origin
         d = S - Lo
-        ray = mi.Ray3f(mi.Point3f(*[mi.Float(Lo[i] + 0 * d[:, i]) for i in range(3)]),
-                       mi.Vector3f(*[mi.Float(c) for c in (d / np.linalg.norm(d, axis=1, keepdims=True)).T]))
+        ray = mi.Ray3f(mi.Point3f(*[upload(mi.Float, Lo[i] + 0 * d[:, i]) for i in range(3)]),
+                       mi.Vector3f(*[upload(mi.Float, c) for c in (d / np.linalg.norm(d, axis=1, keepdims=True)).T]))
         si = scene.ray_intersect(ray)
         toD = D - S
         dist = np.linalg.norm(toD, axis=1)
         w = toD / dist[:, None]
-        wo = si.to_local(mi.Vector3f(*[mi.Float(c) for c in w.T]))
+        wo = si.to_local(mi.Vector3f(*[upload(mi.Float, c) for c in w.T]))
         f = to_mono(si.bsdf().eval(mi.BSDFContext(), si, wo), si.wavelengths)
-        target_d = mi.Point3f(*[mi.Float(np.full(n, D[i])) for i in range(3)])
+        target_d = mi.Point3f(*[upload(mi.Float, np.full(n, D[i])) for i in range(3)])
         occluded = scene.ray_test(si.spawn_ray_to(target_d))
         f = np.asarray(f.numpy(), dtype=np.float64)
         vis = ~np.asarray(occluded.numpy(), dtype=bool)
@@ -362,7 +363,7 @@ class NLOSSetup:
         # leaving S along the detector leg's last segment (towards the window): its ``wi``
         out_w = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in det["si"].to_world(det["si"].wi)],
                          axis=1)
-        wo = si.to_local(mi.Vector3f(*[mi.Float(c) for c in out_w.T]))
+        wo = si.to_local(mi.Vector3f(*[upload(mi.Float, c) for c in out_w.T]))
         f_cos = np.asarray(to_mono(si.bsdf().eval(mi.BSDFContext(), si, wo), si.wavelengths).numpy(),
                            dtype=np.float64)
         cos_s = np.abs(np.sum(out_w * hs["n"], axis=1))
@@ -420,7 +421,7 @@ def _intersect(scene, origins, directions, windows: bool = False) -> dict:
     o = np.asarray(origins, dtype=np.float64)
     d = np.asarray(directions, dtype=np.float64)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    ray = mi.Ray3f(mi.Point3f(*[mi.Float(c) for c in o.T]), mi.Vector3f(*[mi.Float(c) for c in d.T]))
+    ray = mi.Ray3f(mi.Point3f(*[upload(mi.Float, c) for c in o.T]), mi.Vector3f(*[upload(mi.Float, c) for c in d.T]))
     si = scene.ray_intersect(ray)
     valid = np.asarray(si.is_valid().numpy(), dtype=bool)
     p = np.stack([np.asarray(c.numpy(), dtype=np.float64) for c in si.p], axis=1)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import mitsuba as mi
 import numpy as np
 
+from transient_mi._upload import upload
 from transient_mi.props import PluginParameterError, get_float, get_int, get_vector3
 
 PLUGIN = ("shape", "mannequin", "make_mannequin_shape")
@@ -74,7 +75,7 @@ def make_mannequin_shape(props: mi.Properties):
     f = np.ascontiguousarray(tm.faces, dtype=np.uint32)
     mesh = mi.Mesh(name, len(v), len(f), props=props, has_vertex_normals=False)
     params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(v.ravel())
-    params["faces"] = mi.UInt32(f.ravel())
+    params["vertex_positions"] = upload(mi.Float, v)
+    params["faces"] = upload(mi.UInt32, f)
     params.update()
     return mesh
