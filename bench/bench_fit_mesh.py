@@ -147,6 +147,8 @@ def main() -> None:
     ap.add_argument("--moments", default="uniform", choices=("uniform", "vertex"))
     ap.add_argument("--step-m", type=float, default=0.003)
     ap.add_argument("--align", type=int, default=8, help="Levenberg-Marquardt iterations of the affine alignment")
+    ap.add_argument("--carve", type=int, default=None,
+                    help="per-face reflectance iterations of the carving step (default: the fit's own default)")
     ap.add_argument("--reflectance", default="global", choices=("global", "face"),
                     help="one reflectance for the mesh, or one per face (the record's name gets '_face')")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "bench_fit_mesh")
@@ -156,7 +158,7 @@ def main() -> None:
     load_start = list(os.getloadavg())
     import transient_mi  # noqa: F401
     from transient_mi.fit import FitSettings, fit_capture
-    from transient_mi.fit.mesh_fit import MeshSettings
+    from transient_mi.fit.mesh_fit import MeshSettings, carve_iterations
 
     t0 = time.perf_counter()
     counts = _capture(a.work, a.scene, a.width, a.spots, 1e-3 * a.exposure_ms, a.noise_target)
@@ -167,20 +169,24 @@ def main() -> None:
                       settings=FitSettings(iterations=a.iterations, sigma_start_ps=150.0,
                                            element_size_m=a.element_size_m),
                       mesh=MeshSettings(cell_m=a.cell_m, stages=a.stages, moments=a.moments, step_m=a.step_m,
-                                        align=a.align, reflectance=a.reflectance),
+                                        align=a.align, reflectance=a.reflectance,
+                                        **({} if a.carve is None else {"carve": a.carve})),
                       progress=False)
     t_fit = time.perf_counter() - t1
     m = res["metrics"]
     keys = ("chamfer_mesh_m", "chamfer_m", "iou", "silhouette_iou", "depth_mae_m")
-    rows = {k: {c: m[k].get(c) for c in keys} for k in ("fit", "aligned", "start", "backprojection")}
+    rows = {k: {c: m[k].get(c) for c in keys} for k in ("fit", "carved", "aligned", "start", "backprojection")
+            if k in m}
     result = {"scene": a.scene, "width": a.width, "spots": a.spots, "exposure_ms": a.exposure_ms,
               "iterations": a.iterations, "stages": a.stages, "cell_m": a.cell_m, "element_size_m": a.element_size_m,
               "moments": a.moments, "step_m": a.step_m, "align": a.align, "align_albedo": res["align"]["albedo"],
+              "carve": carve_iterations(MeshSettings(**res["config"]["mesh"])), "carve_result": res.get("carve"),
               "reflectance": a.reflectance, "fit_albedo_range": [res["parameters"]["fit"].get("albedo_min"),
                                                                  res["parameters"]["fit"].get("albedo_max")],
               "metrics": rows, "dead_time_check": dead_time, "poisson_nll": res["poisson_nll"], "fit_albedo": res["parameters"]["fit"]["albedo"],
               "n_faces": {"start": res["parameters"]["start"]["n_faces"], "fit": res["parameters"]["fit"]["n_faces"]},
               "time_s": {"capture": t_cap, "fit_wall": t_fit, "align": res["time_s"]["align"],
+                         "carve": res["time_s"].get("carve"),
                          "optimisation": res["time_s"]["optimisation"]},
               "capture": _capture_note(counts, a.noise_target),
               "targets": _targets(a.scene, rows["fit"], counts, a.width == 16 and a.spots == 4)}

@@ -14,8 +14,8 @@ def _f(x) -> str:
 
 
 def _arrow(m: dict, key: str, fmt) -> str:
-    """``start -> aligned -> fit`` of one metric (the columns a record has)."""
-    return " -> ".join(fmt(m[c][key]) for c in ("start", "aligned", "fit") if c in m)
+    """``start -> aligned [-> carved] -> fit`` of one metric (the columns a record has)."""
+    return " -> ".join(fmt(m[c][key]) for c in ("start", "aligned", "carved", "fit") if c in m)
 
 
 def fit_mesh_table(R) -> str:
@@ -46,9 +46,11 @@ def fit_mesh_full_table(R) -> str:
         captures.append(f"{r['scene'].removeprefix('nlos_').replace('_', ' ')}: {_capture(r)} "
                         f"({provenance(rec).strip()})")
     r0 = recs[0]["result"]
-    head = (f"Start -> aligned -> fit at the issue's full size ({r0['width']} x {r0['width']} pixels of "
-            f"{32 / r0['width']:g} cm, {r0['spots']} x {r0['spots']} laser spots, {r0['exposure_ms']:g} ms per spot, "
-            f"{r0['align']} alignment iterations, {r0['iterations']} iterations in {r0['stages']} stages from "
+    carve = (f"carving ({r0['carve']} iterations), " if r0.get("carve") else "")
+    head = (f"Start -> aligned{' -> carved' if carve else ''} -> fit at the issue's full size ({r0['width']} x "
+            f"{r0['width']} pixels of {32 / r0['width']:g} cm, {r0['spots']} x {r0['spots']} laser spots, "
+            f"{r0['exposure_ms']:g} ms per spot, {r0['align']} alignment iterations, {carve}"
+            f"{r0['iterations']} iterations in {r0['stages']} stages from "
             f"{100 * r0['cell_m']:g} cm cells), `python bench/bench_fit_mesh.py --width 16 --spots 4`:")
     return head + "\n\n" + "\n".join(rows) + "\n\n" + "; ".join(captures) + "\n"
 
@@ -109,8 +111,8 @@ def _table(rec) -> str:
     r = rec["result"]
     m = r["metrics"]
     t = r["targets"]
-    cols = ["fit"] + (["aligned"] if "aligned" in m else []) + ["start"]
-    names = {"fit": "fit", "aligned": "aligned (affine map and reflectance)",
+    cols = ["fit"] + [c for c in ("carved", "aligned") if c in m] + ["start"]
+    names = {"fit": "fit", "carved": "carved (dark faces dropped)", "aligned": "aligned (affine map and reflectance)",
              "start": "start (backprojection's front surface)"}
 
     def row(label, key, fmt, bp=True, target=""):
@@ -132,6 +134,10 @@ def _table(rec) -> str:
                if r.get("moments") == "vertex" else "")
     align = (f"{r['align']} alignment iterations ({r['time_s']['align']:.0f} s), then "
              if r.get("align") else "")
+    cr = r.get("carve_result")
+    if cr:
+        align += (f"carving ({cr['iterations']} per-face reflectance iterations, {r['time_s']['carve']:.0f} s: "
+                  f"{cr['kept']} of {cr['subdivided_faces']} faces kept), then ")
     head = (f"The {scene} at a small configuration ({r['width']} x {r['width']} pixels of {32 / r['width']:g} cm, "
             f"{r['spots']} x {r['spots']} laser spots, the paper's detector for {r['exposure_ms']:g} ms per spot, "
             f"{_capture(r)}); {align}{r['iterations']} iterations in {r['stages']} stages from "
@@ -170,9 +176,11 @@ def fit_mesh_topology_table(R) -> str:
                     f"| {r['time_s']['fit_wall']:.0f} s | {met} |")
         captures.append(f"{names[r['scene']]}: {_capture(r)}")
     r0 = recs[0]["result"]
-    head = (f"Start -> aligned -> fit, at the letter's and tilted plane's configuration and defaults ({r0['width']} x "
-            f"{r0['width']} pixels of {32 / r0['width']:g} cm, {r0['spots']} x {r0['spots']} laser spots, "
-            f"{r0['exposure_ms']:g} ms per spot, {r0['align']} alignment iterations, {r0['iterations']} iterations in "
+    carve = (f"carving ({r0['carve']} iterations), " if r0.get("carve") else "")
+    head = (f"Start -> aligned{' -> carved' if carve else ''} -> fit, at the letter's and tilted plane's configuration "
+            f"and defaults ({r0['width']} x {r0['width']} pixels of {32 / r0['width']:g} cm, {r0['spots']} x "
+            f"{r0['spots']} laser spots, {r0['exposure_ms']:g} ms per spot, {r0['align']} alignment iterations, "
+            f"{carve}{r0['iterations']} iterations in "
             f"{r0['stages']} stages from {100 * r0['cell_m']:g} cm cells):")
     closed = recs[1]["result"]["targets"].get("closed_hole_on_the_grid")
     tail = ""

@@ -54,6 +54,10 @@ def fit_command(
     align: int = typer.Option(8, "--align", parser=whole_number("--align"), metavar="<int>",
                               help="--model mesh: Levenberg-Marquardt iterations of the start's affine map and "
                                    "reflectance before the vertices move, 0 to 100 (0: none)."),
+    carve: int = typer.Option(None, "--carve", parser=whole_number("--carve"), metavar="<int>",
+                              help="--model mesh: iterations of one reflectance per face on the aligned start "
+                                   "(subdivided once) before its dark faces are dropped, 0 to 200 (0: none; "
+                                   "default 20, or 0 with --reflectance face)."),
     reflectance: str = typer.Option("global", "--reflectance", help="--model mesh: one reflectance for the mesh "
                                     "(global) or one per face (face: for objects of several materials; fitted.ply "
                                     "carries them)."),
@@ -73,7 +77,7 @@ def fit_command(
     from transient_mi.fit.mesh_fit import MeshSettings, check_mesh_options
 
     mesh = MeshSettings(start=start, start_mesh=None if start_mesh is None else str(start_mesh), cell_m=cell_m,
-                        stages=stages, smoothing=smoothing, align=align, reflectance=reflectance,
+                        stages=stages, smoothing=smoothing, align=align, carve=carve, reflectance=reflectance,
                         albedo_smoothness=albedo_smoothness)
     check_mesh_options(mesh)  # whatever --model: a bad value is refused before any work
     result = fit_capture(capture, out, model=model, settings=settings, bin_width_ps=bin_width_ps, n_patches=patches,

@@ -382,13 +382,14 @@ class CaptureModel:
         return poisson_nll(np.maximum(mu, 1e-12), self.counts)
 
     def backward(self, grad_mu: np.ndarray, ideal_ref: np.ndarray, seed: int, spp: int,
-                 sigma_ps: float, factor: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+                 sigma_ps: float, factor: np.ndarray | None = None, vertices: bool = True) -> tuple[np.ndarray, float]:
         """Gradient of ``<grad_mu, mu>`` with respect to the mesh vertices ``[V, 3]`` and the reflectance (a float;
         ``[F]`` with ``reflectance="face"``).
 
         ``ideal_ref`` is the ideal capture the detector layer is linearised at (pile-up; ``factor``: its
         :meth:`dead_time_factor`, if already computed); the render runs with ``seed`` (use one independent of
-        the render that gave ``grad_mu``)."""
+        the render that gave ``grad_mu``). ``vertices=False``: the reflectance's alone (no geometry derivative
+        pass; the vertices' gradient is zeros)."""
         from transient_mi.integrators._nlos_ad import nlos_backward
 
         f = self.dead_time_factor(ideal_ref) if factor is None else factor
@@ -396,7 +397,8 @@ class CaptureModel:
         g_ideal = np.stack([self.layers[g].vjp(ideal_ref[g], grad_mu[g] * f[g], pr[g]) for g in range(self.n_spots)])
         self._set_sigma(sigma_ps)
         v, r = self.params[self.vkey], self.params[self.rkey]
-        dr.enable_grad(v)
+        if vertices:
+            dr.enable_grad(v)
         dr.enable_grad(r)
         self.params.update()
         shape = (len(self.spots), self.height, self.width, self.n_bins) if len(self.spots) > 1 \
@@ -411,7 +413,8 @@ class CaptureModel:
             else:
                 nlos_backward(self.integrator, self.scene, self.params, g_ideal.astype(np.float32).reshape(shape),
                               self.sensor, int(seed), int(spp), spots=self.spots)
-            gv = np.asarray(dr.grad(self.params[self.vkey]), dtype=np.float64).reshape(-1, 3)
+            gv = (np.asarray(dr.grad(self.params[self.vkey]), dtype=np.float64).reshape(-1, 3) if vertices
+                  else np.zeros((dr.width(self.params[self.vkey]) // 3, 3)))
             gr_all = np.asarray(dr.grad(self.params[self.rkey]), dtype=np.float64)
             gr = gr_all.ravel().copy() if self.reflectance == "face" else float(np.sum(gr_all))
         finally:

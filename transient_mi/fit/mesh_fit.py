@@ -8,13 +8,16 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
 2. Alignment (``align`` iterations, 8 by default; :mod:`~transient_mi.fit.mesh_align`): the start mesh's global
    affine map and its reflectance by Levenberg-Marquardt, from the start blur to the end blur: depth, tilt,
    extent and reflectance are coupled in the data, which a per-vertex first-order method follows slowly.
-3. Stages: Adam on the regularised objective (:mod:`~transient_mi.fit.mesh_optimize`), the mesh subdivided in
+3. Carving (``carve`` iterations, 20 by default with one reflectance; :mod:`~transient_mi.fit.mesh_carve`): the
+   aligned mesh subdivided once, one reflectance per face fitted with the geometry held, the dark faces dropped
+   (a start from a reconstruction over-covers; the vertex stage keeps its topology).
+4. Stages: Adam on the regularised objective (:mod:`~transient_mi.fit.mesh_optimize`), the mesh subdivided in
    four between stages; the forward model is the capture's (:class:`~transient_mi.fit.capture_model.CaptureModel`:
    its scene, detector, gate, dark counts, pile-up, dead time, jitter) with the deterministic three-bounce
    estimator (``estimator="quadrature"``, always, whatever ``FitSettings.estimator`` or ``--estimator`` say),
    whose vertex derivative holds the area change a free deformation makes (the Monte Carlo renderer's does not);
    a capture the quadrature cannot render is refused in one line.
-4. Outputs in the output directory, each file written atomically, ``fit.json`` last:
+5. Outputs in the output directory, each file written atomically, ``fit.json`` last:
 
    ``fit.json``        settings, the start and the fit summarised (vertices, faces, bounding box, reflectance),
                        the objective per iteration (data + regularisers), the Poisson NLL of the counts under
@@ -30,6 +33,8 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
    ``views.png``       start, fit and ground truth from the front, the top and the side
    ``checkpoint.json`` the optimiser's state; ``stage.json`` the current stage's start mesh (``--resume``)
    ``align.json``      the aligned vertices, reflectance, objective per iteration and time of the alignment
+   ``carve.json``      the carved mesh, every subdivided face's reflectance and whether it was kept, the objective
+                       per iteration and the time; ``carved.ply`` the carved mesh
 """
 
 from __future__ import annotations
@@ -51,9 +56,11 @@ from .optimize import FitState
 
 __all__ = ["MeshSettings", "fit_mesh_capture"]
 
-_OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "aligned.ply", "start.json", "align.json", "loss.png", "fit.png",
-            "views.png", "checkpoint.json", "stage.json", "config.json")
+_OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "aligned.ply", "carved.ply", "start.json", "align.json",
+            "carve.json", "loss.png", "fit.png", "views.png", "checkpoint.json", "stage.json", "config.json")
 _STARTS = ("front", "closed")
+#: The carving step's default iterations (:func:`carve_iterations`).
+CARVE_ITERATIONS = 20
 #: fitted.ply's face property of a per-face reflectance (Mitsuba's PLY loader: the attribute ``face_reflectance``).
 FACE_PLY_PROPERTY = "reflectance_0"
 
@@ -74,6 +81,8 @@ class MeshSettings:
     step_m: float = 0.003  # Adam's step per iteration at the start
     moments: str = "uniform"  # Adam's second moments of the vertices: uniform (one) or vertex (one per vertex)
     align: int = 8  # Levenberg-Marquardt iterations of the global affine map and reflectance first (0: none)
+    carve: int | None = None  # per-face reflectance iterations on the aligned start, then its dark faces go
+    #                           (None: CARVE_ITERATIONS with one reflectance, 0 with reflectance="face")
     reflectance: str = "global"  # global (one reflectance) | face (one per face, held smooth by albedo_smoothness)
     albedo_smoothness: float = 1.0  # weight of the per-face reflectance's smoothness (mesh_regularizers)
 
@@ -98,6 +107,17 @@ def check_mesh_options(mesh: MeshSettings) -> None:
         raise UserInputError(f"moments={mesh.moments!r}: expected uniform or vertex")
     if isinstance(mesh.align, bool) or not isinstance(mesh.align, (int, np.integer)) or not 0 <= mesh.align <= 100:
         raise UserInputError(f"align={mesh.align!r}: expected a whole number of iterations from 0 to 100")
+    if mesh.carve is not None and (isinstance(mesh.carve, bool) or not isinstance(mesh.carve, (int, np.integer))
+                                   or not 0 <= mesh.carve <= 200):
+        raise UserInputError(f"carve={mesh.carve!r}: expected a whole number of iterations from 0 to 200")
+
+
+def carve_iterations(mesh: MeshSettings) -> int:
+    """The carving step's iterations: ``mesh.carve``, or by default :data:`CARVE_ITERATIONS` with one reflectance
+    and none with ``reflectance="face"`` (its cut assumes one material: a darker one would be dropped)."""
+    if mesh.carve is not None:
+        return int(mesh.carve)
+    return CARVE_ITERATIONS if mesh.reflectance == "global" else 0
 
 
 def _check(mesh: MeshSettings, settings) -> None:
@@ -261,6 +281,11 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
             stage = 0
             _write_text(out / "align.json", json.dumps({"vertices": np.asarray(v0).tolist(), "albedo": albedo,
                                                         "history": align_history, "seconds": align_s}) + "\n")
+            if carve_iterations(mesh):
+                v0, f0, albedo = _carve(out, capture, v0, f0, albedo, mesh, settings, bin_width_ps, end, log,
+                                        progress)
+                cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance)
+                model = _model(v0, f0, albedo, mesh, reg_scale)
             _write_stage(stage_file, 0, v0, f0, albedo, reg_scale)
             state = FitState(theta=model.initial().tolist())
         with progress_bar("fit mesh", settings.iterations,
@@ -292,6 +317,39 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
         log(f"fit mesh: {settings.iterations} iterations in {state.elapsed_s:.0f} s of optimisation "
             f"({fit_s:.0f} s in all); wrote {out}/fit.json, fitted.ply, start.ply, loss.png, fit.png, views.png")
         return result
+
+
+def _carve(out: Path, capture, v, f, albedo, mesh: MeshSettings, settings, bin_width_ps: float, end_ps: float, log,
+           progress: bool | None = None):
+    """The carving step (:mod:`~transient_mi.fit.mesh_carve`): the aligned mesh subdivided once, one reflectance per
+    face fitted to the counts with the geometry held, the dark faces dropped. Writes ``carve.json``; returns the
+    kept mesh and its reflectance (per face with ``reflectance="face"``, else the median of the kept faces')."""
+    from transient_core.progress import progress_bar
+
+    from .mesh_carve import drop_faces, fit_face_reflectance, keep_faces
+    from .mesh_start import subdivide
+    from .outputs import _write_text
+
+    t = time.perf_counter()
+    vs, fs = subdivide(np.asarray(v, dtype=np.float64), np.asarray(f))
+    start = np.broadcast_to(np.asarray(albedo, dtype=np.float64).ravel(), (len(f),))
+    capf = _capture_model(capture, vs, fs, settings, bin_width_ps, "face")
+    capf.keep_blur(end_ps)
+    n = carve_iterations(mesh)
+    with progress_bar("fit mesh: carve", n, disable=None if progress is None else not progress) as advance:
+        rho, history = fit_face_reflectance(capf, vs, np.repeat(start, 4), n, end_ps,
+                                            progress=lambda i, obj: advance(1))
+    del capf
+    keep = keep_faces(rho)
+    vk, fk = drop_faces(vs, fs, keep)
+    seconds = time.perf_counter() - t
+    _write_text(out / "carve.json", json.dumps({
+        "vertices": vk.tolist(), "faces": fk.tolist(), "subdivided_faces": int(len(fs)), "kept": int(keep.sum()),
+        "reflectance": rho.tolist(), "keep": keep.tolist(), "history": history, "seconds": seconds}) + "\n")
+    log(f"fit mesh: carved ({len(history) - 1} per-face reflectance iterations) in {seconds:.0f} s: "
+        f"{int(keep.sum())} of {len(fs)} faces kept")
+    kept = rho[keep]
+    return vk, fk, (kept if mesh.reflectance == "face" else float(np.median(kept)))
 
 
 def _nll(cap, v, f, albedo) -> float:
@@ -327,12 +385,20 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
     aligned = trimesh.Trimesh(vertices=np.asarray(align["vertices"]), faces=np.asarray(sf, dtype=np.int64),
                               process=False)
     write_ply(out / "aligned.ply", aligned.vertices, aligned.faces)
+    carve = json.loads((out / "carve.json").read_text()) if (out / "carve.json").is_file() else None
+    carved = None
+    if carve is not None:
+        carved = trimesh.Trimesh(vertices=np.asarray(carve["vertices"]),
+                                 faces=np.asarray(carve["faces"], dtype=np.int64), process=False)
+        write_ply(out / "carved.ply", carved.vertices, carved.faces)
     gt_mesh, _ = _ground_truth(manifest)
     metrics = {}
     if gt_mesh is not None:
         metrics = {"fit": mesh_metrics(fitted, rec_bp, gt_mesh), "start": mesh_metrics(start_mesh, rec_bp, gt_mesh),
                    "aligned": mesh_metrics(aligned, rec_bp, gt_mesh),
                    "backprojection": backprojection_metrics(rec_bp, gt_mesh)}
+        if carved is not None:
+            metrics["carved"] = mesh_metrics(carved, rec_bp, gt_mesh)
     _loss_figure(out / "loss.png", state)
     _front_figure(out / "fit.png", rec_bp, gt_mesh, fitted, metrics)
     three_view_figure(out / "views.png", [(sv, sf), (fitted.vertices, fitted.faces),
@@ -354,7 +420,11 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
                     "objective_end_blur": [h[3] for h in state.history]},
         "align": {"iterations": len(align["history"]), "albedo": align["albedo"],
                   "objective": [h[0] for h in align["history"]], "sigma_ps": [h[1] for h in align["history"]]},
-        "time_s": {"align": align["seconds"], "optimisation": state.elapsed_s, "total": fit_s},
+        "carve": None if carve is None else {"iterations": len(carve["history"]) - 1, "kept": carve["kept"],
+                                             "subdivided_faces": carve["subdivided_faces"],
+                                             "objective": [h[0] for h in carve["history"]]},
+        "time_s": {"align": align["seconds"], "carve": None if carve is None else carve["seconds"],
+                   "optimisation": state.elapsed_s, "total": fit_s},
         "bounds": list(_bounds_of(rec_bp)),
     }
     _write_text(out / "fit.json", json.dumps(result, indent=1) + "\n")
