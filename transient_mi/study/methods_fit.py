@@ -129,7 +129,7 @@ def fit_row(work: Path, ideal_dir: Path, params, exposure_s: float, seed: int, m
     tracemalloc.start()
     try:
         t0 = time.perf_counter()
-        mesh = _mesh_start(work, start) if model == "mesh" and start is not None else None
+        mesh = _mesh_start(work, start, settings.iterations) if model == "mesh" and start is not None else None
         res = fit_capture(counts, work / "fit", model=model, settings=settings, bin_width_ps=bw, progress=False,
                           log=lambda *a: None, mesh=mesh)
         dt = time.perf_counter() - t0
@@ -161,14 +161,16 @@ def mesh_reconstruction(path: Path, grid, method: str, params: dict):
     return Reconstruction(raw=occ, grid=grid, method=method, volume=occ, params=params)
 
 
-def _mesh_start(work: Path, rec):
+def _mesh_start(work: Path, rec, iterations: int):
     """The free mesh's settings (its defaults) with its start the front surface of ``rec`` at the default cell size,
-    written to ``work / "start_mesh.ply"``."""
+    written to ``work / "start_mesh.ply"``; its carving takes at most ``iterations`` steps, the fit's own count (a
+    small fit stays small)."""
     from recon.surface import write_ply
-    from transient_mi.fit.mesh_fit import MeshSettings
+    from transient_mi.fit.mesh_fit import MeshSettings, carve_iterations
     from transient_mi.fit.mesh_start import front_surface
 
     mesh = MeshSettings()
+    mesh = replace(mesh, carve=min(carve_iterations(mesh), int(iterations)))
     v, f = front_surface(np.asarray(rec.volume), rec.grid, mesh.cell_m)
     work.mkdir(parents=True, exist_ok=True)
     write_ply(work / "start_mesh.ply", v, f)
