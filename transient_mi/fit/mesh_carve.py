@@ -114,7 +114,7 @@ def fit_face_reflectance(cap, vertices: np.ndarray, rho0, iterations: int, sigma
                 break
             tau /= 2
         if new is None:
-            _state(cap, v, rho, sigma_ps)  # (the model left at the last accepted reflectances)
+            cap.set_mesh(v, rho)  # (the model left at the last accepted reflectances; no render needed)
             break
         rho, (ideal, factor, mu, obj, resid) = new
         history.append([obj, tau, time.perf_counter() - t0])
