@@ -9,12 +9,12 @@ starts from ``arms_down`` at the backprojection's centroid and runs with its def
 time, the joint-angle, position, height and reflectance errors, the metrics against the true mesh (and the
 backprojection's on the same grid) and the Poisson NLL of the counts under start and fit.
 
-Targets (issue 14): joint angles within 5 degrees, position within 1 cm, Chamfer <= 0.7 cm, IoU >= 0.6, in
-<= 10 minutes on 2 cores.
+Targets: joint angles within 5 degrees, position within 1 cm, Chamfer <= 0.7 cm (issue 14), IoU >= 0.9 in
+<= 60 s on 2 cores (issue 27: the deterministic forward model; issue 14 asked IoU >= 0.6 in 10 minutes).
 
     python bench/bench_fit.py --save          # capture (cached in --work) + fit; bench/results/fit.json
     python bench/bench_fit.py --array 8 --iterations 40    # quick look
-    python bench/bench_fit.py --array 8 --iterations 40 --estimator quadrature    # the deterministic forward model
+    python bench/bench_fit.py --estimator monte_carlo --save-as fit_adam.json   # Monte Carlo and Adam (300 iterations)
 """
 
 from __future__ import annotations
@@ -65,6 +65,7 @@ def main() -> None:
     ap.add_argument("--array", type=int, default=32)
     ap.add_argument("--iterations", type=int, default=None, help="default: the fit command's")
     ap.add_argument("--estimator", default=None, help="the fit's forward model (default: the fit command's)")
+    ap.add_argument("--optimizer", default=None, help="the fit's optimiser (default: the fit command's)")
     ap.add_argument("--work", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "transient-mi-bench-fit",
                     help="where the capture is cached and the fit written")
     ap.add_argument("--figure", type=Path, default=None, help="also copy the fit's fit.png here")
@@ -80,6 +81,8 @@ def main() -> None:
     kw = {} if a.iterations is None else {"iterations": a.iterations}
     if a.estimator is not None:
         kw["estimator"] = a.estimator
+    if a.optimizer is not None:
+        kw["optimizer"] = a.optimizer
     settings = FitSettings(**kw)
     t0 = time.perf_counter()
     res = fit_capture(counts, out, settings=settings, overwrite=True, progress=False, log=lambda *x: None)
@@ -89,11 +92,13 @@ def main() -> None:
     result = {
         "capture": {"array": a.array, "spots": 4, **meta},
         "settings": res["config"]["settings"], "bin_width_ps": res["config"]["bin_width_ps"],
-        "estimator": res["estimator"],
+        "estimator": res["estimator"], "optimizer": res.get("optimizer"),
         "fit_wall_s": wall, "optimisation_s": res["time_s"]["optimisation"], "process_cpu_s": cpu,
         "parameters": res["parameters"], "poisson_nll": res["poisson_nll"], "metrics": m,
-        "targets": {"joint_error_max_deg": 5.0, "position_error_m": 0.01, "chamfer_m": 0.007, "iou": 0.6,
-                    "fit_wall_s": 600.0},
+        # issue 27's (the deterministic forward model): 60 s, IoU >= 0.9, joints within 5 degrees; issue 14's
+        # position and Chamfer
+        "targets": {"joint_error_max_deg": 5.0, "position_error_m": 0.01, "chamfer_m": 0.007, "iou": 0.9,
+                    "fit_wall_s": 60.0},
     }
     print(json.dumps({"fit_wall_s": round(wall, 1), "joint_error_max_deg": m.get("joint_error_max_deg"),
                       "position_error_m": m.get("position_error_m"), "fit": m.get("fit"),

@@ -62,13 +62,14 @@ display(Image(filename=str(png)))
 #
 # `fit_capture` is what `transient-mi fit COUNTS -o OUT --model mannequin` runs: it starts from the
 # paper's `arms_down` pose at the backprojection's centroid and descends the objective (the Gaussian
-# approximation of the Poisson likelihood, coarse to fine in time). It writes `fit.json`,
-# `fitted.ply`, `loss.png` and `fit.png`.
+# approximation of the Poisson likelihood, coarse to fine in time) by Gauss-Newton steps on the deterministic
+# three-bounce estimator (`--estimator monte_carlo` switches to Adam on Monte Carlo derivatives). It writes
+# `fit.json`, `fitted.ply`, `loss.png` and `fit.png`.
 
 # %%
 from transient_mi.fit import FitSettings, fit_capture
 
-result = fit_capture(counts, OUT / "fit", settings=FitSettings(iterations=25 if SMALL else 150), progress=False)
+result = fit_capture(counts, OUT / "fit", settings=FitSettings(iterations=3 if SMALL else None), progress=False)
 m = result["metrics"]
 print(f"joint angles within {m['joint_error_max_deg']:.1f} deg (mean {m['joint_error_mean_deg']:.1f}), "
       f"position within {100 * m['position_error_m']:.2f} cm")
@@ -81,6 +82,7 @@ display(Image(filename=str(OUT / "fit" / "fit.png")))
 display(Image(filename=str(OUT / "fit" / "loss.png")))
 
 # %% [markdown]
-# On small settings (the test suite) the fit runs a few iterations only; with the full settings (150
-# iterations on a 16 x 16 array, a few minutes on 2 cores) the joint angles come within a few degrees.
+# On small settings (the test suite) the fit runs a few iterations only; with the full settings (the fit's
+# default 16 Gauss-Newton iterations on every 2nd pixel of the 16 x 16 array) the joint angles come within a few
+# degrees.
 # The paper's 32 x 32 capture: `python bench/bench_fit.py` and `docs/fit.md`.

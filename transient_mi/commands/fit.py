@@ -20,8 +20,11 @@ def fit_command(
     model: str = typer.Option("mannequin", "--model", help="mannequin (joint angles, position, rotation, height, "
                                                           "reflectance), patches (square patches) or mesh (a free "
                                                           "mesh: any shape)."),
-    iterations: int = typer.Option(300, "--iterations", parser=whole_number("--iterations"), metavar="<int>",
-                                   help="Adam iterations."),
+    iterations: int = typer.Option(None, "--iterations", parser=whole_number("--iterations"), metavar="<int>",
+                                   help="The optimiser's iterations (default: 16 with Gauss-Newton, 300 with Adam)."),
+    optimizer: str = typer.Option("auto", "--optimizer", help="gauss_newton (Levenberg-Marquardt: deterministic "
+                                  "forward model only), adam, or auto (gauss_newton with the quadrature, adam with "
+                                  "Monte Carlo). --model mesh has its own (Adam on the vertices)."),
     spp: int = typer.Option(0, "--spp", parser=whole_number("--spp"), metavar="<int>",
                             help="Samples per pixel of the derivative render per iteration (0: 8192 per laser spot "
                                  "spread over the pixels, 4 to 64: 32 at 16x16, 8 at 32x32)."),
@@ -36,9 +39,9 @@ def fit_command(
     patches: int = typer.Option(3, "--patches", parser=whole_number("--patches"), metavar="<int>",
                                 help="--model patches: how many."),
     patch_side_m: float = typer.Option(0.2, "--patch-side-m", help="--model patches: side of each patch, metres."),
-    estimator: str = typer.Option("monte_carlo", "--estimator", help="Forward model: monte_carlo, quadrature "
-                                  "(deterministic; slower per iteration, see docs/fit.md), or auto (the quadrature "
-                                  "where the scene allows it)."),
+    estimator: str = typer.Option("auto", "--estimator", help="Forward model: quadrature (deterministic), "
+                                  "monte_carlo, or auto (the quadrature where the scene allows it, see "
+                                  "docs/fit.md)."),
     element_size_m: float = typer.Option(0.03, "--element-size-m", help="--estimator quadrature: element size "
                                          "at the end (twice as large for the first half of the iterations), m."),
     start: str = typer.Option("front", "--start", help="--model mesh: start from the backprojection's front surface "
@@ -68,12 +71,13 @@ def fit_command(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier fit in OUT."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress."),
 ) -> None:
-    """Fit a parametric model of the hidden object to detected counts, by gradient descent through the
-    differentiable renderer and the detector model (see docs/fit.md)."""
+    """Fit a parametric model of the hidden object to detected counts through the renderer and the detector model:
+    Gauss-Newton on the deterministic quadrature, or Adam on its derivatives (see docs/fit.md)."""
     from transient_mi.fit import FitSettings, fit_capture
 
     settings = FitSettings(iterations=iterations, spp=spp, spp_residual=spp_residual, sigma_start_ps=sigma_start_ps,
-                           sigma_end_ps=sigma_end_ps, seed=seed, estimator=estimator, element_size_m=element_size_m)
+                           sigma_end_ps=sigma_end_ps, seed=seed, estimator=estimator, element_size_m=element_size_m,
+                           optimizer=optimizer)
     from transient_mi.fit.mesh_fit import MeshSettings, check_mesh_options
 
     mesh = MeshSettings(start=start, start_mesh=None if start_mesh is None else str(start_mesh), cell_m=cell_m,

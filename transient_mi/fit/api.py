@@ -37,7 +37,7 @@ from transient_core.lock import output_lock
 
 from .optimize import FitSettings, FitState, run_adam
 from .outputs import (_backprojection, _bounds, _front_figure, _ground_truth, _loss_figure, _write_text,
-                      backprojection_metrics, claim_output, mesh_metrics)
+                      backprojection_metrics, claim_output, fit_bins_capture, mesh_metrics)
 
 __all__ = ["fit_capture", "FitSettings"]
 
@@ -49,7 +49,12 @@ def _check_settings(model: str, settings: FitSettings, n_patches: int, patch_sid
 
     if model not in MODELS:
         raise UserInputError(f"--model {model!r} is not known; allowed: {', '.join(MODELS)}")
-    for name, v, lo in (("iterations", settings.iterations, 1), ("spp", settings.spp, 0),
+    from .optimize import OPTIMIZERS
+
+    if settings.optimizer not in OPTIMIZERS:
+        raise UserInputError(f"optimizer={settings.optimizer!r}: expected {', '.join(OPTIMIZERS)}")
+    iters = settings.n_iterations("adam")
+    for name, v, lo in (("iterations", iters, 1), ("spp", settings.spp, 0),
                         ("spp_residual", settings.spp_residual, 0), ("checkpoint_every", settings.checkpoint_every, 1)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
             raise UserInputError(f"{name}={v!r}: expected a whole number >= {lo}")
@@ -106,7 +111,7 @@ def _fitted_mesh(model, theta):
 
 
 def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSettings | None = None,
-                bin_width_ps: float = 10.0, n_patches: int = 3, patch_side_m: float = 0.2, detail: int = 20,
+                bin_width_ps: float = 10.0, n_patches: int = 3, patch_side_m: float = 0.2, detail: int | None = None,
                 resume: bool = False, overwrite: bool = False, progress: bool | None = None, log=print,
                 mesh=None) -> dict:
     """Fit a model of the hidden scene to a counts capture; returns the content of ``fit.json``.
@@ -126,8 +131,9 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
         The fit's time bins (a whole multiple of the capture's), ps.
     n_patches, patch_side_m : int, float
         ``patches``: how many, and their side (m).
-    detail : int
-        ``mannequin``: tessellation of the twin (as ``transient-mi mannequin --detail``).
+    detail : int, optional
+        ``mannequin``: tessellation of the twin (as ``transient-mi mannequin --detail``; default 20 with Adam,
+        :data:`~transient_mi.fit.gauss_newton.GN_DETAIL` with Gauss-Newton).
     resume : bool
         Continue from ``out_dir/checkpoint.json`` (same capture and settings).
     overwrite : bool
@@ -138,9 +144,6 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
     """
     from transient_core.progress import progress_bar
     from transient_core.stack import read_manifest
-
-    from .capture_model import FIT_QUADRATURE, CaptureModel
-    from .models import MannequinModel, PatchesModel
 
     settings = settings or FitSettings()
     _check_settings(model, settings, n_patches, patch_side_m)
@@ -155,18 +158,24 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise UserInputError(f"-o {out}: exists and is not a directory")
+    if detail is not None and not (isinstance(detail, (int, np.integer)) and 8 <= detail <= 64):
+        raise UserInputError(f"detail={detail!r}: expected a whole number of segments from 8 to 64")
     config = {"capture": str(capture.resolve()), "model": model, "settings": asdict(settings),
               "bin_width_ps": float(bin_width_ps), "n_patches": int(n_patches), "patch_side_m": float(patch_side_m),
-              "detail": int(detail)}
+              "detail": None if detail is None else int(detail)}
     with output_lock(out):
         existing = claim_output(out, config, resume, overwrite)
         t_start = time.perf_counter()
         manifest = read_manifest(capture)
-        mdl = MannequinModel(detail) if model == "mannequin" else PatchesModel(n_patches, patch_side_m)
-        cap = CaptureModel(capture, mdl.faces, mdl.n_vertices, bin_width_ps=bin_width_ps,
-                           estimator=settings.estimator, element_size_m=settings.element_size_m, **FIT_QUADRATURE)
+        binned = fit_bins_capture(capture, bin_width_ps)  # (read once: the forward model's counts, backprojected)
+        shared = (binned.data if binned.processing and binned.bin_width_ps == float(bin_width_ps)
+                  and not manifest.get("channels") else None)  # (in memory only when summed into fewer bins)
+        mdl, cap, optimizer = _forward_model(capture, manifest, model, settings, bin_width_ps, n_patches,
+                                             patch_side_m, detail, shared)
+        n_iter = settings.n_iterations(optimizer)
         bounds = _bounds(manifest)
-        rec_bp = _backprojection(capture, bounds)
+        rec_bp = _backprojection(binned, bounds)
+        del binned, shared
         # (everything checked: only now is anything written)
         if existing and overwrite and not resume:
             for name in _OUTPUTS + ("start.json",):
@@ -185,18 +194,60 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
             _write_text(out / "start.json", json.dumps({"theta": theta0.tolist()}) + "\n")
             _write_text(out / "config.json", json.dumps(config, indent=1) + "\n")
             state = FitState(theta=theta0.tolist())
-        with progress_bar(f"fit {model}", settings.iterations,
+        with progress_bar(f"fit {model} ({optimizer.replace('_', '-')})", n_iter,
                           disable=None if progress is None else not progress) as advance:
             if state.iteration:
                 advance(state.iteration)
-            run_adam(mdl, cap, state, settings, progress=lambda i, n, obj: advance(1),
-                     checkpoint=lambda s: s.save(ckpt))
+            if optimizer == "gauss_newton":
+                from .gauss_newton import run_gauss_newton
+
+                run_gauss_newton(mdl, cap, state, settings, n_iter, progress=lambda i, n, obj: advance(1),
+                                 checkpoint=lambda s: s.save(ckpt))
+            else:
+                run_adam(mdl, cap, state, settings, progress=lambda i, n, obj: advance(1),
+                         checkpoint=lambda s: s.save(ckpt))
         fit_s = time.perf_counter() - t_start
         theta = state.result()
-        result = _finish(out, mdl, cap, manifest, rec_bp, theta0, theta, state, settings, config, fit_s)
-        log(f"fit {model}: {settings.iterations} iterations in {state.elapsed_s:.0f} s of optimisation "
+        result = _finish(out, mdl, cap, manifest, rec_bp, theta0, theta, state, settings, config, fit_s, optimizer)
+        log(f"fit {model}: {n_iter} iterations ({optimizer}) in {state.elapsed_s:.0f} s of optimisation "
             f"({fit_s:.0f} s in all); wrote {out}/fit.json, fitted.ply, loss.png, fit.png")
         return result
+
+
+def _forward_model(capture: Path, manifest: dict, model: str, settings: FitSettings, bin_width_ps: float,
+                   n_patches: int, patch_side_m: float, detail: int | None, counts=None):
+    """``(model, CaptureModel, optimizer)``: the optimiser (``auto``: Gauss-Newton with the quadrature, Adam with
+    Monte Carlo) and what it needs: with Gauss-Newton the twin at :data:`~.gauss_newton.GN_DETAIL` and every
+    :func:`~.gauss_newton.pixel_step`-th pixel; with Adam the twin at detail 20 and every pixel. With ``auto``
+    Gauss-Newton is assumed first (the quadrature is the default forward model); a capture the quadrature cannot
+    render is then set up again for Adam. ``counts``: the capture's counts in the fit's bins, ``[G, H, W, T]``, if
+    already read (:func:`~.outputs.fit_bins_capture`)."""
+    from .capture_model import FIT_QUADRATURE, CaptureModel
+    from .gauss_newton import GN_DETAIL, pixel_step
+    from .models import MannequinModel, PatchesModel
+
+    def build(optimizer: str):
+        gn = optimizer == "gauss_newton"
+        mdl = (MannequinModel(detail if detail is not None else (GN_DETAIL if gn else 20)) if model == "mannequin"
+               else PatchesModel(n_patches, patch_side_m))
+        step = pixel_step(int(manifest["width"]), int(manifest["height"])) if gn else 1
+        cap = CaptureModel(capture, mdl.faces, mdl.n_vertices, bin_width_ps=bin_width_ps,
+                           estimator=settings.estimator, element_size_m=settings.element_size_m, pixel_step=step,
+                           counts=counts, **FIT_QUADRATURE)
+        return mdl, cap
+
+    if settings.optimizer == "adam" or settings.estimator == "monte_carlo":
+        if settings.optimizer == "gauss_newton":
+            raise UserInputError("optimizer=gauss_newton needs the deterministic forward model (estimator quadrature "
+                                 "or auto); with estimator=monte_carlo use optimizer adam or auto")
+        return (*build("adam"), "adam")
+    mdl, cap = build("gauss_newton")
+    if cap.estimator == "quadrature":
+        return mdl, cap, "gauss_newton"
+    if settings.optimizer == "gauss_newton":
+        raise UserInputError(f"optimizer=gauss_newton needs the deterministic forward model, and the capture's scene "
+                             f"cannot be rendered by it: {cap.estimator_reason}; use optimizer adam or auto")
+    return (*build("adam"), "adam")  # (auto, a scene the quadrature cannot render: Monte Carlo and Adam)
 
 
 def _match_brightness(mdl, cap, theta0: np.ndarray, settings: FitSettings) -> np.ndarray:
@@ -214,7 +265,7 @@ def _match_brightness(mdl, cap, theta0: np.ndarray, settings: FitSettings) -> np
     return theta
 
 
-def _finish(out, mdl, cap, manifest, rec_bp, theta0, theta, state, settings, config, fit_s) -> dict:
+def _finish(out, mdl, cap, manifest, rec_bp, theta0, theta, state, settings, config, fit_s, optimizer) -> dict:
     from transient_mi.scenes._ply import write_ply
 
     from .optimize import resolve_spp
@@ -250,8 +301,12 @@ def _finish(out, mdl, cap, manifest, rec_bp, theta0, theta, state, settings, con
         "estimator": {"requested": settings.estimator, "used": cap.estimator, "why_not_quadrature":
                       cap.estimator_reason, "element_size_m": cap.element_size_m if cap.estimator == "quadrature"
                       else None},
+        "optimizer": {"requested": settings.optimizer, "used": optimizer,
+                      "iterations": settings.n_iterations(optimizer),
+                      "detail": getattr(getattr(mdl, "twin", None), "detail", None),
+                      "pixel_step": cap.pixel_step, "pixels_used": [cap.height, cap.width]},
         "poisson_nll": {**nll, "spp": spp_eval if cap.estimator == "monte_carlo" else None,
-                        "counts": float(cap.counts.sum())},
+                        "counts": float(cap.counts.sum()), "pixel_step": cap.pixel_step},
         "metrics": metrics,
         "history": {"objective": [h[0] for h in state.history], "sigma_ps": [h[1] for h in state.history],
                     "seconds": [h[2] for h in state.history],

@@ -89,6 +89,12 @@ class CaptureModel:
     patch_cells, error_estimate : int, bool
         The quadrature's cells per pixel patch side, and whether its renders integrate the error estimate's levels
         (:data:`FIT_QUADRATURE`: the models' fits' choice).
+    pixel_step : int
+        Fit every ``pixel_step``-th pixel along each axis (pixel ``pixel_step * j + pixel_offset``; the others are not
+        rendered or compared; 1: all). ``width``, ``height`` and ``counts`` are then those of the pixels kept.
+    counts : numpy.ndarray, optional
+        The capture's counts already summed into the fit's bins, ``[G, H, W, T]`` (the capture's pixels; default:
+        read from ``capture_dir``).
     reflectance : str
         ``global``: one diffuse reflectance for the model mesh; ``face``: one per face (the mesh's face attribute
         ``face_reflectance`` through a ``mesh_attribute`` texture; :meth:`set_mesh` takes ``[F]`` values and
@@ -104,8 +110,11 @@ class CaptureModel:
     def __init__(self, capture_dir, faces: np.ndarray, n_vertices: int, *, bin_width_ps: float = 10.0,
                  albedo=0.5, estimator: str = "auto", element_size_m: float = 0.03,
                  dead_time: str = "first_order", patch_cells: int = 2, error_estimate: bool = True,
-                 reflectance: str = "global"):
+                 reflectance: str = "global", pixel_step: int = 1, counts: np.ndarray | None = None):
         self.capture_dir = Path(capture_dir)
+        if not (isinstance(pixel_step, (int, np.integer)) and 1 <= pixel_step <= 16):
+            raise ValueError(f"pixel_step={pixel_step!r}: expected a whole number from 1 to 16")
+        self.pixel_step = int(pixel_step)
         if dead_time not in ("first_order", "renewal"):
             raise ValueError(f"dead_time={dead_time!r}: expected first_order or renewal")
         #: ``first_order``: the factor of :meth:`dead_time_factor`, held constant in the gradient (the model fits);
@@ -139,12 +148,26 @@ class CaptureModel:
         self.bin_width_ps = float(bin_width_ps)
         self.t0_ps = float(t["t0_ps"])
         self.n_bins = int(t["n_bins"]) // self.factor
-        self.width, self.height = int(m["width"]), int(m["height"])
+        width, height = int(m["width"]), int(m["height"])
+        s = self.pixel_step
+        if width % s or height % s:
+            raise ValueError(f"pixel_step={s}: must divide the capture's {width} x {height} pixels")
+        #: Index of the pixel each ``pixel_step`` x ``pixel_step`` block keeps (the same along x and y).
+        self.pixel_offset = (s - 1) // 2
+        self.width, self.height = width // s, height // s
         self.n_spots = int(m.get("n_files", 1))
         G, P, T = self.n_spots, self.width * self.height, self.n_bins
+        o = self.pixel_offset
+        given = counts
+        if given is not None and np.shape(given) != (G, height, width, T):
+            raise ValueError(f"counts of shape {np.shape(given)}: expected {(G, height, width, T)} (the capture's in "
+                             "the fit's bins)")
         counts = np.zeros((G, P, T))
         for g in range(G):
-            c = read_spot(self.capture_dir, g, m).astype(np.float64).reshape(P, -1)
+            if given is not None:
+                counts[g] = np.asarray(given[g], dtype=np.float64)[o::s, o::s].reshape(P, T)
+                continue
+            c = read_spot(self.capture_dir, g, m).astype(np.float64).reshape(height, width, -1)[o::s, o::s]
             counts[g] = c.reshape(P, T, self.factor).sum(axis=-1)
         self.counts = counts
         held = counts[counts >= 1]
@@ -261,6 +284,8 @@ class CaptureModel:
         from transient_mi.sensors._nlos_setup import RELAY_WALL_ID
 
         wall = [s for s in src.shapes() if s.id() == RELAY_WALL_ID]
+        if self.pixel_step > 1:
+            sensor = self._subsampled_sensor(sensor)
         if not wall:
             raise UserInputError(f"capture {str(self.capture_dir)!r}: its scene has no shape with id {RELAY_WALL_ID}")
         self.mesh = mi.Mesh("model", int(n_vertices), len(faces), has_vertex_normals=False,
@@ -286,6 +311,34 @@ class CaptureModel:
         self.rkey = (f"model.{FACE_REFLECTANCE}" if self.reflectance == "face" else
                      [k for k in self.params.keys() if k.startswith("model.bsdf.reflectance")][0])
         self.spots = list(range(self.n_spots)) if self.manifest["capture"] == "array" else [0]
+
+    def _subsampled_sensor(self, sensor):
+        """A ``spad_array`` of every ``pixel_step``-th pixel of ``sensor`` (pixel ``(s j + o, s i + o)`` of the
+        capture, ``o = pixel_offset``): the same footprints, detector, aperture and options, ``pixel_step`` times
+        the pitch; its grid's centre moved in the wall plane so that its patches are the capture's own (the
+        ``target``, at which the aperture points, kept). What it renders is those pixels of the capture exactly."""
+        from transient_mi.wall import WallFrame
+
+        f, s = sensor.film(), self.pixel_step
+        if f.spectral_bands_nm:
+            raise UserInputError(f"capture {str(self.capture_dir)!r}: a fit on every {s}th pixel of a capture with "
+                                 "spectral bands is not supported")
+        film = {"type": "transient_film", "width": self.width, "height": self.height, "n_bins": int(f.n_bins),
+                "bin_width_ps": float(f.bin_width_ps), "t0_ps": float(f.t0_ps),
+                "kernel_sigma_ps": float(f.kernel_sigma_ps)}
+        pt = lambda a: mi.ScalarPoint3f(*map(float, a))  # noqa: E731
+        new = mi.load_dict({
+            "type": "spad_array", "origin": pt(sensor.origin), "target": pt(sensor.target),
+            "wall_normal": mi.ScalarVector3f(*map(float, sensor.frame.normal)),
+            "pixel_footprint_m": float(sensor.pixel_footprint_m), "pixel_pitch_m": s * float(sensor.pixel_pitch_m),
+            "aperture_diameter_m": float(sensor.aperture_diameter_m), "capture": sensor.capture,
+            "include_first_last": bool(sensor.include_first_last),
+            "include_wall_return": bool(sensor.include_wall_return), "pixel_sampling": sensor.pixel_sampling,
+            "film": film, "sampler": {"type": "independent", "sample_count": 1}})
+        shift = (self.pixel_offset - 0.5 * (s - 1)) * float(sensor.pixel_pitch_m)
+        fr = sensor.frame
+        new.frame = WallFrame(fr.origin + shift * (fr.ex + fr.ey), fr.normal, fr.ex, fr.ey)
+        return new
 
     def _choose_estimator(self, requested: str, element_size_m: float, patch_cells: int,
                           error_estimate: bool) -> None:

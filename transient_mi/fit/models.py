@@ -70,6 +70,8 @@ class MannequinModel:
         self.upper = np.array(hi + [2.0, 2.0, 5.0, 180.0, 3.0, 1.0])
         #: Adam step sizes (per iteration, parameter units).
         self.step = np.array([1.5] * len(JOINTS) + [0.004, 0.004, 0.004, 1.0, 0.004, 0.01])
+        #: Gauss-Newton's forward-difference steps (parameter units).
+        self.fd_step = np.array([1.0] * len(JOINTS) + [0.003, 0.003, 0.003, 1.0, 0.003, 0.01])
 
     def initial(self, position, height_m: float = 0.70, width_m: float = 0.60, albedo: float = 0.5) -> np.ndarray:
         """``arms_down`` at ``position`` (the rest angle of ``width_m``), facing the wall."""
@@ -125,6 +127,7 @@ class PatchesModel:
         self.lower = np.array([-2.0, -2.0, 0.05, -80.0, -80.0] * self.K + [0.01])
         self.upper = np.array([2.0, 2.0, 5.0, 80.0, 80.0] * self.K + [1.0])
         self.step = np.array([0.004, 0.004, 0.004, 1.0, 1.0] * self.K + [0.01])
+        self.fd_step = np.array([0.003, 0.003, 0.003, 1.0, 1.0] * self.K + [0.01])
 
     def initial(self, centres, albedo: float = 0.5) -> np.ndarray:
         c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)

@@ -129,14 +129,15 @@ def fit_row(work: Path, ideal_dir: Path, params, exposure_s: float, seed: int, m
     tracemalloc.start()
     try:
         t0 = time.perf_counter()
-        mesh = _mesh_start(work, start, settings.iterations) if model == "mesh" and start is not None else None
+        mesh = (_mesh_start(work, start, settings.n_iterations("adam")) if model == "mesh" and start is not None
+                else None)
         res = fit_capture(counts, work / "fit", model=model, settings=settings, bin_width_ps=bw, progress=False,
                           log=lambda *a: None, mesh=mesh)
         dt = time.perf_counter() - t0
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-    iterations = res["config"]["settings"]["iterations"]
+    iterations = (res.get("optimizer") or {}).get("iterations") or res["config"]["settings"]["iterations"]
     rec = mesh_reconstruction(work / "fit" / "fitted.ply", grid, FIT_PREFIX + model,
                               {"fit": {"model": model, "iterations": iterations, "bin_width_ps": bw}})
     metrics = score(rec, gt, 0)
