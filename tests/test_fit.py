@@ -337,3 +337,32 @@ def test_gauss_newton_needs_the_deterministic_forward_model(capture, tmp_path):
         fit_capture(capture, tmp_path / "fit", model="patches", n_patches=1, progress=False,
                     settings=FitSettings(optimizer="newton"))
     assert not (tmp_path / "fit").exists() or not any((tmp_path / "fit").iterdir())
+
+
+def test_every_other_pixel_of_a_confocal_capture_keeps_its_own_laser_spots(tmp_path):
+    """Confocal: the laser is aimed at each pixel's own patch, so the pixels kept by ``pixel_step=2`` keep their
+    spots; the render of those pixels equals the full confocal render at them (0.5 % of a pixel's light, as above)."""
+    from spad_detector import detect_stack
+    from transient_mi.paper import paper_detector
+    from transient_mi.render_capture import render
+    from transient_mi.scenes import scene_path
+
+    ideal = render(scene_path("nlos_tilted_plane"), tmp_path / "ideal", spp=64, progress=False,
+                   defines={"width": "8", "height": "8", "capture": "confocal", "pixel_footprint_m": "0.01",
+                            "aperture_diameter_m": "0.002", "n_bins": "400", "bin_width_ps": "16", "t0_ps": "9000",
+                            "estimator": "monte_carlo"})
+    counts = detect_stack(ideal, tmp_path / "counts", paper_detector(), exposure_s=0.01, seed=0, progress=False)
+    model = PatchesModel(1, 0.4)
+    theta = np.array([0.0, 0.0, 0.5, 30.0, 0.0, 0.8])
+    caps = [CaptureModel(counts, model.faces, model.n_vertices, bin_width_ps=16.0, estimator="quadrature",
+                         pixel_step=s, **FIT_QUADRATURE) for s in (1, 2)]
+    renders = []
+    for c in caps:
+        c.set_mesh(model.vertices(theta), 0.8)
+        renders.append(c.ideal(0, 1, c.jitter_sigma_ps))
+    T = caps[0].n_bins
+    sub = renders[0].reshape(1, 8, 8, T)[:, 0::2, 0::2].reshape(1, 16, T)
+    np.testing.assert_array_equal(caps[1].counts, caps[0].counts.reshape(1, 8, 8, T)[:, 0::2, 0::2].reshape(1, 16, T))
+    assert sub.sum() > 0 and renders[1].shape == (1, 16, T)
+    rel = np.abs(renders[1] - sub).sum(axis=-1) / sub.sum(axis=-1)
+    assert rel.max() < 5e-3, rel.max()

@@ -85,8 +85,8 @@ def element_size_m(stage: int, n_stages: int, size_m: float) -> float:
 
     The twin's faces, not the elements, carry its shape (each face is at least one element; at
     :data:`GN_DETAIL` most faces of the limbs are smaller than 6 cm), so elements this coarse only split its large
-    faces less finely; on the demo's capture 6 cm at the end fitted the joints within 1.1 degrees, where 3 cm took
-    a third longer (``bench/bench_fit.py``)."""
+    faces less finely. On the demo's capture 12 and 6 cm fitted the joints within 1.6 degrees in 41 s
+    (``bench/results/fit.json``); 6 and 3 cm within 1.6 degrees in 60 s (a scratch run of the same code)."""
     return (4.0 if stage == 0 and n_stages > 1 else 2.0) * float(size_m)
 
 
@@ -139,7 +139,7 @@ def run_gauss_newton(model, capture, state, settings, n: int, *, progress=None, 
             del J
             d = np.diag(A).copy()
             d[~(d > 0)] = 1.0
-            accepted = False
+            accepted = small = False
             for _ in range(MAX_TRIES):
                 delta = -np.linalg.solve(A + lam * np.diag(d), g)
                 scale = float(np.max(np.abs(delta) / limit))
