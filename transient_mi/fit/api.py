@@ -2,12 +2,15 @@
 
 1. Backprojection of the counts (the paper's filter) gives the starting position (and, for
    ``--model patches``, the patches' centres: the strongest regions of the volume).
-2. Adam on the objective of :mod:`transient_mi.fit.capture_model` (:mod:`transient_mi.fit.optimize`),
-   with a checkpoint every few iterations (``--resume`` continues from it).
+2. The objective of :mod:`transient_mi.fit.capture_model` minimised by Gauss-Newton steps on the deterministic
+   quadrature (:mod:`transient_mi.fit.gauss_newton`; the default wherever the capture's scene allows the
+   quadrature) or by Adam (:mod:`transient_mi.fit.optimize`; with Monte Carlo), with checkpoints (``--resume``
+   continues from them).
 3. Outputs in the output directory (each file written atomically, ``fit.json`` last):
 
    ``fit.json``       parameters (start, fitted, truth where known), settings, the estimator used (the
-                      quadrature where the scene allows it, else Monte Carlo, and why), the objective per
+                      quadrature where the scene allows it, else Monte Carlo, and why) and the optimiser (with
+                      the pixels and the twin's detail it used), the objective per
                       iteration, time, the Poisson NLL of the counts under the start and the fit, metrics
    ``fitted.ply``     the fitted mesh (the mannequin as ``transient-mi mannequin`` builds it: watertight)
    ``loss.png``       the objective per iteration and the temporal blur
