@@ -101,7 +101,7 @@ GENERATORS = {
     "dataset_docs_table": (dataset_docs_table, ["dataset_dataset_example"], False),
     "dataset_noise_standard": (dataset_noise_standard_table, list(DATASET_NT), False),
     "gradient": (gradient_para, ["gradient"], False),
-    "fit": (fit_para, ["fit"], False),
+    "fit": (fit_para, ["fit", "fit_adam", "fit_16", "fit_8"], False),
     "fit_quadrature_cost": (fit_quadrature_cost_table, ["fit_quadrature_cost_32"], False),
     "front_limit": (front_limit_inline, ["front_surface_limit"], True),
     "completion_limit": (completion_limit_inline, ["front_surface_limit"], True),

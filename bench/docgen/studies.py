@@ -166,7 +166,27 @@ def fit_para(R) -> str:
             f"{cap['defines']['rotation']} degrees, {cap['defines']['distance']} m from the wall); the fit ran with its "
             f"defaults ({_fit_method(r, names)}):\n\n" + head + body
             + f"\n\nPoisson NLL of the counts{_nll_pixels(r)}: {r['poisson_nll']['start']:.6g} at the start, "
-            f"{r['poisson_nll']['fit']:.6g} fitted. {provenance(rec)}\n" + _fit_adam_line(R, names))
+            f"{r['poisson_nll']['fit']:.6g} fitted. {provenance(rec)}\n" + _fit_arrays_line(R) + _fit_adam_line(R, names))
+
+
+def _fit_arrays_line(R) -> str:
+    """The same pose and defaults on smaller arrays (``bench_fit.py --array N``), where recorded."""
+    parts = []
+    for n in (16, 8):
+        try:
+            rec = R(f"fit_{n}")
+        except Missing:
+            continue
+        r = rec["result"]
+        m, o = r["metrics"], r.get("optimizer") or {}
+        step = int(o.get("pixel_step", 1))
+        h, w = o.get("pixels_used", (n, n))
+        which = "every pixel" if step == 1 else f"every {_ordinal(step)} pixel along each axis"
+        parts.append(f"{n}x{n} array ({which}: {h} x {w}): {r['fit_wall_s']:.0f} s, joint angles within "
+                     f"{m['joint_error_max_deg']:.1f} deg, body centre within {100 * m['position_error_m']:.2f} cm, "
+                     f"occupancy IoU {m['fit']['iou']:.2f} ({provenance(rec, short=True)})")
+    return ("\nThe same pose with the same defaults on smaller arrays (`python bench/bench_fit.py --array N --save`): "
+            + "; ".join(parts) + ".\n") if parts else ""
 
 
 def _fit_method(r: dict, names: dict) -> str:
@@ -175,9 +195,14 @@ def _fit_method(r: dict, names: dict) -> str:
     est = names[r["estimator"]["used"]] if r.get("estimator") else "Monte Carlo"
     if o["used"] == "gauss_newton":
         h, w = o["pixels_used"]
-        return (f"Gauss-Newton, {o['iterations']} iterations, forward model: {est}, every {o['pixel_step']}th pixel "
-                f"along each axis ({h} x {w}), the twin at {o['detail']} segments")
+        which = "every pixel" if o["pixel_step"] == 1 else f"every {_ordinal(o['pixel_step'])} pixel along each axis"
+        return (f"Gauss-Newton, {o['iterations']} iterations, forward model: {est}, {which} ({h} x {w}), the twin at "
+                f"{o['detail']} segments")
     return f"Adam, {o['iterations']} iterations, forward model: {est}"
+
+
+def _ordinal(k: int) -> str:
+    return f"{k}{'th' if 10 <= k % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(k % 10, 'th')}"
 
 
 def _nll_pixels(r: dict) -> str:
