@@ -80,7 +80,8 @@ def main(argv=None) -> int:
         start_metrics = score(rec, gt, 0)
         t = read_manifest(counts)["time"]
         bw = fit_bin_width_ps(float(t["bin_width_ps"]), int(t["n_bins"]))
-        mesh = replace(_mesh_start(td / "fit_work", rec), align=a.align)
+        # (its carving capped at the iterations, as the methods study caps it)
+        mesh = replace(_mesh_start(td / "fit_work", rec, a.iterations), align=a.align)
         if a.start_shape == "closed":
             from recon.surface import write_ply
             from transient_mi.fit.mesh_start import closed_surface
