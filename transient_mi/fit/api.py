@@ -170,14 +170,17 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
         existing = claim_output(out, config, resume, overwrite)
         t_start = time.perf_counter()
         manifest = read_manifest(capture)
-        binned = fit_bins_capture(capture, bin_width_ps)  # (read once: the forward model's counts, backprojected)
-        shared = (binned.data if binned.processing and binned.bin_width_ps == float(bin_width_ps)
+        # (read once: the forward model's counts, backprojected; anything but an NLOS counts capture is refused by
+        # the forward model below, in its own words)
+        nlos_counts = manifest.get("kind") == "counts" and manifest.get("capture") in ("array", "confocal")
+        binned = fit_bins_capture(capture, bin_width_ps) if nlos_counts else None
+        shared = (binned.data if binned is not None and binned.processing and binned.bin_width_ps == float(bin_width_ps)
                   and not manifest.get("channels") else None)  # (in memory only when summed into fewer bins)
         mdl, cap, optimizer = _forward_model(capture, manifest, model, settings, bin_width_ps, n_patches,
                                              patch_side_m, detail, shared)
         n_iter = settings.n_iterations(optimizer)
         bounds = _bounds(manifest)
-        rec_bp = _backprojection(binned, bounds)
+        rec_bp = _backprojection(binned if binned is not None else capture, bounds)
         del binned, shared
         # (everything checked: only now is anything written)
         if existing and overwrite and not resume:
