@@ -173,9 +173,7 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
         # (read once: the forward model's counts, backprojected; anything but an NLOS counts capture is refused by
         # the forward model below, in its own words)
         nlos_counts = manifest.get("kind") == "counts" and manifest.get("capture") in ("array", "confocal")
-        binned = fit_bins_capture(capture, bin_width_ps) if nlos_counts else None
-        shared = (binned.data if binned is not None and binned.processing and binned.bin_width_ps == float(bin_width_ps)
-                  and not manifest.get("channels") else None)  # (in memory only when summed into fewer bins)
+        binned, shared = fit_bins_capture(capture, bin_width_ps) if nlos_counts else (None, None)
         mdl, cap, optimizer = _forward_model(capture, manifest, model, settings, bin_width_ps, n_patches,
                                              patch_side_m, detail, shared)
         n_iter = settings.n_iterations(optimizer)

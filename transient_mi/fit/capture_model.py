@@ -58,6 +58,16 @@ __all__ = ["CaptureModel"]
 FIT_QUADRATURE = {"patch_cells": 1, "error_estimate": False}
 
 
+def fit_bin_factor(bin_width_ps: float, capture_bin_width_ps: float, n_bins: int) -> int | None:
+    """How many of the capture's bins (``capture_bin_width_ps`` wide, ``n_bins`` of them) one of the fit's bins
+    (``bin_width_ps``) sums; None unless that is a whole number >= 1 that divides ``n_bins``."""
+    factor = float(bin_width_ps) / float(capture_bin_width_ps)
+    if not (math.isfinite(factor) and factor >= 1 and abs(factor - round(factor)) < 1e-9
+            and int(n_bins) % int(round(factor)) == 0):
+        return None
+    return int(round(factor))
+
+
 def _blur_time(x: np.ndarray, sigma_bins: float) -> np.ndarray:
     if sigma_bins <= 1e-3:
         return x
@@ -138,13 +148,12 @@ class CaptureModel:
                                  "renders the capture's own scene (relay wall, laser, SPAD array) again")
         self.manifest = m
         t = m["time"]
-        factor = float(bin_width_ps) / float(t["bin_width_ps"])
-        if not (math.isfinite(factor) and factor >= 1 and abs(factor - round(factor)) < 1e-9
-                and int(t["n_bins"]) % int(round(factor)) == 0):
+        factor = fit_bin_factor(bin_width_ps, t["bin_width_ps"], t["n_bins"])
+        if factor is None:
             raise UserInputError(
                 f"bin_width_ps={bin_width_ps!r}: must be a whole multiple of the capture's {t['bin_width_ps']:g} ps "
                 f"that divides its {t['n_bins']} bins")
-        self.factor = int(round(factor))
+        self.factor = factor
         self.bin_width_ps = float(bin_width_ps)
         self.t0_ps = float(t["t0_ps"])
         self.n_bins = int(t["n_bins"]) // self.factor

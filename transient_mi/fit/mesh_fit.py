@@ -209,9 +209,7 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
     from .mesh_optimize import run_mesh_adam
 
     mesh = mesh or MeshSettings()
-    import dataclasses
-
-    settings = dataclasses.replace(settings, iterations=settings.n_iterations("adam"))  # (the mesh's Adam: 300)
+    settings = replace(settings, iterations=settings.n_iterations("adam"))  # (the mesh's Adam: 300)
     _check(mesh, settings)
     capture = Path(capture)
     if not (capture / "manifest.json").is_file():

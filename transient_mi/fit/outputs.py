@@ -6,7 +6,6 @@ the backprojection a fit starts from and is compared with, the ground truth from
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -58,22 +57,25 @@ def _bounds(manifest: dict) -> tuple:
             float(pc[:, 1].max() + pad), z0, z1)
 
 
-def fit_bins_capture(capture: Path, bin_width_ps: float | None = None):
-    """``capture`` as a :class:`recon.Capture`, its counts summed into bins ``bin_width_ps`` wide (a whole multiple of
-    the capture's that divides its bins; otherwise as stored) and read once (kept in memory: a fit's bins are
-    few). The fits' backprojection and their forward model (``CaptureModel(counts=...)``) share it: each file of the
-    demo's capture takes a third of a second to read."""
+def fit_bins_capture(capture: Path, bin_width_ps: float):
+    """``(recon capture, counts)``: ``capture`` as a :class:`recon.Capture`, its counts summed into the fit's bins
+    (``bin_width_ps``: :func:`~transient_mi.fit.capture_model.fit_bin_factor`'s rule) and read once, and those counts
+    ``[G, H, W, T]`` for ``CaptureModel(counts=...)``. The fits' backprojection and their forward model share the
+    read: each file of the demo's capture takes a third of a second. Where the fit's bins are the capture's own (or
+    not a whole multiple of them, which the forward model refuses), or the capture has channels, nothing is summed
+    or kept in memory: ``counts`` is None and the forward model reads the files itself."""
     import recon
 
-    cap = recon.load_capture(capture)
-    if isinstance(bin_width_ps, (int, float)) and math.isfinite(bin_width_ps) and bin_width_ps > 0:
-        factor = int(round(float(bin_width_ps) / cap.bin_width_ps))
-        if factor > 1 and cap.n_bins % factor == 0 and abs(factor * cap.bin_width_ps - bin_width_ps) < 1e-9:
-            from recon.preprocess import downsample_time
+    from .capture_model import fit_bin_factor
 
-            cap = downsample_time(cap, factor)
-            cap.data  # (each file read once; ``processing`` records the summing)
-    return cap
+    cap = recon.load_capture(capture)
+    factor = fit_bin_factor(bin_width_ps, cap.bin_width_ps, cap.n_bins)
+    if factor is None or factor == 1 or cap.manifest.get("channels"):
+        return cap, None
+    from recon.preprocess import downsample_time
+
+    cap = downsample_time(cap, factor)
+    return cap, cap.data  # (each file read once)
 
 
 def _backprojection(capture, bounds, voxels=(64, 64, 32)):
