@@ -11,7 +11,7 @@ and CPU time (every thread of the process) of each stage, taken by wrapping the 
   deposits), ``pair geometry`` (``pair_geometry``, with the test of which pairs can carry light), ``visibility rays``
   (``visibility_masks`` from the cells and ``spot_masks`` from the spots), ``laser-side knots`` (``spot_knots``);
 * ``elements and visibility refinement`` (``level_elements``), ``error estimate`` (``discretisation_error`` and the
-  cells' ``local_rms``), ``rounding residue`` (``_clear_rounding_residue``);
+  cells' ``local_rms``), ``rounding residue`` (``finish_rows``: the residue cleared and the float32 copies);
 * ``render call``: the whole ``render`` (setup, the quadrature, writing the capture and its error files).
 
 Scenes: ``--scene letter`` (``scenes/nlos_letter.xml`` at its defaults: the README capture) or ``paper`` (the
@@ -43,7 +43,7 @@ STAGES = (("_nlos_pairs", "spread_group", "bin masses and deposits"), ("_nlos_pa
           ("_nlos_quadrature", "level_elements", "elements and visibility refinement"),
           ("_nlos_quadrature", "discretisation_error", "error estimate"),
           ("_nlos_quadrature", "local_rms", "error estimate"),
-          ("_nlos_quadrature", "_clear_rounding_residue", "rounding residue"))
+          ("_nlos_quadrature", "finish_rows", "rounding residue"))
 LEVELS = ("fine", "coarse", "cells")
 
 

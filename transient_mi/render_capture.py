@@ -40,6 +40,7 @@ from transient_core.errors import UserInputError
 from transient_core import stack
 
 from . import __version__
+from .integrators._work_arrays import reuse_work_arrays
 from .capture_error import _replicates, error_blocks, estimator_of, spot_error_summary, variance_summary
 from .noise_target import PARTIAL_DIR  # per-spot facts and noise-target checkpoints, removed at the end
 from .render_resume import read_spot_facts, remove_stale_temporaries, write_spot_facts
@@ -366,8 +367,9 @@ def _run_render_locked(job: RenderJob, progress: bool | None, on_spot, log) -> P
         from .noise_target import TargetRun
 
         target_run = TargetRun(job.noise_target, m)
+    # (the quadrature's capture-sized work arrays are kept from one group to the next: integrators._work_arrays)
     with progress_bar(f"render {job.scene_file.name}", total=sum(len(g) for g in groups) * paths_per_spot,
-                      disable=None if progress is None else not progress) as advance:
+                      disable=None if progress is None else not progress) as advance, reuse_work_arrays():
         for group in groups:
             done_before = [0]
 

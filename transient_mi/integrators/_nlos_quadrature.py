@@ -76,7 +76,6 @@ from __future__ import annotations
 import math
 
 import mitsuba as mi
-import numba
 import numpy as np
 
 from transient_core.units import C_M_PER_PS
@@ -87,6 +86,8 @@ from transient_mi.integrators._nlos_pair_kernels import cell_terms, pair_results
 from transient_mi.integrators._nlos_pairs import Chunk, LevelElements, SpotSide, chunk_starts
 from transient_mi.integrators._nlos_refinement import Refinement, cell_spots, refine_visibility, refinement_cells_of
 from transient_mi.integrators._nlos_surfaces import WallCells
+from transient_mi.integrators._nlos_rounding import finish_rows
+from transient_mi.integrators._work_arrays import work_zeros
 from transient_mi.props import PluginParameterError
 from transient_mi.time_axis import apply_kernel
 
@@ -276,46 +277,6 @@ def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_p
     return out + ((prov,) if with_provenance else ())
 
 
-#: A bin below zero by at most this share of its pixel's largest bin is rounding (set to 0); larger ones are kept.
-ROUNDING_RESIDUE = 1e-9
-
-
-def _clear_rounding_residue(h: np.ndarray, light: np.ndarray | None = None, in_place: bool = False) -> np.ndarray:
-    """``h [P, T]`` with the rounding residue of the bin masses removed: a mass is a difference of two CDF values,
-    and where the CDF is flat (a pair's tails, 1 ps bins) their rounding can leave a bin a few 1e-14 of the pixel's
-    largest below zero, which the capture writer refuses. Such bins (down to ``ROUNDING_RESIDUE`` of the pixel's
-    largest bin of ``light``, default ``h`` itself) are set to 0; a larger negative value is left for the writer to
-    refuse (it is no rounding). The error files take the light as ``light``: their mixed-visibility part is light
-    spread by the same masses (the 32 x 32 paper scene at 1 ps bins had bins of it at -1e-20). ``in_place``: ``h``
-    (float64, C-contiguous) is cleared and returned, not a copy."""
-    h = h if in_place else np.array(h, dtype=np.float64)
-    ref = h if light is None else np.ascontiguousarray(light, dtype=np.float64)
-    _clear_rows(h.reshape(-1, h.shape[-1]), ref.reshape(-1, ref.shape[-1]), ROUNDING_RESIDUE)
-    return h
-
-
-@numba.njit(cache=True, parallel=True, fastmath=False)
-def _clear_rows(h, ref, share):
-    """In place, per row ``k``: ``h[k, b] = 0`` where ``-share * max|ref[k]| <= h[k, b] < 0`` (one pass per row
-    instead of numpy's temporaries: on a 64 x 64 capture of 2048 bins they cost more than the pairs of a coarse
-    level), the rows in parallel (each row alone: the same bytes whatever the threads). A row whose ``ref`` holds a
-    NaN clears nothing (as numpy's comparison with a NaN limit)."""
-    for k in numba.prange(h.shape[0]):
-        m = 0.0
-        for b in range(ref.shape[1]):
-            a = abs(ref[k, b])
-            if a != a:
-                m = a
-                break
-            if a > m:
-                m = a
-        lim = -share * m
-        for b in range(h.shape[1]):
-            x = h[k, b]
-            if x < 0.0 and x >= lim:
-                h[k, b] = 0.0
-
-
 def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int], progress=None):
     """Render the three-bounce light of a group of spots by quadrature (see the module docstring).
 
@@ -362,14 +323,14 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
             def tick_cc(done):
                 progress(n_f + n_c + done, n_f + n_c + n_cc)
         wall = WallCells(scene, setup, g.cell_p, g.D)
-        fine = _level(scene, setup, g, lv_f, spot_ids, confocal, G_out, tick_f, wall=wall)
+        fine = _level(scene, setup, g, lv_f, spot_ids, confocal, G_out, tick_f, wall=wall, name="fine")
         # (the estimate's levels keep no per-bin light of mixed visibility, and their bins in ESTIMATE_DTYPE)
         if lv_c is not None:
             coarse = _level(scene, setup, g_c, lv_c, spot_ids, confocal, G_out, tick_c, with_bound=False,
-                            wall=wall if g_c is g else None, dtype=ESTIMATE_DTYPE)
+                            wall=wall if g_c is g else None, dtype=ESTIMATE_DTYPE, name="coarse")
         if g_cc is not None:
             cells = _level(scene, setup, g_cc, lv_c, spot_ids, confocal, G_out, tick_cc, with_bound=False,
-                           dtype=ESTIMATE_DTYPE)
+                           dtype=ESTIMATE_DTYPE, name="cells")
         info.update(elements=lv_f.n, coarse_elements=0 if lv_c is None else lv_c.n, refine_levels=levels,
                     pairs=fine["pairs"] + (0 if coarse is None else coarse["pairs"])
                     + (0 if cells is None else cells["pairs"]))
@@ -390,21 +351,28 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
         parts[name] = np.empty(bound.shape, dtype=PARTS_DTYPE)
         return parts[name]
 
-    # (each estimate is added to the bound in place: no float64 array of the capture's size per part)
-    if coarse is not None:
-        discretisation_error(fine["hist"], coarse["hist"], add_to=bound, part=part("elements"))
     tot_bound = fine["vis_err"] + (np.abs(fine["steady"] - coarse["steady"]) if coarse is not None else 0.0)
     if cells is not None:
-        # one cell per side: the coarse level's difference is the elements' part; the cells' part is the coarse
-        # elements' one cell against CELL_ESTIMATE_CELLS (same local root mean square), scaled to the one cell's own
-        # error
-        local_rms(coarse["hist"], cells["hist"], CELL_ESTIMATE_FACTOR, add_to=bound, part=part("cells"))
         tot_bound = tot_bound + np.abs(coarse["steady"] - cells["steady"]) * CELL_ESTIMATE_FACTOR
-    # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)
+    p_elements = part("elements") if coarse is not None else None
+    p_cells = part("cells") if cells is not None else None
     wr = setup.wall_return
+    results = []
     for gi in range(G_out):
-        js = spot_ids if confocal else [spots[gi]]
-        for j in js:
+        # spot by spot, each while its rows are in the cache: the error estimates (added to the bound in place: no
+        # float64 array of the capture's size per part), the wall's return, the rounding residue and the float32
+        # copies (each row as for the whole group at once: the same bytes)
+        if coarse is not None:
+            discretisation_error(hist[gi], coarse["hist"][gi], add_to=bound[gi],
+                                 part=None if p_elements is None else p_elements[gi])
+        if cells is not None:
+            # one cell per side: the coarse level's difference is the elements' part; the cells' part is the coarse
+            # elements' one cell against CELL_ESTIMATE_CELLS (same local root mean square), scaled to the one cell's
+            # own error
+            local_rms(coarse["hist"][gi], cells["hist"][gi], CELL_ESTIMATE_FACTOR, add_to=bound[gi],
+                      part=None if p_cells is None else p_cells[gi])
+        # closed-form first-bounce return of the wall (as the Monte Carlo estimator; no error)
+        for j in (spot_ids if confocal else [spots[gi]]):
             pix = int(wr["pixel"][j])
             ph = float(wr["photons"][j])
             if pix < 0 or ph <= 0:
@@ -415,13 +383,11 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
                 hist[gi, pix, b] += ph
             else:
                 outside[gi, pix] += ph
-    results = []
-    for gi in range(G_out):
-        # (the level's own rows are cleared in place: they are not read again)
-        hk = (_clear_rounding_residue(apply_kernel(hist[gi], g.taps)) if g.pad
-              else _clear_rounding_residue(hist[gi], in_place=True))
-        ek = (_clear_rounding_residue(apply_kernel(bound[gi], g.taps), hk) if g.pad
-              else _clear_rounding_residue(bound[gi], hk, in_place=True))
+        # (each spot's own float32 arrays, not views of one for the group: arrays of a spot's size are reused by the
+        # C heap once freed, a group's are mapped afresh, and faulting their pages in cost more than the pass)
+        hk, ek = ((np.array(apply_kernel(a[gi], g.taps), dtype=np.float64) for a in (hist, bound)) if g.pad
+                  else (hist[gi], bound[gi]))  # (the level's own rows are cleared in place: they are not read again)
+        h32, e32 = finish_rows(hk, ek)
         # (the parts as they are, views where the film has no kernel: they only plan a refinement)
         ep = None if parts is None else {
             name: (apply_kernel(a[gi], g.taps).astype(PARTS_DTYPE) if g.pad else a[gi]).reshape(g.H, g.W, g.n_bins)
@@ -430,7 +396,7 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
         tot = float(steady[gi].sum())
         frac = max(0.0, 1.0 - in_hist / tot) if tot > 0 else 0.0
         results.append(TransientResult(
-            histogram=hk.astype(np.float32).reshape(g.H, g.W, g.n_bins),
+            histogram=h32.reshape(g.H, g.W, g.n_bins),
             steady=steady[gi].astype(np.float32).reshape(g.H, g.W),
             dropped_contributions=int((outside[gi] > 1e-12 * max(tot, 1e-300)).sum()),
             dropped_fraction=frac,
@@ -438,7 +404,7 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
             variance=None,
             total_variance=None,
             replicates=1,
-            error_bound=ek.astype(np.float32).reshape(g.H, g.W, g.n_bins),
+            error_bound=e32.reshape(g.H, g.W, g.n_bins),
             total_error_bound=tot_bound[gi].astype(np.float32).reshape(g.H, g.W),
             estimator_info=dict(info),
             error_parts=ep,
@@ -447,18 +413,18 @@ def render_spots_quadrature(setup, scene, film, options: dict, spots: list[int],
 
 
 def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_out, tick=None,
-           with_bound: bool = True, wall: WallCells | None = None, dtype=np.float64) -> dict:
+           with_bound: bool = True, wall: WallCells | None = None, dtype=np.float64, name: str = "level") -> dict:
     """Integrate one level (elements ``lv``, the cells of ``g``) for every spot of the group (``tick(pairs done)``
     after every chunk, optional; ``wall``: the :class:`~._nlos_surfaces.WallCells` of ``g``'s cells, when another
-    level has them already).
+    level has them already; ``name``: its bins' and bound's names among the :mod:`~._work_arrays`).
 
     Returns ``hist`` (of ``dtype``), ``bound`` (light of mixed visibility, per bin; no bins without ``with_bound``)
     ``[G, P, n_ext]``, ``steady``, ``vis_err``, ``outside`` ``[G, P]`` and ``pairs`` (pairs times the spots each
     was deposited for).
     """
     P = g.W * g.H
-    out = {"hist": np.zeros((G_out, P, g.n_ext), dtype=dtype),
-           "bound": np.zeros((G_out, P, g.n_ext if with_bound else 0)),
+    out = {"hist": work_zeros(f"{name}.hist", (G_out, P, g.n_ext), dtype),
+           "bound": work_zeros(f"{name}.bound", (G_out, P, g.n_ext if with_bound else 0)),
            "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)), "outside": np.zeros((G_out, P)),
            "pairs": 0}
     side = SpotSide(scene, setup, g, spot_ids, lv)
