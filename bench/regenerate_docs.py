@@ -55,7 +55,7 @@ from docgen.quadrature import (  # noqa: E402
     quadrature_cost_inline,
     quadrature_inline, quadrature_profile_inline, quadrature_table, refinement_rule_inline, scene_settings_table,
 )
-from docgen.nlos_quadrature import nlos_quadrature_table  # noqa: E402
+from docgen.nlos_quadrature import array_speedup_inline, nlos_quadrature_table, work_arrays_inline  # noqa: E402
 from docgen.fit_mesh import (fit_mesh_full_table, fit_mesh_mannequin_para, fit_mesh_plane_table,  # noqa: E402
                               fit_mesh_table, fit_mesh_topology_table)
 from docgen.studies import (  # noqa: E402
@@ -122,6 +122,8 @@ GENERATORS = {
     "quadrature_cells_error": (cells_error_table, [CELLS_ERROR], False),
     "nlos_quadrature_table": (nlos_quadrature_table, ["nlos_quadrature", "nlos_quadrature_64x64",
                                                       "nlos_quadrature_confocal"], False),
+    "nlos_quadrature_array": (array_speedup_inline, ["nlos_quadrature_array"], True),
+    "work_arrays": (work_arrays_inline, ["work_arrays"], True),
     "fit_mesh": (fit_mesh_table, ["fit_mesh_letter"], False),
     "fit_mesh_plane": (fit_mesh_plane_table, ["fit_mesh_tilted_plane"], False),
     "fit_mesh_topology": (fit_mesh_topology_table, ["fit_mesh_chair", "fit_mesh_holed_plate"], False),

@@ -119,3 +119,25 @@ def nlos_quadrature_table(R) -> str:
             "the process (the first compiles); the quadrature's is the whole capture. " + ". ".join(notes) + ".\n\n"
             + provenance(rec) + "".join(f" Rows of {', '.join(c['name'] for c in r['result']['configs'])}: "
                                         f"{provenance(r)}" for r in later))
+
+
+def array_speedup_inline(R) -> str:
+    """The array capture against mitransient at equal error, in a sentence (bench_nlos_quadrature's array record)."""
+    rec = R("nlos_quadrature_array")
+    c = rec["result"]["configs"][0]
+    q, m = c["quadrature"]["selected"], c["mitransient"]
+    return (f"{c['speedup_at_target']:.0f}x on the array, measured side by side (mitransient's two "
+            f"{m['spp']}-spp renders, {m['time_s']:.0f} s each, reached {m['rel_rmse']:.3f}, {m['time_to_target_s']:.0f} s "
+            f"to 0.05; the quadrature {q['time_s']:.1f} s at {q['element_size_m'] * 1000:.0f} mm; "
+            f"{provenance(rec, short=True)}, {rec['machine']['cpu_model']})")
+
+
+def work_arrays_inline(R) -> str:
+    """The array capture with the quadrature's work arrays kept between groups and allocated afresh."""
+    rec = R("work_arrays")
+    r = rec["result"]
+    n = len(r["times_s"]["kept"])
+    return (f"the array capture ({r['groups']} groups of {r['spots_per_group']} spots) in {r['median_s']['kept']:.1f} s "
+            f"with the arrays kept against {r['median_s']['fresh']:.1f} s allocated afresh, "
+            f"{r['fresh_over_kept']:.2f}x (medians of {n} alternating runs each in one process; "
+            f"{provenance(rec, short=True)})")
