@@ -28,26 +28,41 @@ def _clear_rounding_residue(h: np.ndarray, light: np.ndarray | None = None, in_p
     return h
 
 
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _max_abs(row):
+    """The largest ``|x|`` of a row; NaN when the row holds one (its first)."""
+    m = 0.0
+    for b in range(row.shape[0]):
+        a = abs(row[b])
+        if a != a:
+            return a
+        if a > m:
+            m = a
+    return m
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _clear(row, lim, out32, copy: bool):
+    """In place: ``row[b] = 0`` where ``lim <= row[b] < 0`` (nothing for a NaN ``lim``); with ``copy`` each value is
+    written to ``out32`` (float32) too."""
+    for b in range(row.shape[0]):
+        x = row[b]
+        if x < 0.0 and x >= lim:
+            x = 0.0
+            row[b] = x
+        if copy:
+            out32[b] = np.float32(x)
+
+
 @numba.njit(cache=True, parallel=True, fastmath=False)
 def _clear_rows(h, ref, share):
     """In place, per row ``k``: ``h[k, b] = 0`` where ``-share * max|ref[k]| <= h[k, b] < 0`` (one pass per row
     instead of numpy's temporaries: on a 64 x 64 capture of 2048 bins they cost more than the pairs of a coarse
     level), the rows in parallel (each row alone: the same bytes whatever the threads). A row whose ``ref`` holds a
     NaN clears nothing (as numpy's comparison with a NaN limit)."""
+    none = np.empty(0, dtype=np.float32)
     for k in numba.prange(h.shape[0]):
-        m = 0.0
-        for b in range(ref.shape[1]):
-            a = abs(ref[k, b])
-            if a != a:
-                m = a
-                break
-            if a > m:
-                m = a
-        lim = -share * m
-        for b in range(h.shape[1]):
-            x = h[k, b]
-            if x < 0.0 and x >= lim:
-                h[k, b] = 0.0
+        _clear(h[k], -share * _max_abs(ref[k]), none, False)
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
@@ -55,36 +70,8 @@ def _finish(h, e, share, h32, e32):
     """Per row ``k`` (in parallel; each row alone): ``h[k]`` cleared as :func:`_clear_rows` against itself, then
     ``e[k]`` against the cleared ``h[k]``, both in place and each written to its float32 copy in the same pass."""
     for k in numba.prange(h.shape[0]):
-        m = 0.0
-        for b in range(h.shape[1]):
-            a = abs(h[k, b])
-            if a != a:
-                m = a
-                break
-            if a > m:
-                m = a
-        lim = -share * m
-        for b in range(h.shape[1]):
-            x = h[k, b]
-            if x < 0.0 and x >= lim:
-                x = 0.0
-                h[k, b] = x
-            h32[k, b] = np.float32(x)
-        m = 0.0
-        for b in range(h.shape[1]):
-            a = abs(h[k, b])
-            if a != a:
-                m = a
-                break
-            if a > m:
-                m = a
-        lim = -share * m
-        for b in range(e.shape[1]):
-            x = e[k, b]
-            if x < 0.0 and x >= lim:
-                x = 0.0
-                e[k, b] = x
-            e32[k, b] = np.float32(x)
+        _clear(h[k], -share * _max_abs(h[k]), h32[k], True)
+        _clear(e[k], -share * _max_abs(h[k]), e32[k], True)
 
 
 def finish_rows(hist: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
