@@ -174,10 +174,11 @@ def test_rounding_residue_below_zero_is_cleared_and_nothing_else():
     0, so the capture writer accepts it (the paper scene's 1 ps bins have such); a negative bin beyond
     ``ROUNDING_RESIDUE`` of the largest is no rounding and is kept for the writer to refuse; the rest is
     untouched."""
-    from transient_mi.integrators._nlos_rounding import ROUNDING_RESIDUE, _clear_rounding_residue
+    from transient_mi.integrators._nlos_rounding import ROUNDING_RESIDUE, finish_rows
 
     h = np.array([[1.0, -6e-14, 0.5, 0.0], [2.0, -3.0 * ROUNDING_RESIDUE * 2.0, 1e-30, -1e-300]])
-    out = _clear_rounding_residue(h)
+    out = h.copy()
+    finish_rows(out, np.zeros_like(h))
     np.testing.assert_array_equal(out, [[1.0, 0.0, 0.5, 0.0], [2.0, h[1, 1], 1e-30, 0.0]])
 
 
@@ -185,13 +186,16 @@ def test_rounding_residue_of_the_error_files_is_measured_against_the_light():
     """The error files' mixed-visibility part is light spread by the same masses, so its rounding residue is
     relative to the pixel's light, not to the error's own largest bin (the 32 x 32 paper scene at 1 ps bins had
     error bins at -1e-20 where the error's largest was 1e-12 and the light's 1e-8, which the writer refused)."""
-    from transient_mi.integrators._nlos_rounding import ROUNDING_RESIDUE, _clear_rounding_residue
+    from transient_mi.integrators._nlos_rounding import ROUNDING_RESIDUE, finish_rows
 
     light = np.array([[1e-8, 5e-9, 0.0]])
     err = np.array([[1e-12, -1e-20, -3.0 * ROUNDING_RESIDUE * 1e-8]])
-    out = _clear_rounding_residue(err, light)
+    out = err.copy()
+    finish_rows(light.copy(), out)
     np.testing.assert_array_equal(out, [[1e-12, 0.0, err[0, 2]]])
-    assert _clear_rounding_residue(err)[0, 1] == -1e-20  # against its own largest (1e-12) it is no rounding
+    alone = err.copy()  # (as light itself: against its own largest, 1e-12, it is no rounding)
+    finish_rows(alone, np.zeros_like(err))
+    assert alone[0, 1] == -1e-20
 
 
 # ---------------------------------------------------------------- closed form

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 import transient_mi  # noqa: F401  (LLVM + variant + plug-ins)
-from transient_mi.integrators._nlos_rounding import ROUNDING_RESIDUE, _clear_rounding_residue, finish_rows
+from transient_mi.integrators._nlos_rounding import ROUNDING_RESIDUE, finish_rows
 from transient_mi.integrators._work_arrays import reuse_work_arrays, work_zeros
 
 
@@ -39,8 +39,15 @@ def test_inside_a_block_the_array_is_handed_out_again_zeroed_and_freed_at_its_en
     assert not np.shares_memory(work_zeros("bound", (4, 5), np.float32), other)
 
 
+def _cleared(x: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """The rule in numpy: bins of ``x`` in ``[-ROUNDING_RESIDUE max|light row|, 0)`` set to 0 (a NaN in the light's
+    row makes the limit NaN: nothing cleared)."""
+    lim = -ROUNDING_RESIDUE * np.abs(light).max(axis=-1, keepdims=True)
+    return np.where((x < 0) & (x >= lim), 0.0, x)
+
+
 def test_finish_rows_equals_clearing_then_copying_to_float32():
-    """One pass per row gives the values of ``_clear_rounding_residue`` (the light against itself, its error
+    """One pass per row gives the values of the rule written in numpy (the light against itself, its error
     against the cleared light) and of ``astype(np.float32)``, in place, rows with a NaN and larger negatives as
     before (cleared nothing / kept for the writer to refuse)."""
     rng = np.random.default_rng(3)
@@ -52,8 +59,8 @@ def test_finish_rows_equals_clearing_then_copying_to_float32():
     e = rng.random((3, 4, 9)) * 1e-3
     e[0, 1, 5] = -1e-15
     e[1, 2, 7] = -2.0
-    want_h = _clear_rounding_residue(h)
-    want_e = _clear_rounding_residue(e, want_h)
+    want_h = _cleared(h, h)
+    want_e = _cleared(e, want_h)
     hh, ee = h.copy(), e.copy()
     h32, e32 = finish_rows(hh, ee)
     assert hh.tobytes() == want_h.tobytes() and ee.tobytes() == want_e.tobytes()
