@@ -103,6 +103,20 @@ def _render(scene, spots, **kw):
     return integ.render_transient(scene, sensor, spots=list(spots), **kw)
 
 
+def render_whole(scene, groups, keep_work_arrays: bool = True) -> None:
+    """The whole capture, group by group (``groups``: the spot groups, ``[None]`` for confocal), each group's results
+    dropped as a streamed render drops them; the quadrature's work arrays kept from one group to the next as
+    ``transient-mi render`` keeps them (``integrators._work_arrays``), or allocated afresh by every group."""
+    import contextlib
+
+    from transient_mi.integrators._work_arrays import reuse_work_arrays
+
+    with reuse_work_arrays() if keep_work_arrays else contextlib.nullcontext():
+        for g in groups:
+            rs = _render(scene, g)
+            del rs
+
+
 def _rel(x, ref) -> float:
     return float(math.sqrt(((x - ref) ** 2).sum() / (ref ** 2).sum()))
 
@@ -111,7 +125,6 @@ def quadrature_worker(job: dict) -> None:
     """Reference, sweep (one call each), then the selected setting's timed second call (whole capture)."""
     import transient_mi  # noqa: F401  (first: it points drjit at an LLVM >= 17)
     from transient_mi.integrators import _nlos_quadrature as nq
-    from transient_mi.integrators._work_arrays import reuse_work_arrays
 
     cfg, cells = job["cfg"], job["patch_cells"] or nq.DEFAULT_PATCH_CELLS
     spots = job["error_spots"]
@@ -144,20 +157,14 @@ def quadrature_worker(job: dict) -> None:
     if ok:
         sel = max(ok, key=lambda s: s["element_size_m"])
         scene = _scene(cfg, sel["element_size_m"], cells)
-        integ, sensor = scene.integrator(), scene.sensors()[0]
+        sensor = scene.sensors()[0]
         groups = [None] if spots is None else sensor.spot_groups(scene, 1)
-        def capture():
-            with reuse_work_arrays():  # (as transient-mi render's loop over the groups)
-                for g in groups:  # the whole capture; each group's results dropped, as a streamed render
-                    rs = _render(scene, g)
-                    del rs
-
         if len(groups) > 1:  # (the whole capture once untimed, as mitransient's first render: its second is timed)
-            capture()
+            render_whole(scene, groups)
         reset_peak_rss()
         load0 = os.getloadavg()[0]
         t0 = time.perf_counter()
-        capture()
+        render_whole(scene, groups)
         out["selected"] = dict(sel, time_s=time.perf_counter() - t0, timed_peak_rss_mb=peak_rss_mb(),
                                timed_spots=sensor.nlos_setup(scene).n_spots if spots is not None else 1,
                                groups=len(groups), load_average_1min=[round(load0, 2), round(os.getloadavg()[0], 2)])

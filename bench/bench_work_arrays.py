@@ -14,7 +14,6 @@ within a pair alternating. Both ways give the same bytes (``tests/test_work_arra
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import statistics
 import sys
@@ -38,7 +37,6 @@ def main(argv=None) -> dict:
     import transient_mi  # noqa: F401  (first: it points drjit at an LLVM >= 17)
     import bench_nlos_quadrature as bq
     from _nlos_scene import configs
-    from transient_mi.integrators._work_arrays import reuse_work_arrays
 
     cfg = dict([c for c in configs(False) if c["name"] == CONFIG][0], pixel_sampling="center")
     scene = bq._scene(cfg, ELEMENT_SIZE_M, 1)
@@ -46,10 +44,7 @@ def main(argv=None) -> dict:
 
     def capture(keep: bool) -> float:
         t0 = time.perf_counter()
-        with reuse_work_arrays() if keep else contextlib.nullcontext():
-            for g in groups:
-                rs = bq._render(scene, g)
-                del rs
+        bq.render_whole(scene, groups, keep_work_arrays=keep)
         return time.perf_counter() - t0
 
     capture(True)  # (compiles; untimed)
