@@ -106,6 +106,32 @@ def test_scene_loads_on_one_thread_and_renders_on_all(mannequin_item, monkeypatc
     assert seen == {"load": 1, "render": 2}
 
 
+def test_an_item_renders_on_the_workers_share_of_threads(mannequin_item, monkeypatch):
+    """The task's threads set numba's count on the thread that builds the item (the quadrature's kernels), not only
+    drjit's: two workers on two cores each render on one thread of each, not on both beside the other."""
+    import numba
+
+    import transient_mi.render_capture as pipeline
+
+    item, items_dir, task = mannequin_item
+    seen = {}
+    real_run = pipeline.run_render
+
+    def run(*a, **k):
+        seen["numba"] = numba.get_num_threads()
+        return real_run(*a, **k)
+
+    monkeypatch.setattr(pipeline, "run_render", run)
+    monkeypatch.delenv(w.THREADS_ENV, raising=False)
+    before = numba.get_num_threads()
+    try:
+        w.build_item(dict(task, threads=1))
+    finally:
+        w._THREADS_SET = None
+        numba.set_num_threads(before)
+    assert seen == {"numba": 1}
+
+
 def test_ground_truth_only_object_matches_the_mannequin_the_scene_builds(tmp_path):
     """``define: null``: the paper scene builds its mannequin from $pose/$distance/$rotation, the worker
     writes the same mesh as ground truth and passes no mesh path."""

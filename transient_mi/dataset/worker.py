@@ -83,7 +83,9 @@ def _write_json(path: Path, obj) -> None:
 
 
 def configure_threads(threads: int | None) -> int | None:
-    """Set drjit's thread count for this process (``$TRANSIENT_MI_DRJIT_THREADS`` wins); once per value."""
+    """Set drjit's thread count for this process (``$TRANSIENT_MI_DRJIT_THREADS`` wins; once per value) and numba's
+    for the calling thread (numba's count is the thread's own: set for every item), the quadrature's kernels then
+    running on as many threads as the worker's share of the cores, not on every core beside the other workers."""
     global _THREADS_SET
     env = os.environ.get(THREADS_ENV)
     n = int(env) if env else threads
@@ -92,6 +94,10 @@ def configure_threads(threads: int | None) -> int | None:
 
         dr.set_thread_count(int(n))
         _THREADS_SET = int(n)
+    if n:
+        import numba
+
+        numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
     return _THREADS_SET
 
 
