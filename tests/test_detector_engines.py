@@ -77,6 +77,53 @@ def test_same_seed_same_bytes(engine):
     assert g.tobytes() == a.tobytes()
 
 
+def test_event_order_and_slots_are_numpys_bytes():
+    """The exact engine's two numba helpers give the arrays of the numpy calls they replace: the slots of
+    ``searchsorted`` over the flattened, row-offset CDF (a pixel without light, values just below 1), the order of
+    ``argsort(kind="stable")`` with ties (equal times keep their input order) and, for times the radix cannot take
+    (``-0.0``, negative), numpy's own order. Deterministic."""
+    from spad_detector.engines._event_order import event_slots, time_order
+
+    rng = np.random.default_rng(11)
+    n_pix, n_slots = 40, 57
+    lam = rng.random((n_pix, n_slots)) ** 4
+    lam[3] = 0.0
+    tot = lam.sum(1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cdf = np.where(tot[:, None] > 0, np.cumsum(lam, axis=1) / tot[:, None], 1.0)
+    cdf[:, -1] = 1.0
+    cdf_flat = (cdf + 2.0 * np.arange(n_pix)[:, None]).ravel()
+    pix = np.repeat(np.arange(n_pix, dtype=np.int64), rng.poisson(np.where(tot > 0, 300, 0)))
+    u = rng.random(pix.size)
+    u[:4] = [0.0, np.nextafter(1.0, 0.0), cdf[0, 10], cdf[0, 0]]  # (pixel 0: exact knots and the ends)
+    want = np.searchsorted(cdf_flat, u + 2.0 * pix, side="right") - pix * n_slots
+    assert np.array_equal(event_slots(cdf_flat, n_slots, pix, u), want)
+    t = rng.integers(0, 50, 20_000) * 1000.0 + np.round(rng.random(20_000) * 1000.0, 1)
+    t[::5] = t[7]  # (ties)
+    t[11] = 0.0
+    assert np.array_equal(time_order(t), np.argsort(t, kind="stable"))
+    for bad in (-0.0, -3.0):
+        t2 = t.copy()
+        t2[13] = bad
+        assert np.array_equal(time_order(t2), np.argsort(t2, kind="stable"))
+
+
+def test_exact_engine_counts_are_the_bytes_of_the_numpy_ordering(monkeypatch):
+    """The exact engine with its numba slots and radix order gives the counts (bytes) of the same seed with numpy's
+    ``searchsorted`` and stable ``argsort`` in their place (afterpulses and crosstalk on: every path of the event
+    loop)."""
+    from spad_detector.engines import exact
+
+    ideal = _nlos_like(16, 64).reshape(4, 4, 64)
+    params = DetectorParams(afterpulse_prob=0.05, crosstalk_prob=0.02)
+    ours = detect(ideal, params, 20_000, bin_width_ps=10.0, seed=5, engine="exact")
+    monkeypatch.setattr(exact, "event_slots", lambda cdf_flat, n_slots, pix, u: np.searchsorted(
+        cdf_flat, u + 2.0 * pix, side="right") - pix * n_slots)
+    monkeypatch.setattr(exact, "time_order", lambda t: np.argsort(t, kind="stable"))
+    numpys = detect(ideal, params, 20_000, bin_width_ps=10.0, seed=5, engine="exact")
+    assert ours.sum() > 0 and ours.tobytes() == numpys.tobytes()
+
+
 def test_auto_engine_picks_analytic_when_exact_and_exact_when_cheap():
     ideal = _nlos_like(4, 64)
     gated = DetectorParams(gate_open_ps=150.0, gate_close_ps=500.0)

@@ -9,9 +9,10 @@ Chunk by chunk (a whole number of laser cycles holding about
    slot. This is exactly a Poisson process with the piecewise-constant
    periodic intensity ``lam`` (signal x PDE x gate + dark + ambient), but costs
    time per *event*, not per pulse.
-2. All events are sorted by time and run through the detector's state
-   machine (:mod:`._exact_kernel`, compiled with numba), in time order across
-   all pixels of the spot:
+2. All events are sorted by time (numpy's stable order, by radix:
+   :mod:`._event_order`) and run through the detector's state machine
+   (:mod:`._exact_kernel`, compiled with numba), in time order across all
+   pixels of the spot:
 
    * a SPAD that is dead ignores the event (paralyzable: restarts its dead
      time); otherwise it avalanches and is dead for ``dead_time_ns``;
@@ -36,6 +37,7 @@ import numpy as np
 
 from ..model import DetectorModel
 from ..noise import neighbour_csr
+from ._event_order import event_slots, time_order
 
 #: Target number of triggering events per chunk (bounds memory: ~40 bytes per event).
 EVENTS_PER_CHUNK = 1 << 20
@@ -121,10 +123,9 @@ def run_exact(model: DetectorModel, ideal: np.ndarray, n_pulses: int, rng: np.ra
         pix = np.repeat(np.arange(n_pix, dtype=np.int64), k)
         cyc = rng.integers(0, C, M)
         u = rng.random(M)
-        slot = np.searchsorted(cdf_flat, u + 2.0 * pix, side="right") - pix * n_slots
-        slot = np.clip(slot, 0, n_slots - 1)
+        slot = np.clip(event_slots(cdf_flat, n_slots, pix, u), 0, n_slots - 1)  # (searchsorted per pixel's row)
         t = cyc * P + edges[slot] + rng.random(M) * widths[slot]
-        order = np.argsort(t, kind="stable")
+        order = time_order(t)  # (argsort(t, kind="stable"), by radix)
         heap_t, heap_p, heap_n = run_chunk(
             t[order], pix[order], chunk_len, P, T, grid.bin_width_ps, grid.t0_ps,
             spad_ready, tcspc_ready, last_aval, heap_t, heap_p, heap_n,
