@@ -82,10 +82,10 @@ def test_event_order_and_slots_are_numpys_bytes():
     ``searchsorted`` over the flattened, row-offset CDF (a pixel without light, values just below 1), the order of
     ``argsort(kind="stable")`` with ties (equal times keep their input order) and, for times the radix cannot take
     (``-0.0``, negative), numpy's own order. Deterministic."""
-    from spad_detector.engines._event_order import event_slots, time_order
+    from spad_detector.engines._event_order import GUIDE, event_slots, guide_table, time_order
 
     rng = np.random.default_rng(11)
-    n_pix, n_slots = 40, 57
+    n_pix, n_slots = 40, 157
     lam = rng.random((n_pix, n_slots)) ** 4
     lam[3] = 0.0
     tot = lam.sum(1)
@@ -95,9 +95,10 @@ def test_event_order_and_slots_are_numpys_bytes():
     cdf_flat = (cdf + 2.0 * np.arange(n_pix)[:, None]).ravel()
     pix = np.repeat(np.arange(n_pix, dtype=np.int64), rng.poisson(np.where(tot > 0, 300, 0)))
     u = rng.random(pix.size)
-    u[:4] = [0.0, np.nextafter(1.0, 0.0), cdf[0, 10], cdf[0, 0]]  # (pixel 0: exact knots and the ends)
+    u[:6] = [0.0, np.nextafter(1.0, 0.0), cdf[0, 10], cdf[0, 0], 5 / GUIDE, np.nextafter(5 / GUIDE, 0.0)]  # (pixel
+    # 0: values at slots, the first, at a guide threshold and just below it, and the ends)
     want = np.searchsorted(cdf_flat, u + 2.0 * pix, side="right") - pix * n_slots
-    assert np.array_equal(event_slots(cdf_flat, n_slots, pix, u), want)
+    assert np.array_equal(event_slots(cdf_flat, n_slots, pix, u, guide_table(cdf_flat, n_slots)), want)
     t = rng.integers(0, 50, 20_000) * 1000.0 + np.round(rng.random(20_000) * 1000.0, 1)
     t[::5] = t[7]  # (ties)
     t[11] = 0.0
@@ -117,7 +118,7 @@ def test_exact_engine_counts_are_the_bytes_of_the_numpy_ordering(monkeypatch):
     ideal = _nlos_like(16, 64).reshape(4, 4, 64)
     params = DetectorParams(afterpulse_prob=0.05, crosstalk_prob=0.02)
     ours = detect(ideal, params, 20_000, bin_width_ps=10.0, seed=5, engine="exact")
-    monkeypatch.setattr(exact, "event_slots", lambda cdf_flat, n_slots, pix, u: np.searchsorted(
+    monkeypatch.setattr(exact, "event_slots", lambda cdf_flat, n_slots, pix, u, guide: np.searchsorted(
         cdf_flat, u + 2.0 * pix, side="right") - pix * n_slots)
     monkeypatch.setattr(exact, "time_order", lambda t: np.argsort(t, kind="stable"))
     numpys = detect(ideal, params, 20_000, bin_width_ps=10.0, seed=5, engine="exact")

@@ -5,8 +5,11 @@ Both give the bytes of the numpy expressions they replace (tested against them):
 
 * :func:`event_slots` is ``np.searchsorted(cdf_flat, u + 2 pix, side="right") - pix n_slots``: each pixel's row of
   the flattened CDF is offset by ``2 pix``, so a pixel's value ``u + 2 pix`` in ``[2 pix, 2 pix + 1]`` can only land
-  in its own row; the binary search runs over that row (``n_slots`` values, not ``n_pix n_slots``) and compares the
-  same rounded sums.
+  in its own row; the search runs over that row (``n_slots`` values, not ``n_pix n_slots``), over the few slots
+  its guide table gives (:func:`guide_table`), and compares the same rounded sums. Every search that finds the
+  first value above ``v`` gives the same index: whether a row's value exceeds ``v`` changes once along the row
+  (the rows are non-decreasing cumulative sums; their last value, set to exactly 1, is not below ``v``'s
+  largest).
 * :func:`time_order` is ``np.argsort(t, kind="stable")`` for non-negative finite times: a least-significant-digit
   radix sort of the times' bit patterns (monotone in the value for non-negative IEEE doubles), stable, so equal
   times keep their input order as in numpy's stable sort; digits that every time shares are skipped. On a chunk of
@@ -20,20 +23,44 @@ import numpy as np
 
 #: Bits of the radix sort's digit (256 buckets: the counts stay in the first-level cache).
 DIGIT_BITS = 8
+#: Entries of each row's guide table (:func:`guide_table`): a power of two, so ``u * GUIDE`` and ``k / GUIDE`` are
+#: exact.
+GUIDE = 256
 
 
 @numba.njit(cache=True)
-def event_slots(cdf_flat, n_slots, pix, u):
+def guide_table(cdf_flat, n_slots):
+    """Each row's guide (Chen and Asau's table for sampling by inversion): ``G[p, k]``, int32 ``[n_rows, GUIDE +
+    1]``, the first slot of row ``p`` of ``cdf_flat`` (rows of ``n_slots`` values, row ``p`` offset by ``2 p``)
+    whose value exceeds ``k / GUIDE + 2 p`` (``n_slots`` when none does). One pass over each row."""
+    n_rows = cdf_flat.shape[0] // n_slots
+    out = np.empty((n_rows, GUIDE + 1), dtype=np.int32)
+    for p in range(n_rows):
+        start = p * n_slots
+        i = 0
+        for k in range(GUIDE + 1):
+            w = k / GUIDE + 2.0 * p
+            while i < n_slots and cdf_flat[start + i] <= w:
+                i += 1
+            out[p, k] = i
+    return out
+
+
+@numba.njit(cache=True)
+def event_slots(cdf_flat, n_slots, pix, u, guide):
     """Slot of every event: per event ``i`` the first index of pixel ``pix[i]``'s row of ``cdf_flat`` (rows of
-    ``n_slots`` values, row ``p`` offset by ``2 p``) whose value exceeds ``u[i] + 2 pix[i]``, relative to the row's
-    start (``n_slots`` when none does). int64, shape of ``pix``."""
+    ``n_slots`` values, row ``p`` offset by ``2 p``) whose value exceeds ``v = u[i] + 2 pix[i]``, relative to the
+    row's start (``n_slots`` when none does); ``guide``: :func:`guide_table` of ``cdf_flat``. With ``k = floor(u
+    GUIDE)``, ``v`` lies between the guide's thresholds ``k`` and ``k + 1`` (rounding is monotone), so the slot lies
+    in ``[G[p, k], G[p, k + 1]]``: a binary search over those few slots. int64, shape of ``pix``."""
     out = np.empty(pix.shape[0], dtype=np.int64)
     for i in range(pix.shape[0]):
         p = pix[i]
         v = u[i] + 2.0 * p
+        k = int(u[i] * GUIDE)
         start = p * n_slots
-        lo = start
-        hi = start + n_slots
+        lo = start + guide[p, k]
+        hi = start + guide[p, k + 1]
         while lo < hi:
             mid = (lo + hi) >> 1
             if cdf_flat[mid] <= v:

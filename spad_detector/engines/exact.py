@@ -37,7 +37,7 @@ import numpy as np
 
 from ..model import DetectorModel
 from ..noise import neighbour_csr
-from ._event_order import event_slots, time_order
+from ._event_order import event_slots, guide_table, time_order
 
 #: Target number of triggering events per chunk (bounds memory: ~40 bytes per event).
 EVENTS_PER_CHUNK = 1 << 20
@@ -81,6 +81,7 @@ def run_exact(model: DetectorModel, ideal: np.ndarray, n_pulses: int, rng: np.ra
         cdf = np.where(lam_tot[:, None] > 0, cdf / lam_tot[:, None], 1.0)
     cdf[:, -1] = 1.0
     cdf_flat = (cdf + 2.0 * np.arange(n_pix)[:, None]).ravel()
+    guide = guide_table(cdf_flat, n_slots)
     edges, widths = grid.edges, grid.widths
 
     H, W = spatial_shape
@@ -123,7 +124,7 @@ def run_exact(model: DetectorModel, ideal: np.ndarray, n_pulses: int, rng: np.ra
         pix = np.repeat(np.arange(n_pix, dtype=np.int64), k)
         cyc = rng.integers(0, C, M)
         u = rng.random(M)
-        slot = np.clip(event_slots(cdf_flat, n_slots, pix, u), 0, n_slots - 1)  # (searchsorted per pixel's row)
+        slot = np.clip(event_slots(cdf_flat, n_slots, pix, u, guide), 0, n_slots - 1)  # (searchsorted, by guide table)
         t = cyc * P + edges[slot] + rng.random(M) * widths[slot]
         order = time_order(t)  # (argsort(t, kind="stable"), by radix)
         heap_t, heap_p, heap_n = run_chunk(
