@@ -47,10 +47,12 @@ def _clear(row, lim, out32):
 def _finish(h, e, share, h32, e32):
     """Per row ``k`` (in parallel; each row alone: the same bytes whatever the threads): ``h[k]`` cleared against
     ``share`` of its own largest ``|h|``, then ``e[k]`` against the cleared ``h[k]``'s, both in place and each written
-    to its float32 copy in the same pass."""
+    to its float32 copy in the same pass. Clearing leaves the row's largest ``|h|`` as it was (a cleared bin is at most
+    ``share < 1`` of it; a NaN stays), so the one limit serves both."""
     for k in numba.prange(h.shape[0]):
-        _clear(h[k], -share * _max_abs(h[k]), h32[k])
-        _clear(e[k], -share * _max_abs(h[k]), e32[k])
+        lim = -share * _max_abs(h[k])
+        _clear(h[k], lim, h32[k])
+        _clear(e[k], lim, e32[k])
 
 
 def finish_rows(hist: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
