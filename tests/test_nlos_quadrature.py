@@ -698,12 +698,13 @@ def test_noise_target_refinement_shrinks_the_elements_that_set_the_error():
 def test_noise_target_refines_the_part_of_the_error_that_sets_it():
     """The refinement plan (:func:`~transient_mi.noise_target_quadrature.plan_quadrature_level`) refines the part of the error
     that sets the ratio: a visibility refinement level where the mixed-visibility bound dominates (elements and
-    cells kept), one more cell per side where the one-cell estimate dominates, smaller elements where theirs does
+    cells kept), more cells per side (an even count) where the one-cell estimate dominates, smaller elements where theirs does
     (cells kept with one per side); the planned shares meet ``PLAN_MARGIN`` x the target."""
     from transient_mi.integrators._nlos_elements import element_scale_m
     from transient_mi.noise_target import PLAN_MARGIN
     from transient_mi.noise_target_quadrature import (ELEMENTS_ORDER, QUADRATURE_ELEMENT_STEP,
-                                                      QUADRATURE_MAX_REFINE_LEVELS, plan_quadrature_level)
+                                                      QUADRATURE_MAX_REFINE_LEVELS, _next_quadrature_level,
+                                                      plan_quadrature_level)
 
     sq = np.array([[[0, 0, 0.5], [0.2, 0, 0.5], [0.2, 0.2, 0.5]], [[0, 0, 0.5], [0.2, 0.2, 0.5], [0, 0.2, 0.5]]])
     # visibility 0.2 of a ratio 0.3 (target 0.1): two levels halve its share twice
@@ -712,6 +713,11 @@ def test_noise_target_refines_the_part_of_the_error_that_sets_it():
     # the one-cell estimate dominates: cells only
     assert plan_quadrature_level(sq, 0.03, 0.01, 1, 1, 0.2, {"visibility": 0.001, "elements": 0.001, "cells": 0.2},
                                  0.1) == (0.01, 2, 1)
+    # ... by even counts only (the coarse level halves them: an odd count states far more than its error): one cell
+    # to two, then four, never three; the elements' step rounds the cells up to an even count too
+    assert plan_quadrature_level(sq, 0.03, 0.01, 1, 1, 2.0, {"visibility": 0.001, "elements": 0.001, "cells": 2.0},
+                                 0.1) == (0.01, 4, 1)
+    assert _next_quadrature_level(sq, 0.06, 0.04, 2, 0.7) == (pytest.approx(0.028), 4)  # (ceil(2 / 0.7) = 3)
     # the elements dominate: they shrink (their size by the planned steps), one cell per side kept
     h, m, rl = plan_quadrature_level(sq, 0.03, 0.01, 1, 1, 0.2, {"visibility": 0.0, "elements": 0.2, "cells": 0.0},
                                      0.1)

@@ -301,10 +301,11 @@ class TransientNLOSPath(mi.CppADIntegrator):
        * - ``patch_cells``
          - integer
          - ``quadrature``: cells per side of a pixel's wall patch, in [1, 64]
-           (default 4; the error estimate compares with half as many; with
-           one, the cells' part of the error is estimated on the coarse
-           elements, one cell against two; one point, the centre, with
-           ``pixel_sampling="center"``).
+           (default 4; the error estimate compares with half as many,
+           ``m // 2``, so an odd count above one states far more error
+           than it has: prefer even; with one, the cells' part of the error
+           is estimated on the coarse elements, one cell against two; one
+           point, the centre, with ``pixel_sampling="center"``).
        * - ``refine_levels``
          - integer
          - ``quadrature``: times an element of mixed visibility is split in
