@@ -149,6 +149,7 @@ def main() -> None:
     ap.add_argument("--align", type=int, default=8, help="Levenberg-Marquardt iterations of the affine alignment")
     ap.add_argument("--carve", type=int, default=None,
                     help="per-face reflectance iterations of the carving step (default: the fit's own default)")
+    ap.add_argument("--grow", type=int, default=1, help="rings of faces added before carving (the fit's default: 1)")
     ap.add_argument("--reflectance", default="global", choices=("global", "face"),
                     help="one reflectance for the mesh, or one per face (the record's name gets '_face')")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "bench_fit_mesh")
@@ -169,7 +170,7 @@ def main() -> None:
                       settings=FitSettings(iterations=a.iterations, sigma_start_ps=150.0,
                                            element_size_m=a.element_size_m),
                       mesh=MeshSettings(cell_m=a.cell_m, stages=a.stages, moments=a.moments, step_m=a.step_m,
-                                        align=a.align, reflectance=a.reflectance,
+                                        align=a.align, reflectance=a.reflectance, grow=a.grow,
                                         **({} if a.carve is None else {"carve": a.carve})),
                       progress=False)
     t_fit = time.perf_counter() - t1
@@ -181,6 +182,7 @@ def main() -> None:
               "iterations": a.iterations, "stages": a.stages, "cell_m": a.cell_m, "element_size_m": a.element_size_m,
               "moments": a.moments, "step_m": a.step_m, "align": a.align, "align_albedo": res["align"]["albedo"],
               "carve": carve_iterations(MeshSettings(**res["config"]["mesh"])), "carve_result": res.get("carve"),
+              "grow": a.grow,
               "reflectance": a.reflectance, "fit_albedo_range": [res["parameters"]["fit"].get("albedo_min"),
                                                                  res["parameters"]["fit"].get("albedo_max")],
               "metrics": rows, "dead_time_check": dead_time, "poisson_nll": res["poisson_nll"], "fit_albedo": res["parameters"]["fit"]["albedo"],

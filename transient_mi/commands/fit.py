@@ -61,6 +61,9 @@ def fit_command(
                               help="--model mesh: iterations of one reflectance per face on the aligned start "
                                    "(subdivided once) before its dark faces are dropped, 0 to 200 (0: none; "
                                    "default 20, or 0 with --reflectance face)."),
+    grow: int = typer.Option(1, "--grow", parser=whole_number("--grow"), metavar="<int>",
+                             help="--model mesh: rings of faces --cell-m wide added around the aligned start's open "
+                                  "boundary before carving, whose kept faces the counts choose, 0 to 4 (0: none)."),
     reflectance: str = typer.Option("global", "--reflectance", help="--model mesh: one reflectance for the mesh "
                                     "(global) or one per face (face: for objects of several materials; fitted.ply "
                                     "carries them)."),
@@ -81,8 +84,8 @@ def fit_command(
     from transient_mi.fit.mesh_fit import MeshSettings, check_mesh_options
 
     mesh = MeshSettings(start=start, start_mesh=None if start_mesh is None else str(start_mesh), cell_m=cell_m,
-                        stages=stages, smoothing=smoothing, align=align, carve=carve, reflectance=reflectance,
-                        albedo_smoothness=albedo_smoothness)
+                        stages=stages, smoothing=smoothing, align=align, carve=carve, grow=grow,
+                        reflectance=reflectance, albedo_smoothness=albedo_smoothness)
     check_mesh_options(mesh)  # whatever --model: a bad value is refused before any work
     result = fit_capture(capture, out, model=model, settings=settings, bin_width_ps=bin_width_ps, n_patches=patches,
                          patch_side_m=patch_side_m, resume=resume, overwrite=overwrite, progress=progress,

@@ -9,8 +9,10 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
    affine map and its reflectance by Levenberg-Marquardt, from the start blur to the end blur: depth, tilt,
    extent and reflectance are coupled in the data, which a per-vertex first-order method follows slowly.
 3. Carving (``carve`` iterations, 20 by default with one reflectance; :mod:`~transient_mi.fit.mesh_carve`): the
-   aligned mesh subdivided once, one reflectance per face fitted with the geometry held, the dark faces dropped
-   (a start from a reconstruction over-covers; the vertex stage keeps its topology).
+   aligned mesh grown by ``grow`` rings of faces ``cell_m`` wide around its open boundary (one by default:
+   :func:`~transient_mi.fit.mesh_start.grow_ring`; a reconstruction's start also under-covers, where its edges
+   fall below its threshold), subdivided once, one reflectance per face fitted with the geometry held, the dark
+   faces dropped (a start from a reconstruction over-covers; the vertex stage keeps its topology).
 4. Stages: Adam on the regularised objective (:mod:`~transient_mi.fit.mesh_optimize`), the mesh subdivided in
    four between stages; the forward model is the capture's (:class:`~transient_mi.fit.capture_model.CaptureModel`:
    its scene, detector, gate, dark counts, pile-up, dead time, jitter) with the deterministic three-bounce
@@ -83,6 +85,7 @@ class MeshSettings:
     align: int = 8  # Levenberg-Marquardt iterations of the global affine map and reflectance first (0: none)
     carve: int | None = None  # per-face reflectance iterations on the aligned start, then its dark faces go
     #                           (None: CARVE_ITERATIONS with one reflectance, 0 with reflectance="face")
+    grow: int = 1  # rings of faces cell_m wide added around the aligned start's open boundary before carving
     reflectance: str = "global"  # global (one reflectance) | face (one per face, held smooth by albedo_smoothness)
     albedo_smoothness: float = 1.0  # weight of the per-face reflectance's smoothness (mesh_regularizers)
 
@@ -110,6 +113,8 @@ def check_mesh_options(mesh: MeshSettings) -> None:
     if mesh.carve is not None and (isinstance(mesh.carve, bool) or not isinstance(mesh.carve, (int, np.integer))
                                    or not 0 <= mesh.carve <= 200):
         raise UserInputError(f"carve={mesh.carve!r}: expected a whole number of iterations from 0 to 200")
+    if isinstance(mesh.grow, bool) or not isinstance(mesh.grow, (int, np.integer)) or not 0 <= mesh.grow <= 4:
+        raise UserInputError(f"grow={mesh.grow!r}: expected a whole number of rings from 0 to 4")
 
 
 def carve_iterations(mesh: MeshSettings) -> int:
@@ -283,8 +288,11 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
             _write_text(out / "align.json", json.dumps({"vertices": np.asarray(v0).tolist(), "albedo": albedo,
                                                         "history": align_history, "seconds": align_s}) + "\n")
             if carve_iterations(mesh):
+                from .mesh_start import device_sight_lines
+
+                sight = device_sight_lines(cap.sensor, cap.scene, cap.width, cap.height) if mesh.grow else None
                 v0, f0, albedo = _carve(out, capture, v0, f0, albedo, mesh, settings, bin_width_ps, end, log,
-                                        progress)
+                                        progress, sight)
                 cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance)
                 model = _model(v0, f0, albedo, mesh, reg_scale)
             _write_stage(stage_file, 0, v0, f0, albedo, reg_scale)
@@ -321,19 +329,35 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
 
 
 def _carve(out: Path, capture, v, f, albedo, mesh: MeshSettings, settings, bin_width_ps: float, end_ps: float, log,
-           progress: bool | None = None):
-    """The carving step (:mod:`~transient_mi.fit.mesh_carve`): the aligned mesh subdivided once, one reflectance per
-    face fitted to the counts with the geometry held, the dark faces dropped. Writes ``carve.json``; returns the
-    kept mesh and its reflectance (per face with ``reflectance="face"``, else the median of the kept faces')."""
+           progress: bool | None = None, sight=None):
+    """The carving step (:mod:`~transient_mi.fit.mesh_carve`): the aligned mesh grown by ``mesh.grow`` rings of
+    faces ``mesh.cell_m`` wide around its open boundary (:func:`~transient_mi.fit.mesh_start.grow_ring`; the new
+    faces that cross ``sight``, the device's lines of sight, dropped), subdivided once, one reflectance per face
+    fitted to the counts with the geometry held, the dark faces dropped. Writes ``carve.json``; returns the kept mesh
+    and its reflectance (per face with ``reflectance="face"``, else the median of the kept faces')."""
     from transient_core.progress import progress_bar
 
     from .mesh_carve import drop_faces, fit_face_reflectance, keep_faces
-    from .mesh_start import subdivide
+    from .mesh_start import crossed_faces, grow_ring, subdivide
     from .outputs import _write_text
 
     t = time.perf_counter()
-    vs, fs = subdivide(np.asarray(v, dtype=np.float64), np.asarray(f))
-    start = np.broadcast_to(np.asarray(albedo, dtype=np.float64).ravel(), (len(f),))
+    v, f = np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
+    albedo = np.asarray(albedo, dtype=np.float64).ravel()
+    n_aligned = len(f)
+    for _ in range(mesh.grow):
+        v, f = grow_ring(v, f, mesh.cell_m)
+    if len(f) > n_aligned:
+        if sight is not None:  # (the new faces across the device's view go; the aligned ones stay, in their order)
+            hit = crossed_faces(v, f, *sight)
+            hit[:n_aligned] = False
+            if hit.any():
+                v, f = drop_faces(v, f, ~hit)
+        if len(albedo) > 1:  # (per face: a new face starts at the median of the aligned ones)
+            albedo = np.concatenate([albedo, np.full(len(f) - n_aligned, float(np.median(albedo)))])
+        log(f"fit mesh: grown by {mesh.grow} ring(s) of {100 * mesh.cell_m:.0f} cm: {n_aligned} -> {len(f)} faces")
+    vs, fs = subdivide(v, f)
+    start = np.broadcast_to(albedo, (len(f),))
     capf = _capture_model(capture, vs, fs, settings, bin_width_ps, "face")
     capf.keep_blur(end_ps)
     n = carve_iterations(mesh)
@@ -345,7 +369,8 @@ def _carve(out: Path, capture, v, f, albedo, mesh: MeshSettings, settings, bin_w
     vk, fk = drop_faces(vs, fs, keep)
     seconds = time.perf_counter() - t
     _write_text(out / "carve.json", json.dumps({
-        "vertices": vk.tolist(), "faces": fk.tolist(), "subdivided_faces": int(len(fs)), "kept": int(keep.sum()),
+        "vertices": vk.tolist(), "faces": fk.tolist(), "aligned_faces": n_aligned, "grown_faces": int(len(f)),
+        "subdivided_faces": int(len(fs)), "kept": int(keep.sum()),
         "reflectance": rho.tolist(), "keep": keep.tolist(), "history": history, "seconds": seconds}) + "\n")
     log(f"fit mesh: carved ({len(history) - 1} per-face reflectance iterations) in {seconds:.0f} s: "
         f"{int(keep.sum())} of {len(fs)} faces kept")
@@ -422,6 +447,8 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
         "align": {"iterations": len(align["history"]), "albedo": align["albedo"],
                   "objective": [h[0] for h in align["history"]], "sigma_ps": [h[1] for h in align["history"]]},
         "carve": None if carve is None else {"iterations": len(carve["history"]) - 1, "kept": carve["kept"],
+                                             "aligned_faces": carve.get("aligned_faces"),
+                                             "grown_faces": carve.get("grown_faces"),
                                              "subdivided_faces": carve["subdivided_faces"],
                                              "objective": [h[0] for h in carve["history"]]},
         "time_s": {"align": align["seconds"], "carve": None if carve is None else carve["seconds"],

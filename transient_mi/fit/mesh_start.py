@@ -20,7 +20,8 @@ patch's corners and centre; laser to every spot); the true shape crosses none of
 
 Meshes finer than the fit's resolution are simplified by vertex clustering (:func:`cluster`: vertices snapped to
 a grid of ``cell_m``, merged, degenerate faces dropped; Rossignac and Borrel 1993). :func:`subdivide` splits
-every triangle in four (edge midpoints): the next, finer stage.
+every triangle in four (edge midpoints): the next, finer stage. :func:`grow_ring` adds a ring of faces around an
+open surface's boundary (the carving step's candidates beyond the start: :mod:`~transient_mi.fit.mesh_fit`).
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ import numpy as np
 
 from transient_core.errors import UserInputError
 
-__all__ = ["front_surface", "closed_surface", "load_mesh", "cluster", "subdivide", "orient_to_wall",
-           "device_sight_lines", "clear_view"]
+__all__ = ["front_surface", "closed_surface", "load_mesh", "cluster", "subdivide", "grow_ring", "orient_to_wall",
+           "device_sight_lines", "crossed_faces", "clear_view"]
 
 
 def _clean(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -209,9 +210,8 @@ def ray_triangles(a: np.ndarray, e1: np.ndarray, e2: np.ndarray, o: np.ndarray, 
     return ok & (u >= 0) & (w >= 0) & (u + w <= 1), t
 
 
-def clear_view(v: np.ndarray, f: np.ndarray, origins: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The mesh without the faces that a segment ``origins -> ends`` crosses (Moller-Trumbore, both sides), unused
-    vertices dropped; the mesh unchanged (same arrays) when none does."""
+def crossed_faces(v: np.ndarray, f: np.ndarray, origins: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Which faces (bool ``[F]``) a segment ``origins -> ends`` crosses (Moller-Trumbore, both sides)."""
     v = np.asarray(v, dtype=np.float64)
     f = np.asarray(f, dtype=np.int64)
     a, e1, e2 = v[f[:, 0]], v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
@@ -219,9 +219,66 @@ def clear_view(v: np.ndarray, f: np.ndarray, origins: np.ndarray, ends: np.ndarr
     for o, d in zip(np.asarray(origins, dtype=np.float64), np.asarray(ends, dtype=np.float64) - origins):
         inside, t = ray_triangles(a, e1, e2, o, d)
         hit |= inside & (t > 0) & (t < 1)
+    return hit
+
+
+def clear_view(v: np.ndarray, f: np.ndarray, origins: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh without the faces that a segment ``origins -> ends`` crosses (Moller-Trumbore, both sides), unused
+    vertices dropped; the mesh unchanged (same arrays) when none does."""
+    v = np.asarray(v, dtype=np.float64)
+    f = np.asarray(f, dtype=np.int64)
+    hit = crossed_faces(v, f, origins, ends)
     if not hit.any():
         return v, f
     if hit.all():
         raise UserInputError("the start mesh lies across the device's view of the wall (every face hides a wall "
                              "patch or a laser spot); start from another surface (--start-mesh)")
     return _clean(v, f[~hit])
+
+
+def grow_ring(v: np.ndarray, f: np.ndarray, width_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh with one ring of faces ``width_m`` wide around its open boundary, wound as its faces.
+
+    Every boundary vertex (of an edge that one face uses) gets a copy moved ``width_m`` along the mean of the
+    outward directions of its boundary edges, each in its face's plane and away from the face's third vertex; every
+    boundary edge ``(a, b)`` (in its face's order) becomes the quad ``b, a, a', b'``, two triangles that hold the
+    edge in the opposite order (a consistent winding). A closed mesh is returned as it is.
+
+    Parameters
+    ----------
+    v : ndarray, float, shape (V, 3)
+        Vertices (m).
+    f : ndarray, int, shape (F, 3)
+        Faces.
+    width_m : float
+        How far the ring reaches beyond the boundary (m).
+
+    Returns
+    -------
+    v, f : ndarray
+        The vertices (the ``V`` first unchanged, then one per boundary vertex) and the faces (the ``F`` first
+        unchanged, then two per boundary edge).
+    """
+    v = np.asarray(v, dtype=np.float64)
+    f = np.asarray(f, dtype=np.int64).reshape(-1, 3)
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    third = np.concatenate([f[:, 2], f[:, 0], f[:, 1]])
+    _, inverse, count = np.unique(np.sort(edges, axis=1), axis=0, return_inverse=True, return_counts=True)
+    open_edge = count[inverse.ravel()] == 1
+    be, bc = edges[open_edge], third[open_edge]
+    if not len(be):
+        return v, f
+    a, b, c = v[be[:, 0]], v[be[:, 1]], v[bc]
+    out = np.cross(b - a, np.cross(b - a, c - a))  # (in the face's plane, across the edge)
+    out *= -np.sign(np.einsum("ij,ij->i", out, c - 0.5 * (a + b)))[:, None]  # (away from the third vertex)
+    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
+    direction = np.zeros_like(v)
+    np.add.at(direction, be[:, 0], out)
+    np.add.at(direction, be[:, 1], out)
+    rim = np.unique(be)
+    d = direction[rim] / np.maximum(np.linalg.norm(direction[rim], axis=1, keepdims=True), 1e-300)
+    copy = np.full(len(v), -1, dtype=np.int64)
+    copy[rim] = len(v) + np.arange(len(rim))
+    ap, bp = copy[be[:, 0]], copy[be[:, 1]]
+    ring = np.concatenate([np.stack([be[:, 1], be[:, 0], ap], axis=1), np.stack([be[:, 1], ap, bp], axis=1)])
+    return np.concatenate([v, v[rim] + float(width_m) * d]), np.concatenate([f, ring])
