@@ -409,6 +409,20 @@ def _winged_square(wing_m: float = 0.1, cell_m: float = 0.1):
     return x, f, u_c > 0.2
 
 
+def _carve_faces(capture, matched, carved, iterations: int = 15):
+    """The carving step by hand: the reflectance matched to the counts on ``matched`` ``(v, f)`` as the fit does,
+    then ``iterations`` per-face reflectance steps on ``carved`` ``(v, f)``: ``(start, rho, history, keep)``."""
+    from transient_mi.fit.mesh_carve import fit_face_reflectance, keep_faces
+    from transient_mi.fit.mesh_fit import _match_albedo, _model
+
+    st = FitSettings(iterations=10, element_size_m=0.06)
+    a0 = _match_albedo(_model(*matched, 0.5, MeshSettings(), 1.0), _capture_model(capture, *matched, st, 32.0), st)
+    cap = _capture_model(capture, *carved, st, 32.0, "face")
+    cap.keep_blur(30.0)
+    rho, hist = fit_face_reflectance(cap, carved[0], a0, iterations, 30.0)
+    return a0, rho, hist, keep_faces(rho)
+
+
 def test_a_grown_ring_inside_the_square_is_kept_and_what_the_counts_see_beyond_it_dropped(capture_8x8):
     """Growing then carving (mesh_start.grow_ring, mesh_carve) from the tilted plane's central 20 cm (2 x 2 cells of
     10 cm, 8 faces, the reflectance matched to the counts as the fit does): two rings of 10 cm, the first inside the
@@ -417,8 +431,6 @@ def test_a_grown_ring_inside_the_square_is_kept_and_what_the_counts_see_beyond_i
     start; measured: 8 of 16, all to 0.02-0.49 from a start of 0.74). The others the counts do
     not see (one spot, 8 x 8 pixels): they keep their start, above the cut, and stay (the limit docs/fit.md
     states). Deterministic."""
-    from transient_mi.fit.mesh_carve import fit_face_reflectance, keep_faces
-    from transient_mi.fit.mesh_fit import _match_albedo, _model
     from transient_mi.fit.mesh_start import grow_ring
 
     v, f, _ = _winged_square(wing_m=0.0, cell_m=0.1)
@@ -430,12 +442,7 @@ def test_a_grown_ring_inside_the_square_is_kept_and_what_the_counts_see_beyond_i
     v2, f2 = grow_ring(v1, f1, 0.1)
     first, second = np.arange(8, len(f1)), np.arange(len(f1), len(f2))
     assert len(first) == 16 and len(second) == 16
-    st = FitSettings(iterations=10, element_size_m=0.06)
-    a0 = _match_albedo(_model(v0, f0, 0.5, MeshSettings(), 1.0), _capture_model(capture_8x8, v0, f0, st, 32.0), st)
-    cap = _capture_model(capture_8x8, v2, f2, st, 32.0, "face")
-    cap.keep_blur(30.0)
-    rho, hist = fit_face_reflectance(cap, v2, a0, 15, 30.0)
-    keep = keep_faces(rho)
+    a0, rho, hist, keep = _carve_faces(capture_8x8, (v0, f0), (v2, f2))
     seen = np.abs(rho / a0 - 1.0) > 0.1
     msg = (f"start {a0:.3f}; centre {np.round(rho[:8], 3)}; first ring {np.round(rho[first], 3)}; second ring "
            f"{np.round(rho[second], 3)}; objective {hist[0][0]:.4g} -> {hist[-1][0]:.4g}")
@@ -450,17 +457,11 @@ def test_carving_drops_a_spurious_wing_and_keeps_the_square(capture_8x8):
     lower the objective, darken every wing face below half the square's, and the cut drops all 8 wing faces and keeps
     at least 28 of the square's 32 (measured: wing 0.006-0.15, square 0.45-1.17 against 0.8, all 32 kept; the
     objective 2.8e6 -> 5.1e3). Deterministic."""
-    from transient_mi.fit.mesh_carve import drop_faces, fit_face_reflectance, keep_faces
-    from transient_mi.fit.mesh_fit import _match_albedo, _model
+    from transient_mi.fit.mesh_carve import drop_faces
 
     v, f, wing = _winged_square()
     assert wing.sum() == 8 and (~wing).sum() == 32
-    st = FitSettings(iterations=10, element_size_m=0.06)
-    a0 = _match_albedo(_model(v, f, 0.5, MeshSettings(), 1.0), _capture_model(capture_8x8, v, f, st, 32.0), st)
-    cap = _capture_model(capture_8x8, v, f, st, 32.0, "face")
-    cap.keep_blur(30.0)
-    rho, hist = fit_face_reflectance(cap, v, a0, 15, 30.0)
-    keep = keep_faces(rho)
+    a0, rho, hist, keep = _carve_faces(capture_8x8, (v, f), (v, f))
     msg = (f"start {a0:.3f}; square {np.round(rho[~wing], 3)}; wing {np.round(rho[wing], 3)}; "
            f"objective {hist[0][0]:.4g} -> {hist[-1][0]:.4g} in {len(hist) - 1} steps")
     assert hist[-1][0] < hist[0][0], msg
