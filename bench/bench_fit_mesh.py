@@ -149,7 +149,7 @@ def main() -> None:
     ap.add_argument("--align", type=int, default=8, help="Levenberg-Marquardt iterations of the affine alignment")
     ap.add_argument("--carve", type=int, default=None,
                     help="per-face reflectance iterations of the carving step (default: the fit's own default)")
-    ap.add_argument("--grow", type=int, default=1, help="rings of faces added before carving (the fit's default: 1)")
+    ap.add_argument("--grow", type=int, default=0, help="rings of faces added before carving (the fit's default: 0)")
     ap.add_argument("--reflectance", default="global", choices=("global", "face"),
                     help="one reflectance for the mesh, or one per face (the record's name gets '_face')")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "bench_fit_mesh")

@@ -179,12 +179,13 @@ def test_fit_recovers_a_displaced_plane_from_a_confocal_capture(tmp_path_factory
 
 
 def test_resume_after_a_subdivision_stage(capture, tmp_path):
-    """Two alignment iterations, two carving iterations (the aligned start subdivided, its dark faces dropped),
+    """Two alignment iterations, two carving iterations (the aligned start grown by a ring of faces, subdivided, its
+    dark faces dropped),
     then two iterations in two stages (the carved mesh subdivided after the first); resuming the finished fit
     does nothing more; other settings are refused."""
     out = tmp_path / "fit"
     kw = dict(model="mesh", bin_width_ps=16.0, progress=False, log=lambda *a: None, settings=SETTINGS,
-              mesh=MeshSettings(align=2, carve=2))
+              mesh=MeshSettings(align=2, carve=2, grow=1))
     r1 = fit_capture(capture, out, **kw)
     carve = r1["carve"]
     assert carve["aligned_faces"] == r1["parameters"]["start"]["n_faces"] < carve["grown_faces"]  # (one ring)

@@ -9,10 +9,11 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
    affine map and its reflectance by Levenberg-Marquardt, from the start blur to the end blur: depth, tilt,
    extent and reflectance are coupled in the data, which a per-vertex first-order method follows slowly.
 3. Carving (``carve`` iterations, 20 by default with one reflectance; :mod:`~transient_mi.fit.mesh_carve`): the
-   aligned mesh grown by ``grow`` rings of faces ``cell_m`` wide around its open boundary (one by default:
+   aligned mesh grown by ``grow`` rings of faces ``cell_m`` wide around its open boundary (none by default:
    :func:`~transient_mi.fit.mesh_start.grow_ring`; a reconstruction's start also under-covers, where its edges
-   fall below its threshold), subdivided once, one reflectance per face fitted with the geometry held, the dark
-   faces dropped (a start from a reconstruction over-covers; the vertex stage keeps its topology).
+   fall below its threshold; docs/fit.md has what one ring gains and loses), subdivided once, one reflectance per
+   face fitted with the geometry held, the dark faces dropped (a start from a reconstruction over-covers; the
+   vertex stage keeps its topology).
 4. Stages: Adam on the regularised objective (:mod:`~transient_mi.fit.mesh_optimize`), the mesh subdivided in
    four between stages; the forward model is the capture's (:class:`~transient_mi.fit.capture_model.CaptureModel`:
    its scene, detector, gate, dark counts, pile-up, dead time, jitter) with the deterministic three-bounce
@@ -85,7 +86,7 @@ class MeshSettings:
     align: int = 8  # Levenberg-Marquardt iterations of the global affine map and reflectance first (0: none)
     carve: int | None = None  # per-face reflectance iterations on the aligned start, then its dark faces go
     #                           (None: CARVE_ITERATIONS with one reflectance, 0 with reflectance="face")
-    grow: int = 1  # rings of faces cell_m wide added around the aligned start's open boundary before carving
+    grow: int = 0  # rings of faces cell_m wide added around the aligned start's open boundary before carving
     reflectance: str = "global"  # global (one reflectance) | face (one per face, held smooth by albedo_smoothness)
     albedo_smoothness: float = 1.0  # weight of the per-face reflectance's smoothness (mesh_regularizers)
 
