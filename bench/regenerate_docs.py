@@ -56,8 +56,8 @@ from docgen.quadrature import (  # noqa: E402
     quadrature_inline, quadrature_profile_inline, quadrature_table, refinement_rule_inline, scene_settings_table,
 )
 from docgen.nlos_quadrature import array_speedup_inline, nlos_quadrature_table, work_arrays_inline  # noqa: E402
-from docgen.fit_mesh import (fit_mesh_full_table, fit_mesh_mannequin_para, fit_mesh_plane_table,  # noqa: E402
-                              fit_mesh_table, fit_mesh_topology_table)
+from docgen.fit_mesh import (GROWTH_PAIRS, fit_mesh_full_table, fit_mesh_growth_table,  # noqa: E402
+                              fit_mesh_mannequin_para, fit_mesh_plane_table, fit_mesh_table, fit_mesh_topology_table)
 from docgen.studies import (  # noqa: E402
     studies_para, _study_inline, dataset_para, dataset_docs_table, view_para, view_docs_table, fit_para,
     dataset_noise_standard_table, DATASET_NT, fit_quadrature_cost_table,
@@ -129,6 +129,8 @@ GENERATORS = {
     "fit_mesh_topology": (fit_mesh_topology_table, ["fit_mesh_chair", "fit_mesh_holed_plate"], False),
     "fit_mesh_full": (fit_mesh_full_table, ["fit_mesh_letter_16", "fit_mesh_tilted_plane_16"], False),
     "fit_mesh_mannequin": (fit_mesh_mannequin_para, ["fit_mesh_mannequin"], False),
+    "fit_mesh_growth": (fit_mesh_growth_table, [n for name, _ in GROWTH_PAIRS for n in (name, f"{name}_grow1")],
+                        False),
     "recon_targets": (recon_targets_table, ["study_methods_paper_mannequin", "study_methods_nlos_letter",
                                             "mannequin_features", "recon_methods", "completion_seeds"], False),
 }

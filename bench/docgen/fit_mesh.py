@@ -136,7 +136,9 @@ def _table(rec) -> str:
              if r.get("align") else "")
     cr = r.get("carve_result")
     if cr:
-        align += (f"carving ({cr['iterations']} per-face reflectance iterations, {r['time_s']['carve']:.0f} s: "
+        grown = (f"the aligned mesh grown by {r['grow']} ring(s) of faces ({cr['aligned_faces']} -> "
+                 f"{cr['grown_faces']}), " if r.get("grow") and "grown_faces" in cr else "")
+        align += (f"carving ({grown}{cr['iterations']} per-face reflectance iterations, {r['time_s']['carve']:.0f} s: "
                   f"{cr['kept']} of {cr['subdivided_faces']} faces kept), then ")
     head = (f"The {scene} at a small configuration ({r['width']} x {r['width']} pixels of {32 / r['width']:g} cm, "
             f"{r['spots']} x {r['spots']} laser spots, the paper's detector for {r['exposure_ms']:g} ms per spot, "
@@ -190,3 +192,32 @@ def fit_mesh_topology_table(R) -> str:
                 f"{_cm(closed['chamfer_mesh_m'])} on this grid: the silhouette target needs the hole opened. ")
     return (head + "\n\n" + "\n".join(rows) + "\n\n" + "; ".join(captures) + ". " + tail
             + " ".join(provenance(rec) for rec in recs))
+
+
+#: The growth step's comparison (docs/fit.md): each scene's record at the fit's defaults (no growth) against the same
+#: with one ring (``*_grow1``).
+GROWTH_PAIRS = [("fit_mesh_letter", "letter, 8 x 8"), ("fit_mesh_tilted_plane", "tilted plane, 8 x 8"),
+                ("fit_mesh_letter_16", "letter, 16 x 16"), ("fit_mesh_tilted_plane_16", "tilted plane, 16 x 16"),
+                ("fit_mesh_chair", "chair, 8 x 8"), ("fit_mesh_holed_plate", "holed plate, 8 x 8")]
+
+
+def fit_mesh_growth_table(R) -> str:
+    """Every free-mesh record at the fit's defaults (no growth) against the same with one ring (``*_grow1``): mesh
+    Chamfer, silhouette and occupancy IoU of the fit, the faces carving kept, the fit's wall time."""
+    rows = ["| scene | Chamfer, surface to surface | silhouette IoU | occupancy IoU | faces kept by carving "
+            "| time (fit, wall) |", "|---|---|---|---|---|---|"]
+    sources = []
+    for name, label in GROWTH_PAIRS:
+        before, after = R(name), R(f"{name}_grow1")
+        b, a = before["result"], after["result"]
+        mb, ma = b["metrics"]["fit"], a["metrics"]["fit"]
+        cb, ca = b.get("carve_result") or {}, a.get("carve_result") or {}
+        rows.append(f"| {label} | {_cm(mb['chamfer_mesh_m'])} -> {_cm(ma['chamfer_mesh_m'])} "
+                    f"| {_f(mb['silhouette_iou'])} -> {_f(ma['silhouette_iou'])} | {_f(mb['iou'])} -> {_f(ma['iou'])} "
+                    f"| {cb.get('kept', '-')} of {cb.get('subdivided_faces', '-')} -> {ca.get('kept', '-')} of "
+                    f"{ca.get('subdivided_faces', '-')} | {b['time_s']['fit_wall']:.0f} s -> "
+                    f"{a['time_s']['fit_wall']:.0f} s |")
+        sources += [provenance(before, short=True), provenance(after, short=True)]
+    return ("The fit at its defaults (no growth) -> with one ring (`--grow 1`; times from different machines and "
+            "loads, see the sources):\n\n" + "\n".join(rows) + "\n\nSources: " + "; ".join(sources)
+            + ".\n")
