@@ -97,7 +97,7 @@ def _even_cells(m: int) -> int:
 
     The error estimate's coarse level takes half the cells, ``m // 2``: an odd count is not halved, and its stated
     error is far above its actual one (three cells against one: on the README letter, 16 x 16 at 9 mm and 10 ms, a
-    stated ratio of 0.54 for an actual 0.0061; four cells: 0.0138 for 0.0021, in 1.4 times the time)."""
+    stated ratio of 0.54 for an actual 0.0061; four cells: 0.0138 for 0.0021)."""
     m = int(m)
     return m if m <= 1 else min(64, m + (m % 2))
 

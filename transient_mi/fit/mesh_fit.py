@@ -242,7 +242,8 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
         if not resuming:  # (the start's faces across the device's lines of sight dropped: mesh_start)
             from .mesh_start import clear_view, device_sight_lines
 
-            v1, f1 = clear_view(v0, f0, *device_sight_lines(cap.sensor, cap.scene, cap.width, cap.height))
+            sight = device_sight_lines(cap.sensor, cap.scene, cap.width, cap.height)  # (the device's: no mesh in it)
+            v1, f1 = clear_view(v0, f0, *sight)
             if len(f1) != len(f0):
                 v0, f0 = v1, f1
                 cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance)
@@ -289,9 +290,6 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
             _write_text(out / "align.json", json.dumps({"vertices": np.asarray(v0).tolist(), "albedo": albedo,
                                                         "history": align_history, "seconds": align_s}) + "\n")
             if carve_iterations(mesh):
-                from .mesh_start import device_sight_lines
-
-                sight = device_sight_lines(cap.sensor, cap.scene, cap.width, cap.height) if mesh.grow else None
                 v0, f0, albedo = _carve(out, capture, v0, f0, albedo, mesh, settings, bin_width_ps, end, log,
                                         progress, sight)
                 cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance)
