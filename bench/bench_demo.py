@@ -64,6 +64,8 @@ def main(argv=None) -> int:
     ap.add_argument("--exposure-ms", type=float, default=None,
                     help="demo --exposure-ms (default: the demo's 10 ms); the record is demo_e<ms>ms")
     ap.add_argument("--arrays", default=None, help="demo --arrays (default: the demo's 4,8,16,32)")
+    ap.add_argument("--noise-target", default=None,
+                    help="demo --noise-target (default: the demo's auto); the record is <name>_nt<R>")
     _record.add_arguments(ap)
     a = ap.parse_args(argv)
     load_start = list(os.getloadavg())
@@ -72,10 +74,13 @@ def main(argv=None) -> int:
         args += ["--exposure-ms", f"{a.exposure_ms:g}"]
     if a.arrays is not None and not a.small:
         args += ["--arrays", a.arrays]
+    if a.noise_target is not None:
+        args += ["--noise-target", a.noise_target]
     with tempfile.TemporaryDirectory(prefix="bench-demo-") as td:
         runs = [one_run(args, Path(td), i) for i in range(1 if a.small else max(1, a.repeats))]
     ok = [r for r in runs if r["status"] == "ok"]
     result = {"benchmark": "demo", "small": a.small, "quick": a.quick or a.small, "exposure_ms": a.exposure_ms,
+              "noise_target": a.noise_target or "auto",
               "command": "transient-mi demo " + " ".join(args + ["-o", "OUT"]), "cpu_count": os.cpu_count(),
               "runs": runs}
     if ok:
@@ -87,6 +92,8 @@ def main(argv=None) -> int:
         name += f"_e{a.exposure_ms:g}ms"
     if a.arrays is not None and not a.small:
         name += "_a" + a.arrays.replace(",", "-")
+    if a.noise_target is not None:
+        name += f"_nt{a.noise_target}"
     _record.maybe_save(a, name, result, load_start=load_start)
     return 0 if len(ok) == len(runs) else 1
 

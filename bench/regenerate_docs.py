@@ -59,8 +59,8 @@ from docgen.nlos_quadrature import array_speedup_inline, nlos_quadrature_table, 
 from docgen.fit_mesh import (GROWTH_PAIRS, fit_mesh_full_table, fit_mesh_growth_table,  # noqa: E402
                               fit_mesh_mannequin_para, fit_mesh_plane_table, fit_mesh_table, fit_mesh_topology_table)
 from docgen.studies import (  # noqa: E402
-    studies_para, _study_inline, dataset_para, dataset_docs_table, view_para, view_docs_table, fit_para,
-    dataset_noise_standard_table, DATASET_NT, fit_quadrature_cost_table,
+    studies_para, _study_inline, dataset_para, dataset_docs_table, view_para, view_docs_table,
+    fit_para, dataset_noise_standard_table, DATASET_NT, fit_quadrature_cost_table,
 )
 
 

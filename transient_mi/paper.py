@@ -195,6 +195,19 @@ class DemoSettings:
     #: ``monte_carlo`` (:data:`PAPER_ESTIMATOR`) or ``quadrature`` (deterministic three-bounce light; the mannequin
     #: is a mesh; ``demo --estimator quadrature``).
     estimator: str = PAPER_ESTIMATOR
+    #: The target that replaces ``noise_target`` where the quadrature renders (None: ``noise_target`` for both):
+    #: 0.01, as the studies' ``auto`` (issue 27: deterministic captures at a hundredth of the photon noise; Monte
+    #: Carlo keeps 0.1, its samples growing as 1 / target). ``demo --noise-target R`` sets one target for both.
+    quadrature_noise_target: float | None = 0.01
+
+    def target(self) -> float | None:
+        """The noise target the demo's captures are rendered to: ``quadrature_noise_target`` where the
+        quadrature renders them and a target is set at all, else ``noise_target`` (None: no target)."""
+        if self.noise_target is None:
+            return None
+        if self.estimator == "quadrature" and self.quadrature_noise_target is not None:
+            return self.quadrature_noise_target
+        return self.noise_target
 
     def config(self, array: int) -> PaperConfig:
         return PaperConfig(array=array, spots=self.spots, power_w=self.power_w, spp=self.spp,

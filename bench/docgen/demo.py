@@ -79,7 +79,8 @@ def noise_vs_spp_inline(R) -> str:
 
 
 #: The demo's records by exposure per spot (bench_demo.py --exposure-ms; the plain record is the default 10 ms).
-DEMO_EXPOSURES = (("demo_e1ms", 1.0), ("demo", 10.0), ("demo_e1000ms", 1000.0))
+DEMO_EXPOSURES = (("demo_e1ms", 1.0), ("demo", 10.0), ("demo_nt0.1", 10.0), ("demo_e1000ms", 1000.0),
+                  ("demo_e1000ms_nt0.1", 1000.0))
 
 
 def demo_exposures_table(R) -> str:
@@ -87,15 +88,15 @@ def demo_exposures_table(R) -> str:
     the quadrature's settings and the worst rendering / photon noise ratio of its table."""
     from .common import Missing
 
-    head = ("| exposure per spot | demo wall (s) | render (s) | elements, cells per patch[, visibility levels] | "
-            "worst rendering / photon "
-            "noise (bins) | within 3 min | 1-min load (start -> end) | record |\n|---|---|---|---|---|---|---|---|\n")
+    head = ("| exposure per spot | noise target | demo wall (s) | render (s) | elements, cells per patch[, visibility "
+            "levels] | worst rendering / photon noise (bins) | within 3 min | 1-min load (start -> end) | record |\n"
+            "|---|---|---|---|---|---|---|---|---|\n")
     rows = []
     for name, ms in DEMO_EXPOSURES:
         try:
             rec = R(name)
         except Missing:
-            rows.append(f"| {ms:g} ms | not measured | | | | | | `bench/results/{name}.json` missing |")
+            rows.append(f"| {ms:g} ms | | not measured | | | | | | `bench/results/{name}.json` missing |")
             continue
         run = min((r for r in rec["result"]["runs"] if r["status"] == "ok"), key=lambda r: r["wall_s"])  # (fastest)
         sizes = sorted({(round(1000 * r["quadrature_element_size_m"], 1), r["quadrature_patch_cells"],
@@ -105,8 +106,11 @@ def demo_exposures_table(R) -> str:
             if sizes else "Monte Carlo"
         worst = max(r["render_noise_ratio"] for r in run["rows"])
         m = rec["machine"]
-        rows.append(f"| {ms:g} ms | {run['wall_s']:.0f} | {run['step_sums_s']['render']:.0f} | {settings} | "
+        nt = rec["result"].get("noise_target", "auto")
+        nt = "auto (0.01 by the quadrature)" if nt == "auto" else f"`--noise-target {nt}`"
+        rows.append(f"| {ms:g} ms | {nt} | {run['wall_s']:.0f} | {run['step_sums_s']['render']:.0f} | {settings} | "
                     f"{worst:.2g} | {'yes' if run['wall_s'] <= 180 else 'no'} | "
                     f"{m['load_average_1min_start']:.1f} -> {m['load_average_1min_end']:.1f} | "
                     f"`bench/results/{name}.json`, {rec['date_utc'][:10]} |")
-    return "\n" + head + "\n".join(rows) + "\n\n(`python bench/bench_demo.py [--exposure-ms MS] --save`, 2 cores.)\n"
+    return ("\n" + head + "\n".join(rows)
+            + "\n\n(`python bench/bench_demo.py [--exposure-ms MS] [--noise-target R] --save`, 2 cores.)\n")

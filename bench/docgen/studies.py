@@ -160,7 +160,8 @@ def fit_para(R) -> str:
     names = {"quadrature": "the quadrature", "monte_carlo": "Monte Carlo"}
     cap_est = names.get(cap["defines"].get("estimator", "monte_carlo"), "Monte Carlo")
     return (f"\nThe paper's scene ({cap['array']}x{cap['array']} array, 2 x 2 laser spots, the paper's detector for "
-            f"{cap['exposure_s'] * 1000:g} ms per spot, rendered by {cap_est} to the demo's noise target) with the "
+            f"{cap['exposure_s'] * 1000:g} ms per spot, rendered by {cap_est} to the demo's noise target"
+            + (f", {cap['noise_target']:g}" if cap.get("noise_target") is not None else "") + ") with the "
             f"mannequin in a "
             f"pose the fit does not start from (`{cap['defines'].get('joints', '')}`, turned "
             f"{cap['defines']['rotation']} degrees, {cap['defines']['distance']} m from the wall); the fit ran with its "

@@ -23,6 +23,11 @@ def demo(
         None, "--estimator", help="Estimator of three-bounce light: quadrature (deterministic, an error estimate "
                                   "instead of noise) or monte_carlo (samples); default: the demo's "
                                   "(docs/demo.md)."),
+    noise_target: Optional[str] = typer.Option(
+        None, "--noise-target", metavar="R|auto|none",
+        help="Largest rendering / photon noise ratio of every capture: auto (default) is 0.01 where the quadrature "
+             "renders, 0.1 by Monte Carlo; a number sets it for both; none renders at the scene's settings and "
+             "reports the ratio."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a non-empty output directory (an earlier "
                                    "demo's output is replaced without it)."),
 ) -> None:
@@ -55,6 +60,17 @@ def demo(
         if estimator not in ("quadrature", "monte_carlo"):
             raise UserInputError(f"--estimator {estimator!r}: allowed quadrature, monte_carlo")
         changes["estimator"] = estimator
+    if noise_target is not None and noise_target != "auto":
+        if noise_target == "none":
+            changes["noise_target"] = None
+        else:
+            try:
+                r = float(noise_target)
+            except ValueError:
+                r = float("nan")
+            if not (math.isfinite(r) and r > 0):
+                raise UserInputError(f"--noise-target {noise_target!r}: expected a number > 0, auto or none")
+            changes.update(noise_target=r, quadrature_noise_target=None)
     if not 0 <= seed < 2**31:
         raise UserInputError(f"--seed {seed}: must be in [0, 2**31)")
     run_demo(out, settings=dataclasses.replace(s, **changes), quick=quick, overwrite=overwrite,
