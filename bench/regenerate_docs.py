@@ -59,7 +59,7 @@ from docgen.nlos_quadrature import array_speedup_inline, nlos_quadrature_table, 
 from docgen.fit_mesh import (GROWTH_PAIRS, fit_mesh_full_table, fit_mesh_growth_table,  # noqa: E402
                               fit_mesh_mannequin_para, fit_mesh_plane_table, fit_mesh_table, fit_mesh_topology_table)
 from docgen.studies import (  # noqa: E402
-    studies_para, _study_inline, dataset_para, dataset_docs_table, view_para, view_docs_table,
+    studies_para, _study_inline, dataset_para, dataset_docs_table, dataset_nlos_inline, view_para, view_docs_table,
     fit_para, dataset_noise_standard_table, DATASET_NT, fit_quadrature_cost_table,
 )
 
@@ -99,6 +99,7 @@ GENERATORS = {
     "noise_cost": (noise_cost_inline, ["render_variance_cost", "render_variance_cost_16k"], True),
     "noise_vs_spp": (noise_vs_spp_inline, ["render_noise_vs_spp"], True),
     "dataset_docs_table": (dataset_docs_table, ["dataset_dataset_example"], False),
+    "dataset_nlos": (dataset_nlos_inline, ["dataset_dataset_nlos_mannequin"], True),
     "dataset_noise_standard": (dataset_noise_standard_table, list(DATASET_NT), False),
     "gradient": (gradient_para, ["gradient"], False),
     "fit": (fit_para, ["fit", "fit_adam", "fit_16", "fit_8"], False),

@@ -60,6 +60,18 @@ def dataset_para(R) -> str:
     return text + "\n"
 
 
+def dataset_nlos_inline(R) -> str:
+    """The NLOS example spec at its own settings: items, wall time, items per hour and the largest stated ratio."""
+    rec = R("dataset_dataset_nlos_mannequin")
+    x = rec["result"]["runs"][0]
+    return (f"{x['items']} items in {x['wall_s']:.0f} s with `--workers {x['workers']}`, i.e. about "
+            f"{x['items_per_hour']:.0f} items per hour on {rec['machine']['cores']} cores, rendered by "
+            + " and ".join({"quadrature": "the quadrature", "monte_carlo": "Monte Carlo"}.get(e, e)
+                           for e in sorted(x["estimators"])) + f" (the paper scene's default), each capture's stated "
+            f"rendering error at most {x['render_noise_ratio_max']:.2g} x the photon noise "
+            f"(`{shown_command(rec)}`; {provenance(rec, short=True)})")
+
+
 def dataset_docs_table(R) -> str:
     rec = R("dataset_dataset_example")
     r = rec["result"]
