@@ -192,6 +192,21 @@ def test_demo_holds_the_quadrature_to_a_hundredth_of_the_photon_noise(tmp_path, 
     assert not (tmp_path / "d").exists()
 
 
+def test_demo_renders_its_quadrature_captures_to_a_hundredth(tmp_path):
+    """End to end at the demo's defaults but a 2 x 2 array and 8 ps bins (seconds): the ideal capture is rendered
+    by the quadrature to the target 0.01 and meets it, and the summary says so."""
+    from transient_mi.demo import run_demo
+    from transient_mi.paper import DemoSettings
+
+    s = DemoSettings(arrays=(2,), bin_width_ps=8.0, n_bins=1438, voxels=(16, 16, 8))
+    out = run_demo(tmp_path / "demo", settings=s, progress=False, log=lambda line: None)
+    m = json.loads((out / "captures" / "array_02" / "ideal" / "manifest.json").read_text())
+    assert m["render"]["estimator"] == "quadrature"
+    assert m["render"]["noise_target"]["target"] == 0.01 and m["render"]["noise_target"]["met"]
+    assert all(sp["ratio"] <= 0.01 for sp in m["render"]["noise_target"]["spots"])
+    assert "Target 0.01: met for every array." in (out / "summary.md").read_text()
+
+
 def test_demo_shows_the_best_array_method_beside_the_paper_pipeline(quick_demo):
     """fig6: the largest array's counts reconstructed with the best array method, scored beside bp."""
     import matplotlib.image as mpimg
