@@ -102,13 +102,14 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
     (tmp / "recon").mkdir()
     results, hists = [], {}
     start = {}  # the quadrature settings the noise target starts from (below)
+    target = s.target()
     for i, n in enumerate(s.arrays):
         cfg = s.config(n).replace(**start)
         cap = tmp / "captures" / f"array_{n:02d}"
         cap.mkdir(parents=True)
         log(f"[{i + 1}/{len(s.arrays)}] {n}x{n} SPAD array: render, detect, reconstruct")
         t0 = time.perf_counter()
-        ideal = render_ideal(cfg, cap / "ideal", seed=s.seed, progress=progress, noise_target=s.target(),
+        ideal = render_ideal(cfg, cap / "ideal", seed=s.seed, progress=progress, noise_target=target,
                              exposure_s=s.exposure_s, params=params, log=log)
         t1 = time.perf_counter()
         time_axis = json.loads((ideal / "manifest.json").read_text())["time"]
@@ -134,11 +135,11 @@ def _run(tmp: Path, s: DemoSettings, progress, log):
         n_spots = m["n_files"]
         rn = m["detector"]["resolved"].get("render_noise") or {}
         estimator, quad = _estimator_of(ideal)
-        if estimator == "quadrature" and s.target() is not None:
+        if estimator == "quadrature" and target is not None:
             # the next array starts its refinement from the settings this one needed (same scene, exposure and
             # detector: the same parts of the error set its ratio), not from the scene's: one round instead of two;
             # its elements enlarged by what this one's ratio leaves below the target (coarser_start)
-            start = _next_start(ideal, s.target())
+            start = _next_start(ideal, target)
         spp_used = 0 if estimator == "quadrature" else rendered_spp(ideal, s.spp)
         results.append(ArrayResult(
             array=n, metrics=metrics, pulses_per_spot=pulses, spp=spp_used, render_noise=rn,

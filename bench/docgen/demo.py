@@ -78,7 +78,8 @@ def noise_vs_spp_inline(R) -> str:
             f"{hi} (" + _own_provenance(rec, "render_noise_vs_spp").replace("Source: ", "").rstrip(".") + ")")
 
 
-#: The demo's records by exposure per spot (bench_demo.py --exposure-ms; the plain record is the default 10 ms).
+#: The demo's records by exposure per spot and noise target (bench_demo.py --exposure-ms, --noise-target; the plain
+#: record is the default 10 ms and auto target).
 DEMO_EXPOSURES = (("demo_e1ms", 1.0), ("demo", 10.0), ("demo_nt0.1", 10.0), ("demo_e1000ms", 1000.0),
                   ("demo_e1000ms_nt0.1", 1000.0))
 
@@ -106,7 +107,7 @@ def demo_exposures_table(R) -> str:
             if sizes else "Monte Carlo"
         worst = max(r["render_noise_ratio"] for r in run["rows"])
         m = rec["machine"]
-        nt = rec["result"].get("noise_target", "auto")
+        nt = rec["result"]["noise_target"]
         nt = "auto (0.01 by the quadrature)" if nt == "auto" else f"`--noise-target {nt}`"
         rows.append(f"| {ms:g} ms | {nt} | {run['wall_s']:.0f} | {run['step_sums_s']['render']:.0f} | {settings} | "
                     f"{worst:.2g} | {'yes' if run['wall_s'] <= 180 else 'no'} | "

@@ -60,14 +60,17 @@ def dataset_para(R) -> str:
     return text + "\n"
 
 
+#: How the docs name each estimator of three-bounce light.
+ESTIMATOR_NAMES = {"quadrature": "the quadrature", "monte_carlo": "Monte Carlo"}
+
+
 def dataset_nlos_inline(R) -> str:
     """The NLOS example spec at its own settings: items, wall time, items per hour and the largest stated ratio."""
     rec = R("dataset_dataset_nlos_mannequin")
     x = rec["result"]["runs"][0]
     return (f"{x['items']} items in {x['wall_s']:.0f} s with `--workers {x['workers']}`, i.e. about "
             f"{x['items_per_hour']:.0f} items per hour on {rec['machine']['cores']} cores, rendered by "
-            + " and ".join({"quadrature": "the quadrature", "monte_carlo": "Monte Carlo"}.get(e, e)
-                           for e in sorted(x["estimators"])) + f" (the paper scene's default), each capture's stated "
+            + " and ".join(ESTIMATOR_NAMES.get(e, e) for e in sorted(x["estimators"])) + f" (the paper scene's default), each capture's stated "
             f"rendering error at most {x['render_noise_ratio_max']:.2g} x the photon noise "
             f"(`{shown_command(rec)}`; {provenance(rec, short=True)})")
 
@@ -169,7 +172,7 @@ def fit_para(R) -> str:
     ]
     head = "| | fit | backprojection (paper's filter) | target |\n|---|---|---|---|\n"
     body = "\n".join(f"| {a} | {x} | {y} | {z} |" for a, x, y, z in rows)
-    names = {"quadrature": "the quadrature", "monte_carlo": "Monte Carlo"}
+    names = ESTIMATOR_NAMES
     cap_est = names.get(cap["defines"].get("estimator", "monte_carlo"), "Monte Carlo")
     return (f"\nThe paper's scene ({cap['array']}x{cap['array']} array, 2 x 2 laser spots, the paper's detector for "
             f"{cap['exposure_s'] * 1000:g} ms per spot, rendered by {cap_est} to the demo's noise target"

@@ -38,3 +38,24 @@ def whole_number(option: str):
 
     parse.__name__ = "integer"
     return parse
+
+
+def noise_target_value(value: str, *, auto: bool = False):
+    """``--noise-target`` of ``demo`` and ``study``: a finite number > 0, ``none`` (None: no target) or,
+    with ``auto``, ``auto`` (returned as the word: the command's default); anything else is refused in one line
+    naming the option and the value."""
+    from transient_core.errors import UserInputError
+
+    word = value.strip().lower()
+    if word == "none":
+        return None
+    if auto and word == "auto":
+        return "auto"
+    try:
+        r = float(value)
+    except ValueError:
+        r = float("nan")
+    if not (math.isfinite(r) and r > 0):
+        allowed = "a number > 0, auto or none" if auto else "a number > 0 or 'none'"
+        raise UserInputError(f"--noise-target {value!r}: expected {allowed}")
+    return r

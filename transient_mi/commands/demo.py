@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from ._options import whole_number
+from ._options import noise_target_value, whole_number
 
 
 def demo(
@@ -60,17 +60,11 @@ def demo(
         if estimator not in ("quadrature", "monte_carlo"):
             raise UserInputError(f"--estimator {estimator!r}: allowed quadrature, monte_carlo")
         changes["estimator"] = estimator
-    if noise_target is not None and noise_target != "auto":
-        if noise_target == "none":
-            changes["noise_target"] = None
-        else:
-            try:
-                r = float(noise_target)
-            except ValueError:
-                r = float("nan")
-            if not (math.isfinite(r) and r > 0):
-                raise UserInputError(f"--noise-target {noise_target!r}: expected a number > 0, auto or none")
-            changes.update(noise_target=r, quadrature_noise_target=None)
+    target = "auto" if noise_target is None else noise_target_value(noise_target, auto=True)
+    if target is None:
+        changes["noise_target"] = None
+    elif target != "auto":
+        changes.update(noise_target=target, quadrature_noise_target=None)
     if not 0 <= seed < 2**31:
         raise UserInputError(f"--seed {seed}: must be in [0, 2**31)")
     run_demo(out, settings=dataclasses.replace(s, **changes), quick=quick, overwrite=overwrite,

@@ -7,7 +7,7 @@ from typing import List, Optional
 
 import typer
 
-from ._options import whole_number
+from ._options import noise_target_value, whole_number
 
 study_app = typer.Typer(
     name="study",
@@ -126,7 +126,7 @@ def photon_budget(
     if not 0 <= seed < 2**32:
         raise UserInputError(f"--seed {seed}: must be in [0, 2**32)")
     if noise_target is not None:
-        kw["noise_target"] = _noise_target(noise_target)
+        kw["noise_target"] = noise_target_value(noise_target)
     r = run_photon_budget_study(scene, out, defines=defines, seeds=tuple(range(seeds)), seed=seed, quick=quick,
                                 ground_truth=ground_truth, overwrite=overwrite, log=_log, **kw)
     typer.echo(f"wrote {r.out_dir}: {len(r.rows)} runs; summary {r.summary}")
@@ -229,7 +229,7 @@ def methods(
 
         kw["bounds"] = parse_bounds(bounds)
     if noise_target is not None:
-        kw["noise_target"] = _noise_target(noise_target)
+        kw["noise_target"] = noise_target_value(noise_target)
     if fit_arrays is not None:
         kw["fit_arrays"] = _fit_arrays(fit_arrays)
     if fit_iterations is not None:
@@ -272,18 +272,6 @@ def _fit_arrays(text: str):
                                  "(e.g. mannequin=8,16;mesh=8)")
         out[model.strip()] = _ints(sizes, "--fit-arrays", "mesh=8")
     return out
-
-
-def _noise_target(value: str):
-    """``--noise-target``: a number > 0 (checked by the study) or ``none``."""
-    from transient_core.errors import UserInputError
-
-    if value.strip().lower() == "none":
-        return None
-    try:
-        return float(value)
-    except ValueError:
-        raise UserInputError(f"--noise-target {value!r}: expected a number > 0 or 'none'") from None
 
 
 def register(app: typer.Typer) -> None:
