@@ -149,7 +149,8 @@ def main() -> None:
     ap.add_argument("--align", type=int, default=8, help="Levenberg-Marquardt iterations of the affine alignment")
     ap.add_argument("--carve", type=int, default=None,
                     help="per-face reflectance iterations of the carving step (default: the fit's own default)")
-    ap.add_argument("--grow", type=int, default=0, help="rings of faces added before carving (the fit's default: 0)")
+    ap.add_argument("--grow", type=int, default=None,
+                    help="rings of faces added before carving (default: the fit's, 2 where it carves)")
     ap.add_argument("--reflectance", default="global", choices=("global", "face"),
                     help="one reflectance for the mesh, or one per face (the record's name gets '_face')")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "bench_fit_mesh")
@@ -159,7 +160,7 @@ def main() -> None:
     load_start = list(os.getloadavg())
     import transient_mi  # noqa: F401
     from transient_mi.fit import FitSettings, fit_capture
-    from transient_mi.fit.mesh_fit import MeshSettings, carve_iterations
+    from transient_mi.fit.mesh_fit import MeshSettings, carve_iterations, grow_rings
 
     t0 = time.perf_counter()
     counts = _capture(a.work, a.scene, a.width, a.spots, 1e-3 * a.exposure_ms, a.noise_target)
@@ -182,7 +183,7 @@ def main() -> None:
               "iterations": a.iterations, "stages": a.stages, "cell_m": a.cell_m, "element_size_m": a.element_size_m,
               "moments": a.moments, "step_m": a.step_m, "align": a.align, "align_albedo": res["align"]["albedo"],
               "carve": carve_iterations(MeshSettings(**res["config"]["mesh"])), "carve_result": res.get("carve"),
-              "grow": a.grow,
+              "grow": grow_rings(MeshSettings(**res["config"]["mesh"])),
               "reflectance": a.reflectance, "fit_albedo_range": [res["parameters"]["fit"].get("albedo_min"),
                                                                  res["parameters"]["fit"].get("albedo_max")],
               "metrics": rows, "dead_time_check": dead_time, "poisson_nll": res["poisson_nll"], "fit_albedo": res["parameters"]["fit"]["albedo"],

@@ -410,7 +410,7 @@ def _winged_square(wing_m: float = 0.1, cell_m: float = 0.1):
     return x, f, u_c > 0.2
 
 
-def _carve_faces(capture, matched, carved, iterations: int = 15):
+def _carve_faces(capture, matched, carved, iterations: int = 40):
     """The carving step by hand: the reflectance matched to the counts on ``matched`` ``(v, f)`` as the fit does,
     then ``iterations`` per-face reflectance steps on ``carved`` ``(v, f)``: ``(start, rho, history, keep)``."""
     from transient_mi.fit.mesh_carve import fit_face_reflectance, keep_faces
@@ -424,14 +424,15 @@ def _carve_faces(capture, matched, carved, iterations: int = 15):
     return a0, rho, hist, keep_faces(rho)
 
 
-def test_a_grown_ring_inside_the_square_is_kept_and_what_the_counts_see_beyond_it_dropped(capture_8x8):
+def test_a_grown_ring_inside_the_square_is_kept_and_the_ring_beyond_it_darkened(capture_8x8):
     """Growing then carving (mesh_start.grow_ring, mesh_carve) from the tilted plane's central 20 cm (2 x 2 cells of
     10 cm, 8 faces, the reflectance matched to the counts as the fit does): two rings of 10 cm, the first inside the
-    true 40 cm square, the second outside it; 15 per-face reflectance iterations keep at least 14 of the first
-    ring's 16 faces, and drop every face of the second whose reflectance the counts moved (by more than 10 % of the
-    start; measured: 8 of 16, all to 0.02-0.49 from a start of 0.74). The others the counts do
-    not see (one spot, 8 x 8 pixels): they keep their start, above the cut, and stay (the limit docs/fit.md
-    states). Deterministic."""
+    true 40 cm square, the second outside it; 40 per-face reflectance iterations (L-BFGS-B, each reflectance in
+    [0, RHO_MAX]) keep at least 14 of the first ring's 16 faces, keep at most 10 of the second's, and leave the
+    second ring's mean reflectance under 0.6 of the first's (measured: 16 kept; 8 kept, means 0.37 and 0.80; four of
+    the second ring's faces at 0). The second ring's faces that stay are the ones this capture barely sees (one
+    spot, 8 x 8 pixels): little light to judge them by, the limit docs/fit.md states. Deterministic."""
+    from transient_mi.fit.mesh_carve import RHO_MAX
     from transient_mi.fit.mesh_start import grow_ring
 
     v, f, _ = _winged_square(wing_m=0.0, cell_m=0.1)
@@ -444,20 +445,21 @@ def test_a_grown_ring_inside_the_square_is_kept_and_what_the_counts_see_beyond_i
     first, second = np.arange(8, len(f1)), np.arange(len(f1), len(f2))
     assert len(first) == 16 and len(second) == 16
     a0, rho, hist, keep = _carve_faces(capture_8x8, (v0, f0), (v2, f2))
-    seen = np.abs(rho / a0 - 1.0) > 0.1
     msg = (f"start {a0:.3f}; centre {np.round(rho[:8], 3)}; first ring {np.round(rho[first], 3)}; second ring "
            f"{np.round(rho[second], 3)}; objective {hist[0][0]:.4g} -> {hist[-1][0]:.4g}")
     assert hist[-1][0] < hist[0][0], msg
+    assert rho.min() >= 0.0 and rho.max() <= RHO_MAX, msg
     assert keep[first].sum() >= 14, msg
-    assert seen[second].sum() >= 4 and not keep[second][seen[second]].any(), msg
+    assert keep[second].sum() <= 10, msg
+    assert rho[second].mean() < 0.6 * rho[first].mean(), msg
 
 
 def test_carving_drops_a_spurious_wing_and_keeps_the_square(capture_8x8):
     """The carving step (mesh_carve) on the true square with a coplanar 10 cm wing beyond its near edge (the
-    reflectance matched to the counts as the fit does, one per face from there): 15 per-face reflectance iterations
-    lower the objective, darken every wing face below half the square's, and the cut drops all 8 wing faces and keeps
-    at least 28 of the square's 32 (measured: wing 0.006-0.15, square 0.45-1.17 against 0.8, all 32 kept; the
-    objective 2.8e6 -> 5.1e3). Deterministic."""
+    reflectance matched to the counts as the fit does, one per face from there): 40 per-face reflectance iterations
+    (L-BFGS-B) lower the objective, darken every wing face below half the square's, and the cut drops all 8 wing faces
+    and keeps at least 28 of the square's 32 (measured: wing 0-0.041, square 0.50-0.96 against 0.8, all 32 kept; the
+    objective 2.8e6 -> 1.1e3; with the ISRA steps of 2026-12-05 after 15: wing 0.006-0.15, 5.1e3). Deterministic."""
     from transient_mi.fit.mesh_carve import drop_faces
 
     v, f, wing = _winged_square()

@@ -65,11 +65,12 @@ def holed_plate_capture(tmp_path_factory):
 
 def test_fit_from_the_defaults_improves_the_holed_plate(holed_plate_capture, tmp_path):
     """The mesh fit at its defaults (the backprojection's front surface at 4 cm, the 8-iteration alignment, two
-    stages) with a small budget (2 vertex iterations, 6 cm elements; 18 s alone at load 5): the voxel IoU against the
-    holed plate rises and the surface Chamfer distance falls. Measured: IoU 0.057 -> 0.279, Chamfer 5.52 ->
-    5.01 cm (the alignment's doing: it tilts the start and moves it back). Thresholds: IoU at least 3x the start's
-    and Chamfer at least 3 mm lower, margins of 1.6x and 2 mm on the measured values for rounding across
-    platforms. The silhouette IoU is not asserted: here it falls (0.37 -> 0.34), as in the benchmark the fit
+    rings grown and 40 carving iterations, two stages) with a small budget (2 vertex iterations, 6 cm elements; 35 s
+    beside another fit): the voxel IoU against the holed plate rises and the surface Chamfer distance falls.
+    Measured: IoU 0.057 -> 0.272, Chamfer 5.52 -> 4.48 cm (mostly the alignment's doing: it tilts the start and
+    moves it back, IoU 0.277 and 4.61 cm; the carving 4.46 cm). Thresholds: IoU at least 3x the start's and Chamfer
+    at least 3 mm lower, margins of 1.6x and 7 mm on the measured values for rounding across platforms. The
+    silhouette IoU is not asserted: here it barely moves (0.370 -> 0.375): on one spot and 4 x 4 pixels the fit
     cannot open the hole (docs/fit.md)."""
     res = fit_capture(holed_plate_capture, tmp_path / "fit", model="mesh", bin_width_ps=32.0, progress=False,
                       log=lambda *a: None, settings=FitSettings(iterations=2, sigma_start_ps=120.0,

@@ -60,11 +60,11 @@ def fit_command(
     carve: int = typer.Option(None, "--carve", parser=whole_number("--carve"), metavar="<int>",
                               help="--model mesh: iterations of one reflectance per face on the aligned start "
                                    "(subdivided once) before its dark faces are dropped, 0 to 200 (0: none; "
-                                   "default 20, or 0 with --reflectance face)."),
-    grow: int = typer.Option(0, "--grow", parser=whole_number("--grow"), metavar="<int>",
+                                   "default 40, or 0 with --reflectance face)."),
+    grow: int = typer.Option(None, "--grow", parser=whole_number("--grow"), metavar="<int>",
                              help="--model mesh: rings of faces --cell-m wide added around the aligned start's open "
-                                  "boundary before carving, whose kept faces the counts choose, 0 to 4 (default 0: "
-                                  "none)."),
+                                  "boundary before carving, whose kept faces the counts choose, 0 to 4 (default 2 "
+                                  "where the fit carves, else 0)."),
     reflectance: str = typer.Option("global", "--reflectance", help="--model mesh: one reflectance for the mesh "
                                     "(global) or one per face (face: for objects of several materials; fitted.ply "
                                     "carries them)."),

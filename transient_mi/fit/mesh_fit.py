@@ -8,8 +8,8 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
 2. Alignment (``align`` iterations, 8 by default; :mod:`~transient_mi.fit.mesh_align`): the start mesh's global
    affine map and its reflectance by Levenberg-Marquardt, from the start blur to the end blur: depth, tilt,
    extent and reflectance are coupled in the data, which a per-vertex first-order method follows slowly.
-3. Carving (``carve`` iterations, 20 by default with one reflectance; :mod:`~transient_mi.fit.mesh_carve`): the
-   aligned mesh grown by ``grow`` rings of faces ``cell_m`` wide around its open boundary (none by default:
+3. Carving (``carve`` iterations, 40 by default with one reflectance; :mod:`~transient_mi.fit.mesh_carve`): the
+   aligned mesh grown by ``grow`` rings of faces ``cell_m`` wide around its open boundary (two by default:
    :func:`~transient_mi.fit.mesh_start.grow_ring`; a reconstruction's start also under-covers, where its edges
    fall below its threshold; docs/fit.md has what one ring gains and loses), subdivided once, one reflectance per
    face fitted with the geometry held, the dark faces dropped (a start from a reconstruction over-covers; the
@@ -63,7 +63,12 @@ _OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "aligned.ply", "carved.ply", 
             "carve.json", "loss.png", "fit.png", "views.png", "checkpoint.json", "stage.json", "config.json")
 _STARTS = ("front", "closed")
 #: The carving step's default iterations (:func:`carve_iterations`).
-CARVE_ITERATIONS = 20
+CARVE_ITERATIONS = 40
+#: Rings of faces grown around the aligned start before carving, by default (:func:`grow_rings`).
+GROW_RINGS = 2
+#: A face grown around the aligned start (``grow``) starts the carving at this share of the aligned faces' median
+#: reflectance (the aligned ones at theirs).
+GROWN_SHARE = 0.5
 #: fitted.ply's face property of a per-face reflectance (Mitsuba's PLY loader: the attribute ``face_reflectance``).
 FACE_PLY_PROPERTY = "reflectance_0"
 
@@ -86,7 +91,8 @@ class MeshSettings:
     align: int = 8  # Levenberg-Marquardt iterations of the global affine map and reflectance first (0: none)
     carve: int | None = None  # per-face reflectance iterations on the aligned start, then its dark faces go
     #                           (None: CARVE_ITERATIONS with one reflectance, 0 with reflectance="face")
-    grow: int = 0  # rings of faces cell_m wide added around the aligned start's open boundary before carving
+    grow: int | None = None  # rings of faces cell_m wide added around the aligned start's open boundary before
+    #                          carving (None: GROW_RINGS where the fit carves, else 0)
     reflectance: str = "global"  # global (one reflectance) | face (one per face, held smooth by albedo_smoothness)
     albedo_smoothness: float = 1.0  # weight of the per-face reflectance's smoothness (mesh_regularizers)
 
@@ -114,7 +120,8 @@ def check_mesh_options(mesh: MeshSettings) -> None:
     if mesh.carve is not None and (isinstance(mesh.carve, bool) or not isinstance(mesh.carve, (int, np.integer))
                                    or not 0 <= mesh.carve <= 200):
         raise UserInputError(f"carve={mesh.carve!r}: expected a whole number of iterations from 0 to 200")
-    if isinstance(mesh.grow, bool) or not isinstance(mesh.grow, (int, np.integer)) or not 0 <= mesh.grow <= 4:
+    if mesh.grow is not None and (isinstance(mesh.grow, bool) or not isinstance(mesh.grow, (int, np.integer))
+                                  or not 0 <= mesh.grow <= 4):
         raise UserInputError(f"grow={mesh.grow!r}: expected a whole number of rings from 0 to 4")
 
 
@@ -124,6 +131,14 @@ def carve_iterations(mesh: MeshSettings) -> int:
     if mesh.carve is not None:
         return int(mesh.carve)
     return CARVE_ITERATIONS if mesh.reflectance == "global" else 0
+
+
+def grow_rings(mesh: MeshSettings) -> int:
+    """The rings grown around the aligned start before carving: ``mesh.grow``, or by default :data:`GROW_RINGS`
+    where the fit carves (:func:`carve_iterations`) and none where it does not (a ring nothing carves would stay)."""
+    if mesh.grow is not None:
+        return int(mesh.grow)
+    return GROW_RINGS if carve_iterations(mesh) else 0
 
 
 def _check(mesh: MeshSettings, settings) -> None:
@@ -344,7 +359,8 @@ def _carve(out: Path, capture, v, f, albedo, mesh: MeshSettings, settings, bin_w
     v, f = np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
     albedo = np.asarray(albedo, dtype=np.float64).ravel()
     n_aligned = len(f)
-    for _ in range(mesh.grow):
+    rings = grow_rings(mesh)
+    for _ in range(rings):
         v, f = grow_ring(v, f, mesh.cell_m)
     if len(f) > n_aligned:
         if sight is not None:  # (the new faces across the device's view go; the aligned ones stay, in their order)
@@ -352,9 +368,10 @@ def _carve(out: Path, capture, v, f, albedo, mesh: MeshSettings, settings, bin_w
             hit[:n_aligned] = False
             if hit.any():
                 v, f = drop_faces(v, f, ~hit)
-        if len(albedo) > 1:  # (per face: a new face starts at the median of the aligned ones)
-            albedo = np.concatenate([albedo, np.full(len(f) - n_aligned, float(np.median(albedo)))])
-        log(f"fit mesh: grown by {mesh.grow} ring(s) of {100 * mesh.cell_m:.0f} cm: {n_aligned} -> {len(f)} faces")
+        # (a grown face starts at GROWN_SHARE of the aligned faces' median reflectance: it has to earn its light)
+        albedo = np.concatenate([np.broadcast_to(albedo, (n_aligned,)),
+                                 np.full(len(f) - n_aligned, GROWN_SHARE * float(np.median(albedo)))])
+        log(f"fit mesh: grown by {rings} ring(s) of {100 * mesh.cell_m:.0f} cm: {n_aligned} -> {len(f)} faces")
     vs, fs = subdivide(v, f)
     start = np.broadcast_to(albedo, (len(f),))
     capf = _capture_model(capture, vs, fs, settings, bin_width_ps, "face")
