@@ -180,7 +180,7 @@ def test_fit_recovers_a_displaced_plane_from_a_confocal_capture(tmp_path_factory
 
 def test_resume_after_a_subdivision_stage(capture, tmp_path):
     """Two alignment iterations, two carving iterations (the aligned start grown by a ring of faces, subdivided, its
-    dark faces dropped),
+    dark faces dropped, the carved mesh realigned in one iteration),
     then two iterations in two stages (the carved mesh subdivided after the first); resuming the finished fit
     does nothing more; other settings are refused."""
     out = tmp_path / "fit"
@@ -193,6 +193,10 @@ def test_resume_after_a_subdivision_stage(capture, tmp_path):
     assert r1["parameters"]["fit"]["n_faces"] == 4 * carve["kept"]
     assert len(r1["align"]["objective"]) == 2 and (out / "aligned.ply").is_file() and (out / "carved.ply").is_file()
     assert "carved" in r1["metrics"]
+    # (the carved mesh realigned: one Levenberg-Marquardt iteration, half the alignment's two)
+    assert carve["realigned"]["iterations"] == 1 and r1["time_s"]["realign"] > 0
+    cj = json.loads((out / "carve.json").read_text())
+    assert len(cj["cut_vertices"]) == len(cj["vertices"]) and len(cj["realigned"]["history"]) == 1
     r2 = fit_capture(capture, out, resume=True, **kw)
     assert len(r2["history"]["objective"]) == 2 and r2["carve"] == carve
     with pytest.raises(UserInputError, match="other settings"):
