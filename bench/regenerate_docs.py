@@ -130,7 +130,7 @@ GENERATORS = {
     "fit_mesh_topology": (fit_mesh_topology_table, ["fit_mesh_chair", "fit_mesh_holed_plate"], False),
     "fit_mesh_full": (fit_mesh_full_table, ["fit_mesh_letter_16", "fit_mesh_tilted_plane_16"], False),
     "fit_mesh_mannequin": (fit_mesh_mannequin_para, ["fit_mesh_mannequin"], False),
-    "fit_mesh_growth": (fit_mesh_growth_table, [n for name, _ in GROWTH_PAIRS for n in (name, f"{name}_grow1")],
+    "fit_mesh_growth": (fit_mesh_growth_table, [n for name, _ in GROWTH_PAIRS for n in (f"{name}_grow0", name)],
                         False),
     "recon_targets": (recon_targets_table, ["study_methods_paper_mannequin", "study_methods_nlos_letter",
                                             "mannequin_features", "recon_methods", "completion_seeds"], False),
