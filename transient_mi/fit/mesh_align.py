@@ -38,7 +38,7 @@ import numpy as np
 
 from transient_core.errors import UserInputError
 
-__all__ = ["affine_vertices", "align_affine"]
+__all__ = ["affine_vertices", "align_affine", "realign_carved", "realign_iterations"]
 
 #: Forward-difference steps: the linear part's entries (dimensionless: about 0.2 mm at 20 cm from the
 #: centroid), the translation (m), the log reflectance.
@@ -151,3 +151,43 @@ def align_affine(cap, vertices: np.ndarray, albedo: float, *, iterations: int, s
         if log is not None:
             log(f"align {i + 1}/{iterations}: sigma {sigma:.0f} ps, objective {f0:.4g} -> {f_new:.4g}, lambda {lam:.2g}")
     return affine_vertices(x, p), float(np.clip(math.exp(p[12]), 0.01, 1.0)), history
+
+
+#: The realignment's first blur, in end blurs (:func:`realign_carved`: the carved mesh is near; no wide blur needed).
+REALIGN_BLUR_FACTOR = 2.0
+
+
+def realign_iterations(align: int) -> int:
+    """Levenberg-Marquardt iterations of the alignment run again on the carved mesh: half the first's ``align``,
+    rounded up (none without an alignment)."""
+    return (int(align) + 1) // 2
+
+
+def realign_carved(out, cap, vertices: np.ndarray, albedo: float, align: int, settings, end_ps: float,
+                   log) -> tuple[np.ndarray, float]:
+    """The affine alignment again, on the carved mesh of a free-mesh fit (:func:`realign_iterations` of ``align``,
+    the blur from :data:`REALIGN_BLUR_FACTOR` times the end blur ``end_ps`` to it): the first alignment fits an
+    under- or over-covering start, whose missing or extra surface it partly explains by a tilt or a shift; on the
+    carved mesh, which covers what the counts see, that compensation is undone (docs/fit.md). Adds the
+    realignment to the fit's ``carve.json`` in ``out`` (``vertices`` become the realigned ones, ``cut_vertices`` keep
+    the carved ones, ``realigned``: iterations, reflectance, history, seconds); returns ``(vertices [V, 3] (m),
+    reflectance)``."""
+    import json
+    import time
+
+    from .optimize import element_size
+    from .outputs import _write_text
+
+    cap.set_element_size(element_size(0, settings.iterations, settings.element_size_m))
+    cap.keep_blur(end_ps)
+    t = time.perf_counter()
+    n = realign_iterations(align)
+    v1, a1, history = align_affine(cap, vertices, float(albedo), iterations=n,
+                                   sigma_start_ps=REALIGN_BLUR_FACTOR * end_ps, sigma_end_ps=end_ps)
+    seconds = time.perf_counter() - t
+    carve = json.loads((out / "carve.json").read_text())
+    carve.update({"cut_vertices": carve["vertices"], "vertices": np.asarray(v1).tolist(),
+                  "realigned": {"iterations": n, "albedo": float(a1), "history": history, "seconds": seconds}})
+    _write_text(out / "carve.json", json.dumps(carve) + "\n")
+    log(f"fit mesh: the carved mesh realigned (affine map and reflectance, {n} iterations) in {seconds:.0f} s")
+    return v1, float(a1)

@@ -14,10 +14,10 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
    fall below its threshold; docs/fit.md has what the rings gain), subdivided once, one reflectance per
    face fitted with the geometry held, the dark faces dropped (a start from a reconstruction over-covers; the
    vertex stage keeps its topology). Then, with one reflectance, the alignment again on the carved mesh
-   (:func:`realign_iterations`: half the first's): the first aligned a start that covered too little or too much and
-   explained part of the difference by a tilt or a shift (the tilted plane's 16 x 16 capture: 2.8 degrees and 6 mm
-   off after it), which the carved mesh no longer needs (0.2 degrees and 0.7 mm after the realignment, a scratch
-   run).
+   (:func:`~transient_mi.fit.mesh_align.realign_carved`, half the first's iterations): the first aligned a start
+   that covered too little or too much and explained part of the difference by a tilt or a shift (the tilted
+   plane's 16 x 16 capture: 2.8 degrees and 6 mm off after it), which the carved mesh no longer needs (0.2 degrees
+   and 0.7 mm after the realignment, a scratch run).
 4. Stages: Adam on the regularised objective (:mod:`~transient_mi.fit.mesh_optimize`), the mesh subdivided in
    four between stages; the forward model is the capture's (:class:`~transient_mi.fit.capture_model.CaptureModel`:
    its scene, detector, gate, dark counts, pile-up, dead time, jitter) with the deterministic three-bounce
@@ -58,6 +58,7 @@ import numpy as np
 from transient_core.errors import UserInputError
 from transient_core.lock import output_lock
 
+from .mesh_align import realign_iterations
 from .mesh_model import REFLECTANCES
 from .mesh_regularizers import RegularizerWeights
 from .optimize import FitState
@@ -69,8 +70,6 @@ _OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "aligned.ply", "carved.ply", 
 _STARTS = ("front", "closed")
 #: The carving step's default iterations (:func:`carve_iterations`).
 CARVE_ITERATIONS = 40
-#: The realignment's first blur, in end blurs (:func:`_realign`: the carved mesh is near; no wide blur needed).
-REALIGN_BLUR_FACTOR = 2.0
 #: Rings of faces grown around the aligned start before carving, by default (:func:`grow_rings`).
 GROW_RINGS = 2
 #: A face grown around the aligned start (``grow``) starts the carving at this share of the aligned faces' median
@@ -315,8 +314,10 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
                 v0, f0, albedo = _carve(out, capture, v0, f0, albedo, mesh, settings, bin_width_ps, end, log,
                                         progress, sight)
                 cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance)
-                if realign_iterations(mesh) and mesh.reflectance == "global":
-                    v0, albedo = _realign(out, cap, v0, albedo, mesh, settings, end, log)
+                if realign_iterations(mesh.align) and mesh.reflectance == "global":
+                    from .mesh_align import realign_carved
+
+                    v0, albedo = realign_carved(out, cap, v0, albedo, mesh.align, settings, end, log)
                 model = _model(v0, f0, albedo, mesh, reg_scale)
             _write_stage(stage_file, 0, v0, f0, albedo, reg_scale)
             state = FitState(theta=model.initial().tolist())
@@ -401,38 +402,6 @@ def _carve(out: Path, capture, v, f, albedo, mesh: MeshSettings, settings, bin_w
         f"{int(keep.sum())} of {len(fs)} faces kept")
     kept = rho[keep]
     return vk, fk, (kept if mesh.reflectance == "face" else float(np.median(kept)))
-
-
-def realign_iterations(mesh: MeshSettings) -> int:
-    """Levenberg-Marquardt iterations of the alignment run again on the carved mesh: half the first's, rounded up
-    (none without an alignment)."""
-    return (int(mesh.align) + 1) // 2
-
-
-def _realign(out: Path, cap, v, albedo: float, mesh: MeshSettings, settings, end_ps: float, log):
-    """The affine alignment again, on the carved mesh (:func:`realign_iterations`, the blur from
-    :data:`REALIGN_BLUR_FACTOR` times the end blur to the end blur): the first alignment fits an under- or
-    over-covering start, whose missing or extra surface it partly explains by a tilt or a shift; on the carved mesh,
-    which covers what the counts see, that compensation is undone (module docstring). Adds the realignment to
-    ``carve.json`` (``vertices`` become the realigned ones, ``cut_vertices`` keep the carved ones); returns
-    ``(vertices, albedo)``."""
-    from .mesh_align import align_affine
-    from .optimize import element_size
-    from .outputs import _write_text
-
-    cap.set_element_size(element_size(0, settings.iterations, settings.element_size_m))
-    cap.keep_blur(end_ps)
-    t = time.perf_counter()
-    n = realign_iterations(mesh)
-    v1, a1, history = align_affine(cap, v, float(albedo), iterations=n, sigma_start_ps=REALIGN_BLUR_FACTOR * end_ps,
-                                   sigma_end_ps=end_ps)
-    seconds = time.perf_counter() - t
-    carve = json.loads((out / "carve.json").read_text())
-    carve.update({"cut_vertices": carve["vertices"], "vertices": np.asarray(v1).tolist(),
-                  "realigned": {"iterations": n, "albedo": float(a1), "history": history, "seconds": seconds}})
-    _write_text(out / "carve.json", json.dumps(carve) + "\n")
-    log(f"fit mesh: the carved mesh realigned (affine map and reflectance, {n} iterations) in {seconds:.0f} s")
-    return v1, float(a1)
 
 
 def _nll(cap, v, f, albedo) -> float:
