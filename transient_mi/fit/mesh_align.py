@@ -163,20 +163,17 @@ def realign_iterations(align: int) -> int:
     return (int(align) + 1) // 2
 
 
-def realign_carved(out, cap, vertices: np.ndarray, albedo: float, align: int, settings, end_ps: float,
-                   log) -> tuple[np.ndarray, float]:
+def realign_carved(cap, vertices: np.ndarray, albedo: float, align: int, settings,
+                   end_ps: float) -> tuple[np.ndarray, float, dict]:
     """The affine alignment again, on the carved mesh of a free-mesh fit (:func:`realign_iterations` of ``align``,
     the blur from :data:`REALIGN_BLUR_FACTOR` times the end blur ``end_ps`` to it): the first alignment fits an
     under- or over-covering start, whose missing or extra surface it partly explains by a tilt or a shift; on the
-    carved mesh, which covers what the counts see, that compensation is undone (docs/fit.md). Adds the
-    realignment to the fit's ``carve.json`` in ``out`` (``vertices`` become the realigned ones, ``cut_vertices`` keep
-    the carved ones, ``realigned``: iterations, reflectance, history, seconds); returns ``(vertices [V, 3] (m),
-    reflectance)``."""
-    import json
+    carved mesh, which covers what the counts see, that compensation is undone (docs/fit.md). Returns
+    ``(vertices [V, 3] (m), reflectance, record)``, the record holding ``iterations``, ``albedo``, ``history`` (as
+    :func:`align_affine`'s) and ``seconds``."""
     import time
 
     from .optimize import element_size
-    from .outputs import _write_text
 
     cap.set_element_size(element_size(0, settings.iterations, settings.element_size_m))
     cap.keep_blur(end_ps)
@@ -184,10 +181,5 @@ def realign_carved(out, cap, vertices: np.ndarray, albedo: float, align: int, se
     n = realign_iterations(align)
     v1, a1, history = align_affine(cap, vertices, float(albedo), iterations=n,
                                    sigma_start_ps=REALIGN_BLUR_FACTOR * end_ps, sigma_end_ps=end_ps)
-    seconds = time.perf_counter() - t
-    carve = json.loads((out / "carve.json").read_text())
-    carve.update({"cut_vertices": carve["vertices"], "vertices": np.asarray(v1).tolist(),
-                  "realigned": {"iterations": n, "albedo": float(a1), "history": history, "seconds": seconds}})
-    _write_text(out / "carve.json", json.dumps(carve) + "\n")
-    log(f"fit mesh: the carved mesh realigned (affine map and reflectance, {n} iterations) in {seconds:.0f} s")
-    return v1, float(a1)
+    return v1, float(a1), {"iterations": n, "albedo": float(a1), "history": history,
+                           "seconds": time.perf_counter() - t}

@@ -317,7 +317,12 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
                 if realign_iterations(mesh.align) and mesh.reflectance == "global":
                     from .mesh_align import realign_carved
 
-                    v0, albedo = realign_carved(out, cap, v0, albedo, mesh.align, settings, end, log)
+                    v0, albedo, rec = realign_carved(cap, v0, albedo, mesh.align, settings, end)
+                    carve = json.loads((out / "carve.json").read_text())  # (the realigned mesh beside the cut one)
+                    carve.update(cut_vertices=carve["vertices"], vertices=np.asarray(v0).tolist(), realigned=rec)
+                    _write_text(out / "carve.json", json.dumps(carve) + "\n")
+                    log(f"fit mesh: the carved mesh realigned ({rec['iterations']} iterations) in "
+                        f"{rec['seconds']:.0f} s")
                 model = _model(v0, f0, albedo, mesh, reg_scale)
             _write_stage(stage_file, 0, v0, f0, albedo, reg_scale)
             state = FitState(theta=model.initial().tolist())
