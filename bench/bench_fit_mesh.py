@@ -151,6 +151,8 @@ def main() -> None:
                     help="per-face reflectance iterations of the carving step (default: the fit's own default)")
     ap.add_argument("--grow", type=int, default=None,
                     help="rings of faces added before carving (default: the fit's, 2 where it carves)")
+    ap.add_argument("--carve-tv", type=float, default=None,
+                    help="weight of the carving's total-variation prior (default: the fit's, mesh_carve.TV_WEIGHT)")
     ap.add_argument("--reflectance", default="global", choices=("global", "face"),
                     help="one reflectance for the mesh, or one per face (the record's name gets '_face')")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "bench_fit_mesh")
@@ -172,7 +174,8 @@ def main() -> None:
                                            element_size_m=a.element_size_m),
                       mesh=MeshSettings(cell_m=a.cell_m, stages=a.stages, moments=a.moments, step_m=a.step_m,
                                         align=a.align, reflectance=a.reflectance, grow=a.grow,
-                                        **({} if a.carve is None else {"carve": a.carve})),
+                                        **({} if a.carve is None else {"carve": a.carve}),
+                                        **({} if a.carve_tv is None else {"carve_tv": a.carve_tv})),
                       progress=False)
     t_fit = time.perf_counter() - t1
     m = res["metrics"]
@@ -183,7 +186,7 @@ def main() -> None:
               "iterations": a.iterations, "stages": a.stages, "cell_m": a.cell_m, "element_size_m": a.element_size_m,
               "moments": a.moments, "step_m": a.step_m, "align": a.align, "align_albedo": res["align"]["albedo"],
               "carve": carve_iterations(MeshSettings(**res["config"]["mesh"])), "carve_result": res.get("carve"),
-              "grow": grow_rings(MeshSettings(**res["config"]["mesh"])),
+              "grow": grow_rings(MeshSettings(**res["config"]["mesh"])), "carve_tv": res["config"]["mesh"]["carve_tv"],
               "reflectance": a.reflectance, "fit_albedo_range": [res["parameters"]["fit"].get("albedo_min"),
                                                                  res["parameters"]["fit"].get("albedo_max")],
               "metrics": rows, "dead_time_check": dead_time, "poisson_nll": res["poisson_nll"], "fit_albedo": res["parameters"]["fit"]["albedo"],

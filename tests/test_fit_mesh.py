@@ -247,6 +247,7 @@ def test_alignment_recovers_a_planes_tilt(capture_8x8):
     (MeshSettings(carve=500), ["carve=500", "0 to 200"]),
     (MeshSettings(grow=5), ["grow=5", "0 to 4"]),
     (MeshSettings(grow=True), ["grow=True", "0 to 4"]),
+    (MeshSettings(carve_tv=-1.0), ["carve_tv=-1.0", ">= 0"]),
     (MeshSettings(cell_m=0.0), ["cell_m=0.0", "0.005 to 0.5"]),
     (MeshSettings(start_mesh="/nonexistent/surface.ply"), ["--start-mesh", "no such file"]),
 ])
@@ -414,17 +415,19 @@ def _winged_square(wing_m: float = 0.1, cell_m: float = 0.1):
     return x, f, u_c > 0.2
 
 
-def _carve_faces(capture, matched, carved, iterations: int = 40):
+def _carve_faces(capture, matched, carved, iterations: int = 40, tv_weight: float | None = None):
     """The carving step by hand: the reflectance matched to the counts on ``matched`` ``(v, f)`` as the fit does,
-    then ``iterations`` per-face reflectance steps on ``carved`` ``(v, f)``: ``(start, rho, history, keep)``."""
-    from transient_mi.fit.mesh_carve import fit_face_reflectance, keep_faces
+    then ``iterations`` per-face reflectance steps on ``carved`` ``(v, f)`` with the prior's weight ``tv_weight``
+    (default: the fit's): ``(start, rho, history, keep)``."""
+    from transient_mi.fit.mesh_carve import TV_WEIGHT, fit_face_reflectance, keep_faces
     from transient_mi.fit.mesh_fit import _match_albedo, _model
 
     st = FitSettings(iterations=10, element_size_m=0.06)
     a0 = _match_albedo(_model(*matched, 0.5, MeshSettings(), 1.0), _capture_model(capture, *matched, st, 32.0), st)
     cap = _capture_model(capture, *carved, st, 32.0, "face")
     cap.keep_blur(30.0)
-    rho, hist = fit_face_reflectance(cap, carved[0], a0, iterations, 30.0)
+    rho, hist = fit_face_reflectance(cap, carved[0], a0, iterations, 30.0, faces=carved[1],
+                                     tv_weight=TV_WEIGHT if tv_weight is None else tv_weight)
     return a0, rho, hist, keep_faces(rho)
 
 
@@ -432,9 +435,9 @@ def test_a_grown_ring_inside_the_square_is_kept_and_the_ring_beyond_it_darkened(
     """Growing then carving (mesh_start.grow_ring, mesh_carve) from the tilted plane's central 20 cm (2 x 2 cells of
     10 cm, 8 faces, the reflectance matched to the counts as the fit does): two rings of 10 cm, the first inside the
     true 40 cm square, the second outside it; 40 per-face reflectance iterations (L-BFGS-B, each reflectance in
-    [0, RHO_MAX]) keep at least 14 of the first ring's 16 faces, keep at most 10 of the second's, and leave the
-    second ring's mean reflectance under 0.6 of the first's (measured: 16 kept; 8 kept, means 0.37 and 0.80; four of
-    the second ring's faces at 0). The second ring's faces that stay are the ones this capture barely sees (one
+    [0, RHO_MAX], the fit's total-variation prior) keep at least 14 of the first ring's 16 faces, keep at most 10 of
+    the second's, and leave the second ring's mean reflectance under 0.6 of the first's (measured: 16 kept; 8 kept,
+    means 0.38 and 0.80; two of the second ring's faces at 0; without the prior the same counts, 0.375 and 0.80). The second ring's faces that stay are the ones this capture barely sees (one
     spot, 8 x 8 pixels): little light to judge them by, the limit docs/fit.md states. Deterministic."""
     from transient_mi.fit.mesh_carve import RHO_MAX
     from transient_mi.fit.mesh_start import grow_ring
@@ -462,17 +465,23 @@ def test_carving_drops_a_spurious_wing_and_keeps_the_square(capture_8x8):
     """The carving step (mesh_carve) on the true square with a coplanar 10 cm wing beyond its near edge (the
     reflectance matched to the counts as the fit does, one per face from there): 40 per-face reflectance iterations
     (L-BFGS-B) lower the objective, darken every wing face below half the square's, and the cut drops all 8 wing faces
-    and keeps at least 28 of the square's 32 (measured: wing 0-0.041, square 0.50-0.96 against 0.8, all 32 kept; the
-    objective 2.8e6 -> 1.1e3; with the ISRA steps of 2026-12-05 after 15: wing 0.006-0.15, 5.1e3). Deterministic."""
+    and keeps at least 28 of the square's 32, with the fit's total-variation prior and without it (measured with it:
+    wing 0-0.030, square 0.57-0.81 against 0.8, all 32 kept; without: wing 0-0.041, square 0.50-0.96; with the ISRA
+    steps of 2026-12-05 after 15: wing 0.006-0.15). The prior evens the square's faces, which are one material:
+    their standard deviation with it is under 0.8 of the one without (measured 0.060 against 0.092). Deterministic."""
     from transient_mi.fit.mesh_carve import drop_faces
 
     v, f, wing = _winged_square()
     assert wing.sum() == 8 and (~wing).sum() == 32
-    a0, rho, hist, keep = _carve_faces(capture_8x8, (v, f), (v, f))
-    msg = (f"start {a0:.3f}; square {np.round(rho[~wing], 3)}; wing {np.round(rho[wing], 3)}; "
-           f"objective {hist[0][0]:.4g} -> {hist[-1][0]:.4g} in {len(hist) - 1} steps")
-    assert hist[-1][0] < hist[0][0], msg
-    assert rho[wing].max() < 0.5 * np.median(rho[~wing]), msg
-    assert not keep[wing].any() and keep[~wing].sum() >= 28, msg
-    vk, fk = drop_faces(v, f, keep)
-    assert len(fk) == keep.sum() and fk.max() == len(vk) - 1 and np.allclose(vk[fk], v[f[keep]])
+    spread = []
+    for tv_weight in (None, 0.0):
+        a0, rho, hist, keep = _carve_faces(capture_8x8, (v, f), (v, f), tv_weight=tv_weight)
+        msg = (f"prior {tv_weight}: start {a0:.3f}; square {np.round(rho[~wing], 3)}; wing {np.round(rho[wing], 3)}; "
+               f"objective {hist[0][0]:.4g} -> {hist[-1][0]:.4g} in {len(hist) - 1} steps")
+        assert hist[-1][0] < hist[0][0], msg
+        assert rho[wing].max() < 0.5 * np.median(rho[~wing]), msg
+        assert not keep[wing].any() and keep[~wing].sum() >= 28, msg
+        spread.append(float(np.std(rho[~wing])))
+        vk, fk = drop_faces(v, f, keep)
+        assert len(fk) == keep.sum() and fk.max() == len(vk) - 1 and np.allclose(vk[fk], v[f[keep]])
+    assert spread[0] < 0.8 * spread[1], spread

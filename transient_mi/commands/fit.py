@@ -70,6 +70,9 @@ def fit_command(
                                     "carries them)."),
     albedo_smoothness: float = typer.Option(1.0, "--albedo-smoothness", help="--model mesh --reflectance face: "
                                             "weight of the per-face reflectance's smoothness across edges."),
+    carve_tv: float = typer.Option(None, "--carve-tv", help="--model mesh: weight of the carving's total-variation "
+                                   "prior on the faces' reflectances, a share of the signal energy (default 4e-4, "
+                                   "transient_mi.fit.mesh_carve.TV_WEIGHT; 0: none; docs/fit.md)."),
     seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed."),
     resume: bool = typer.Option(False, "--resume", help="Continue the fit in OUT from its checkpoint."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier fit in OUT."),
@@ -86,7 +89,8 @@ def fit_command(
 
     mesh = MeshSettings(start=start, start_mesh=None if start_mesh is None else str(start_mesh), cell_m=cell_m,
                         stages=stages, smoothing=smoothing, align=align, carve=carve, grow=grow,
-                        reflectance=reflectance, albedo_smoothness=albedo_smoothness)
+                        reflectance=reflectance, albedo_smoothness=albedo_smoothness,
+                        **({} if carve_tv is None else {"carve_tv": carve_tv}))
     check_mesh_options(mesh)  # whatever --model: a bad value is refused before any work
     result = fit_capture(capture, out, model=model, settings=settings, bin_width_ps=bin_width_ps, n_patches=patches,
                          patch_side_m=patch_side_m, resume=resume, overwrite=overwrite, progress=progress,

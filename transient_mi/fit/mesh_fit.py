@@ -10,14 +10,13 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
    extent and reflectance are coupled in the data, which a per-vertex first-order method follows slowly.
 3. Carving (``carve`` iterations, 40 by default with one reflectance; :mod:`~transient_mi.fit.mesh_carve`): the
    aligned mesh grown by ``grow`` rings of faces ``cell_m`` wide around its open boundary (two by default:
-   :func:`~transient_mi.fit.mesh_start.grow_ring`; a reconstruction's start also under-covers, where its edges
-   fall below its threshold; docs/fit.md has what the rings gain), subdivided once, one reflectance per
-   face fitted with the geometry held, the dark faces dropped (a start from a reconstruction over-covers; the
-   vertex stage keeps its topology). Then, with one reflectance, the alignment again on the carved mesh
-   (:func:`~transient_mi.fit.mesh_align.realign_carved`, half the first's iterations): the first aligned a start
-   that covered too little or too much and explained part of the difference by a tilt or a shift (the tilted
-   plane's 16 x 16 capture: 2.8 degrees and 6 mm off after it), which the carved mesh no longer needs (0.2 degrees
-   and 0.7 mm after the realignment, a scratch run).
+   :func:`~transient_mi.fit.mesh_start.grow_ring`; a reconstruction's start also under-covers, where its edges fall
+   below its threshold; docs/fit.md has what the rings gain), subdivided once, one reflectance per face fitted with
+   the geometry held under a total-variation prior, the dark faces dropped (a start from a reconstruction
+   over-covers; the vertex stage keeps its topology). Then, with one reflectance, the alignment again on the carved
+   mesh (:func:`~transient_mi.fit.mesh_align.realign_carved`, half the first's iterations): the first aligned a
+   start that covered too little or too much and took part of the difference for a tilt or a shift (the tilted plane's
+   16 x 16 capture: 2.8 degrees and 6 mm off; 0.2 degrees and 0.7 mm after the realignment, a scratch run).
 4. Stages: Adam on the regularised objective (:mod:`~transient_mi.fit.mesh_optimize`), the mesh subdivided in
    four between stages; the forward model is the capture's (:class:`~transient_mi.fit.capture_model.CaptureModel`:
    its scene, detector, gate, dark counts, pile-up, dead time, jitter) with the deterministic three-bounce
@@ -36,8 +35,8 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
                        texture reads); ``start.ply`` the start mesh; ``aligned.ply`` the start after the
                        alignment
    ``loss.png``        the objective per iteration and the temporal blur
-   ``fit.png``         front views (depth maps): ground truth, backprojection, fit
-   ``views.png``       start, fit and ground truth from the front, the top and the side
+   ``fit.png``         front views (depth maps): ground truth, backprojection, fit; ``views.png`` start, fit and
+                       ground truth from the front, the top and the side
    ``checkpoint.json`` the optimiser's state; ``stage.json`` the current stage's start mesh (``--resume``)
    ``align.json``      the aligned vertices, reflectance, objective per iteration and time of the alignment
    ``carve.json``      the carved mesh (realigned; ``cut_vertices`` as cut), every subdivided face's reflectance
@@ -59,6 +58,7 @@ from transient_core.errors import UserInputError
 from transient_core.lock import output_lock
 
 from .mesh_align import realign_iterations
+from .mesh_carve import TV_WEIGHT
 from .mesh_model import REFLECTANCES
 from .mesh_regularizers import RegularizerWeights
 from .optimize import FitState
@@ -101,6 +101,7 @@ class MeshSettings:
     #                          carving (None: GROW_RINGS where the fit carves, else 0)
     reflectance: str = "global"  # global (one reflectance) | face (one per face, held smooth by albedo_smoothness)
     albedo_smoothness: float = 1.0  # weight of the per-face reflectance's smoothness (mesh_regularizers)
+    carve_tv: float = TV_WEIGHT  # weight of the carving's total-variation prior (mesh_carve; 0: none)
 
 
 def check_mesh_options(mesh: MeshSettings) -> None:
@@ -113,7 +114,7 @@ def check_mesh_options(mesh: MeshSettings) -> None:
         raise UserInputError(f"stages={mesh.stages!r}: expected a whole number from 1 to 3")
     if mesh.reflectance not in REFLECTANCES:
         raise UserInputError(f"--reflectance {mesh.reflectance!r} is not known; allowed: {', '.join(REFLECTANCES)}")
-    for name in ("smoothing", "laplacian", "edge", "normal", "albedo_smoothness"):
+    for name in ("smoothing", "laplacian", "edge", "normal", "albedo_smoothness", "carve_tv"):
         v = getattr(mesh, name)
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
             raise UserInputError(f"{name}={v!r}: expected a finite number >= 0")
@@ -361,9 +362,9 @@ def _carve(out: Path, capture, v, f, albedo, mesh: MeshSettings, settings, bin_w
            progress: bool | None = None, sight=None):
     """The carving step (:mod:`~transient_mi.fit.mesh_carve`): the aligned mesh grown by ``mesh.grow`` rings of
     faces ``mesh.cell_m`` wide around its open boundary (:func:`~transient_mi.fit.mesh_start.grow_ring`; the new
-    faces that cross ``sight``, the device's lines of sight, dropped), subdivided once, one reflectance per face
-    fitted to the counts with the geometry held, the dark faces dropped. Writes ``carve.json``; returns the kept mesh
-    and its reflectance (per face with ``reflectance="face"``, else the median of the kept faces')."""
+    faces that cross ``sight``, the device's lines of sight, dropped), subdivided once, one reflectance per face fitted
+    (``mesh.carve_tv``'s prior), the dark faces dropped. Writes ``carve.json``; returns the kept mesh and its
+    reflectance (per face with ``reflectance="face"``, else the median of the kept faces')."""
     from transient_core.progress import progress_bar
 
     from .mesh_carve import drop_faces, fit_face_reflectance, keep_faces
@@ -393,18 +394,17 @@ def _carve(out: Path, capture, v, f, albedo, mesh: MeshSettings, settings, bin_w
     capf.keep_blur(end_ps)
     n = carve_iterations(mesh)
     with progress_bar("fit mesh: carve", n, disable=None if progress is None else not progress) as advance:
-        rho, history = fit_face_reflectance(capf, vs, np.repeat(start, 4), n, end_ps,
-                                            progress=lambda i, obj: advance(1))
+        rho, history = fit_face_reflectance(capf, vs, np.repeat(start, 4), n, end_ps, progress=lambda i, obj: advance(
+            1), faces=fs, tv_weight=mesh.carve_tv)
     del capf
     keep = keep_faces(rho)
     vk, fk = drop_faces(vs, fs, keep)
     seconds = time.perf_counter() - t
     _write_text(out / "carve.json", json.dumps({
         "vertices": vk.tolist(), "faces": fk.tolist(), "aligned_faces": n_aligned, "grown_faces": int(len(f)),
-        "subdivided_faces": int(len(fs)), "kept": int(keep.sum()),
-        "reflectance": rho.tolist(), "keep": keep.tolist(), "history": history, "seconds": seconds}) + "\n")
-    log(f"fit mesh: carved ({len(history) - 1} per-face reflectance iterations) in {seconds:.0f} s: "
-        f"{int(keep.sum())} of {len(fs)} faces kept")
+        "subdivided_faces": int(len(fs)), "kept": int(keep.sum()), "reflectance": rho.tolist(), "keep": keep.tolist(),
+        "history": history, "seconds": seconds}) + "\n")
+    log(f"fit mesh: carved ({len(history) - 1} iterations) in {seconds:.0f} s: {keep.sum()} of {len(fs)} faces kept")
     kept = rho[keep]
     return vk, fk, (kept if mesh.reflectance == "face" else float(np.median(kept)))
 
