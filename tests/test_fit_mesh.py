@@ -432,13 +432,14 @@ def _carve_faces(capture, matched, carved, iterations: int = 40, tv_weight: floa
 
 
 def test_a_grown_ring_inside_the_square_is_kept_and_the_ring_beyond_it_darkened(capture_8x8):
-    """Growing then carving (mesh_start.grow_ring, mesh_carve) from the tilted plane's central 20 cm (2 x 2 cells of
-    10 cm, 8 faces, the reflectance matched to the counts as the fit does): two rings of 10 cm, the first inside the
-    true 40 cm square, the second outside it; 40 per-face reflectance iterations (L-BFGS-B, each reflectance in
-    [0, RHO_MAX], the fit's total-variation prior) keep at least 14 of the first ring's 16 faces, keep at most 10 of
-    the second's, and leave the second ring's mean reflectance under 0.6 of the first's (measured: 16 kept; 8 kept,
-    means 0.38 and 0.80; two of the second ring's faces at 0; without the prior the same counts, 0.375 and 0.80). The second ring's faces that stay are the ones this capture barely sees (one
-    spot, 8 x 8 pixels): little light to judge them by, the limit docs/fit.md states. Deterministic."""
+    """Growing then carving (mesh_start.grow_ring, mesh_carve) from the tilted plane's central 20 cm (2 x 2
+    cells of 10 cm, 8 faces, the reflectance matched to the counts as the fit does): two rings of 10 cm, the
+    first inside the true 40 cm square, the second outside it; 40 per-face reflectance iterations (L-BFGS-B,
+    each reflectance in [0, RHO_MAX], the fit's total-variation prior) keep at least 14 of the first ring's 16
+    faces, keep at most 10 of the second's, and leave the second ring's mean reflectance under 0.6 of the
+    first's (measured: 16 kept; 8 kept, means 0.38 and 0.80; two of the second ring's faces at 0; without the
+    prior the same counts, 0.375 and 0.80). The second ring's faces that stay are the ones this capture barely
+    sees (one spot, 8 x 8 pixels): little light to judge them by, the limit docs/fit.md states. Deterministic."""
     from transient_mi.fit.mesh_carve import RHO_MAX
     from transient_mi.fit.mesh_start import grow_ring
 

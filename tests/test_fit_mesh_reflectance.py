@@ -114,8 +114,8 @@ def test_total_variation_gradient_and_a_step_costs_its_height():
                       for c in (0.4, 0.8)])
         sq = [albedo_regularizer(np.where(side_of > 0, c, 0.0), pairs, 1.0)[0] for c in (0.4, 0.8)]
         assert sq[1] / sq[0] == pytest.approx(4.0, rel=1e-12)
-    # (the grid is side x side, its midline side long)
-    assert costs[0][0] == pytest.approx((np.hypot(0.4, 0.01) - 0.01) * side / side, rel=1e-9)
+    # (the grid is side x side, its midline side long: the outline over the square root of the area)
+    assert costs[0][0] == pytest.approx((np.hypot(0.4, 0.01) - 0.01) * side / np.sqrt(side * side), rel=1e-9)
     assert costs[1] == pytest.approx(costs[0], rel=1e-9)
     ratio = (np.hypot(0.8, 0.01) - 0.01) / (np.hypot(0.4, 0.01) - 0.01)  # (2.03)
     assert costs[0][1] / costs[0][0] == pytest.approx(ratio, rel=1e-12) and ratio < 2.05
