@@ -38,6 +38,8 @@ sensor's, the film's) gets no gradient (zero). The error estimate (coarse level,
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -61,6 +63,29 @@ from transient_mi.time_axis import apply_kernel
 #: differentiated reaches is not an error
 _FLAGS = dr.ADFlag.ClearInterior | dr.ADFlag.AllowNoGrad
 _FLAGS_FORWARD = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
+
+
+@contextmanager
+def ordered_sums():
+    """Run Dr.Jit's reverse-mode propagation inside on one thread (LLVM variants), so that its scatter-adds (the
+    adjoint of a gather: a face attribute's gradient summed over the elements on the face, a texel's over the
+    pairs that read it) add in a fixed order and the same inputs give the same bits. With the worker threads the
+    order follows the threads' scheduling: the sums differed in their last bits from call to call, and an
+    optimiser fed these gradients (the mesh fit's carving, L-BFGS-B) drifted apart over iterations. What runs
+    inside is small (per-element and per-cell BSDF values; the pairs' heavy sums are numpy's and the kernels',
+    in a fixed order already). Dr.Jit queues the scatter-adds and would run them at the next evaluation, so
+    everything pending is evaluated before the thread count is restored. CUDA variants' atomic adds are not
+    ordered by this."""
+    n = dr.thread_count()
+    if n <= 1:
+        yield
+        return
+    dr.set_thread_count(1)
+    try:
+        yield
+        dr.eval()
+    finally:
+        dr.set_thread_count(n)
 
 
 def check(integrator, scene, sensor, params, allow_geometry=False):
@@ -234,7 +259,7 @@ def _backward(scene, setup, options, sensor, grad_in, geometry: bool, spots) -> 
                     A += np.bincount(t["c"], gg * f_x * sw * ch.cos_p, minlength=len(A))
                 if lv.lambertian:
                     B += np.bincount(t["es"], np.where(t["match"], gg * ch.f_p * sw, 0.0), minlength=n_es)
-                with dr.resume_grad():
+                with dr.resume_grad(), ordered_sums():
                     if not lv.wall.lambertian:
                         dr.backward_from(upload(mi.Float, gg * f_x * sw) * lv.f_p_ad(ch), flags=_FLAGS)
                     if not lv.lambertian:
@@ -242,7 +267,7 @@ def _backward(scene, setup, options, sensor, grad_in, geometry: bool, spots) -> 
                                          flags=_FLAGS)
                 if geometry:
                     lv.geometry(g_elem, grad_ext, ch, t, row, lengths)
-        with dr.resume_grad():
+        with dr.resume_grad(), ordered_sums():
             for coef, value in ((C, lambda: lv.side.intensity_ad(scene, lv.lv.X0)),
                                 (A, lv.wall.value_ad), (B, lambda: lv.lv.surf.toward_ad(lv.side.S))):
                 if np.any(coef != 0.0):
@@ -250,12 +275,15 @@ def _backward(scene, setup, options, sensor, grad_in, geometry: bool, spots) -> 
             if total != 0.0:
                 dr.backward_from(n_att() * (total / lv.g.N), flags=_FLAGS)
         if geometry:
-            vertex_backward(setup.hidden_shapes, mesh_vertex_gradients(setup.hidden_shapes, lv.prov, g_elem), _FLAGS)
+            with ordered_sums():
+                vertex_backward(setup.hidden_shapes, mesh_vertex_gradients(setup.hidden_shapes, lv.prov, g_elem),
+                                _FLAGS)
     inp = wall_return_inputs(setup, spots)
     if inp is not None:  # (last: it clears the edges it traverses)
         P = setup.width * setup.height
         rec = Backward(grad.reshape(G, P, axis.n_bins), taps, axis, 1, P, G, TimeKernel(axis, 0.0, taps), 1.0)
-        wall_return_backward(scene, setup.relay_wall.bsdf(), inp, n_att, rec, P)
+        with ordered_sums():
+            wall_return_backward(scene, setup.relay_wall.bsdf(), inp, n_att, rec, P)
 
 
 def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
