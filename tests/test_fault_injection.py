@@ -319,7 +319,7 @@ def test_mesh_fit_killed_then_resumed_equals_uninterrupted(tmp_path, mesh_fit_re
     """The free-mesh fit killed after its carving or after its second checkpoint and resumed: every file of an
     uninterrupted fit, byte for byte (the meshes, figures, ``fitted.ply``), JSON fact for fact but timings. Before
     the quadrature's reverse pass summed in a fixed order (2026-12-07) the carving's reflectances differed from run
-    to run and no two mesh fits were the same bytes."""
+    to run, and at both kill points the resumed fit's ``fit.json`` differed from the uninterrupted one's."""
     import subprocess
     import sys
 

@@ -56,6 +56,7 @@ from transient_mi.integrators._nlos_quadrature_geom import (check_geometry, geom
                                                             pair_lengths, vertex_backward)
 from transient_mi.integrators._nlos_surfaces import WallCells
 from transient_mi.props import PluginParameterError
+from transient_mi.scene_io import single_threaded
 from transient_mi.time_axis import apply_kernel
 
 #: AD flags: keep the edges (several terms are propagated one after the other through the same parameters,
@@ -74,18 +75,12 @@ def ordered_sums():
     optimiser fed these gradients (the mesh fit's carving, L-BFGS-B) drifted apart over iterations. What runs
     inside is small (per-element and per-cell BSDF values; the pairs' heavy sums are numpy's and the kernels',
     in a fixed order already). Dr.Jit queues the scatter-adds and would run them at the next evaluation, so
-    everything pending is evaluated before the thread count is restored. CUDA variants' atomic adds are not
+    everything pending is evaluated before the thread count is restored (the scene loader's
+    :func:`~transient_mi.scene_io.single_threaded`, for the same reason). CUDA variants' atomic adds are not
     ordered by this."""
-    n = dr.thread_count()
-    if n <= 1:
-        yield
-        return
-    dr.set_thread_count(1)
-    try:
+    with single_threaded():
         yield
         dr.eval()
-    finally:
-        dr.set_thread_count(n)
 
 
 def check(integrator, scene, sensor, params, allow_geometry=False):
