@@ -188,6 +188,10 @@ class CaptureModel:
         self._blurred = {}
         self._probs = None
         self._keep = None
+        from transient_mi.integrators._nlos_visibility_memo import VisibilityMemo
+
+        #: The quadrature's visibility masks of the mesh last rendered (:meth:`_held_geometry`).
+        self.visibility = VisibilityMemo()
 
     # --- detector ---------------------------------------------------------------------------------------
 
@@ -411,11 +415,18 @@ class CaptureModel:
     def _set_sigma(self, sigma_ps: float) -> None:
         self.sensor.film().kernel_sigma_ps = float(sigma_ps)
 
+    def _held_geometry(self):
+        """The visibility memo active for the vertices the scene holds now (a context; this model owns its scene and
+        moves only them: :mod:`~transient_mi.integrators._nlos_visibility_memo`)."""
+        self.visibility.set_geometry(np.asarray(dr.detach(self.params[self.vkey])))
+        return self.visibility.active()
+
     def _render(self, seed: int, spp: int) -> np.ndarray:
         # the mesh moved: the sensor's cached scene analysis (hidden shapes' total area) is rebuilt
         self.sensor.forget_nlos_setup()
-        res = self.integrator.render_transient(self.scene, self.sensor, seed=int(seed), spp=int(spp),
-                                               spots=self.spots)
+        with self._held_geometry():
+            res = self.integrator.render_transient(self.scene, self.sensor, seed=int(seed), spp=int(spp),
+                                                   spots=self.spots)
         return np.stack([np.asarray(r.histogram, dtype=np.float64).reshape(self.width * self.height, self.n_bins)
                          for r in res])
 
@@ -429,7 +440,6 @@ class CaptureModel:
         """``1 / (k + k_floor)`` per bin (see the module docstring), made with the blurred counts ``k`` (an iteration
         asks for the weights of two blurs twice each)."""
         return self._blurred_entry(sigma_ps)[1]
-
 
     def objective(self, mu: np.ndarray, sigma_ps: float) -> tuple[float, np.ndarray]:
         """Objective ``0.5 sum w (mu - k)^2`` and its gradient ``w (mu - k)`` with respect to ``mu``."""
@@ -470,8 +480,9 @@ class CaptureModel:
                 from transient_mi.integrators._nlos_quadrature_ad import quadrature_backward
 
                 self.sensor.forget_nlos_setup()
-                quadrature_backward(self.integrator, self.scene, self.params, g_ideal.reshape(shape), self.sensor,
-                                    spots=self.spots)
+                with self._held_geometry():
+                    quadrature_backward(self.integrator, self.scene, self.params, g_ideal.reshape(shape),
+                                        self.sensor, spots=self.spots)
             else:
                 nlos_backward(self.integrator, self.scene, self.params, g_ideal.astype(np.float32).reshape(shape),
                               self.sensor, int(seed), int(spp), spots=self.spots)

@@ -22,6 +22,7 @@ import mitsuba as mi
 import numpy as np
 
 from transient_mi._upload import upload
+from transient_mi.integrators import _nlos_visibility_memo
 from transient_mi.integrators._lanes import to_mono
 
 #: Relative tolerance on a hit distance for a point to count as visible (as the Monte Carlo estimator).
@@ -113,12 +114,19 @@ def visibility_masks(scene, origins: np.ndarray, normal: np.ndarray, pts: np.nda
     the origin (offset ``WALL_OFFSET_M`` along the wall's ``normal``) before ``1 - VISIBILITY_REL_TOL`` of the
     distance to the sample (the sample lies on its own surface, so the ray is not tested there). The rays are
     built in float64 from ``pts`` (``[n, 4, 3]``, all elements' samples, centroid first) and cast to float32 in
-    the launch that traces them; the four bits are combined there too.
+    the launch that traces them; the four bits are combined there too. Inside an active
+    :class:`~._nlos_visibility_memo.VisibilityMemo` (a fit's renders of one geometry) a call already traced is
+    served from it (the same bytes).
     """
     ne, no = e1 - e0, len(origins)
     n_pairs = no * ne if pairs is None else len(pairs)
     if n_pairs == 0:
         return np.zeros(0, dtype=np.uint8)
+    memo = _nlos_visibility_memo.current()  # (a fit's renders of one geometry: the masks traced once)
+    key = None if memo is None else memo.key(scene, origins, normal, pts[e0:e1], pairs, element_major)
+    kept = None if memo is None else memo.get(key)
+    if kept is not None:
+        return kept
     org = _d3(np.asarray(origins, dtype=np.float64) + WALL_OFFSET_M * np.asarray(normal, dtype=np.float64))
     tgt = _d3(pts[e0:e1].reshape(-1, 3))
     pair = dr.arange(mi.UInt32, n_pairs) if pairs is None else _u(pairs)
@@ -138,7 +146,10 @@ def visibility_masks(scene, origins: np.ndarray, normal: np.ndarray, pts: np.nda
         ray = mi.Ray3f(mi.Point3f(mi.Float(o[0]), mi.Float(o[1]), mi.Float(o[2])), d,
                        mi.Float(r) * (1.0 - VISIBILITY_REL_TOL), 0.0, [])
         mask |= dr.select(scene.ray_test(ray), 0, 1 << j)
-    return np.asarray(mask).astype(np.uint8)
+    out = np.asarray(mask).astype(np.uint8)
+    if memo is not None:
+        memo.put(key, out)
+    return out
 
 
 class ElementSurfaces:
