@@ -228,3 +228,31 @@ def fit_mesh_growth_table(R) -> str:
     return ("The fit without growth (`--grow 0`) -> at its defaults (two rings; one machine, one after the other, "
             "see the sources):\n\n" + "\n".join(rows) + "\n\nSources: " + "; ".join(sources)
             + ".\n")
+
+
+def visibility_memo_para(R) -> str:
+    """The letter's small fit with and without the visibility memo: each stage's time range over the runs of each
+    mode, and whether every run wrote the same bytes."""
+    rec = R("visibility_memo_letter_8")
+    r = rec["result"]
+
+    def span(key: str, memo: bool) -> tuple[float, float]:
+        xs = [run[key] for run in r["runs"] if run["memo"] is memo]
+        return min(xs), max(xs)
+
+    def rng(lo: float, hi: float) -> str:
+        return f"{lo:.0f} s" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} s"
+
+    def change(key: str, what: str) -> str:
+        off, on = span(key, False), span(key, True)
+        mid = lambda x: 0.5 * (x[0] + x[1])  # noqa: E731
+        less = 100 * (1 - mid(on) / mid(off))
+        return f"{what} {rng(*off)} -> {rng(*on)}" + (f" ({less:.0f} % less)" if less >= 3 else "")
+
+    same = ("every run wrote the same `fitted.ply`, carved mesh and metrics" if r["same_bytes"] else
+            "**the runs' outputs differ**")
+    return (f"The letter's fit of the table above ({r['width']} x {r['width']} pixels, {r['spots']} x {r['spots']} "
+            f"spots, {r['exposure_ms']:g} ms), {r['repeats']} runs without the memo and {r['repeats']} with it, "
+            f"alternating in one process (the range of each mode's runs; the change of their midpoints): "
+            f"{change('carve_s', 'carving')}, {change('optimisation_s', 'vertex stage')}, "
+            f"{change('align_s', 'alignment')}, {change('fit_wall_s', 'the whole fit')}; {same}. {provenance(rec)}\n")
