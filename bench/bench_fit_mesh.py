@@ -96,7 +96,8 @@ def _targets(scene: str, fit: dict, counts: Path, full_size: bool = False) -> di
                "met": {"iou": (fit["iou"] or 0) >= IOU_OTHER_TOPOLOGY,
                        "silhouette_iou": (fit["silhouette_iou"] or 0) >= IOU_OTHER_TOPOLOGY},
                "note": "the issue's 'IoU >= 0.6' for shapes of other topology, read as both the voxel IoU and "
-                       "the silhouette IoU; a small capture"}
+                       "the silhouette IoU; " + ("the letter's full-size capture (16x16, 4x4 spots)" if full_size
+                                                 else "a small capture")}
         if scene == "holed_plate":
             out["closed_hole_silhouette_iou_whole_plate"] = HOLED_PLATE_CLOSED_IOU
             out["closed_hole_on_the_grid"] = _closed_hole_bound(counts)

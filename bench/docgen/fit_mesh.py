@@ -172,7 +172,21 @@ def _table(rec) -> str:
 def fit_mesh_topology_table(R) -> str:
     """The generated shapes of other topology (transient_mi.scenes.topology): start -> aligned -> fit per metric
     and the issue's IoU >= 0.6 target."""
-    recs = [R("fit_mesh_chair"), R("fit_mesh_holed_plate")]
+    return _topology_table([R("fit_mesh_chair"), R("fit_mesh_holed_plate")],
+                           "at the letter's and tilted plane's configuration and defaults")
+
+
+#: The shapes of other topology on a larger capture (:func:`fit_mesh_topology_16_table`).
+TOPOLOGY_16 = ["fit_mesh_holed_plate_16"]
+
+
+def fit_mesh_topology_16_table(R) -> str:
+    """The shapes of other topology on 16 x 16 pixels, as :func:`fit_mesh_topology_table`."""
+    return _topology_table([R(n) for n in TOPOLOGY_16], "on 16 x 16 pixels, at the same defaults")
+
+
+def _topology_table(recs: list, where: str) -> str:
+    """The table of the records ``recs`` (of one configuration, ``where`` it ran), their captures and provenance."""
     names = {"chair": "chair (six boxes)", "holed_plate": "plate with a hole"}
     rows = ["| shape | silhouette IoU | occupancy IoU | Chamfer, surface to surface | triangles | time (fit, wall) "
             "| IoU >= 0.6 |", "|---|---|---|---|---|---|---|"]
@@ -187,12 +201,11 @@ def fit_mesh_topology_table(R) -> str:
         captures.append(f"{names[r['scene']]}: {_capture(r)}")
     r0 = recs[0]["result"]
     carve = (f"carving ({r0['carve']} iterations), " if r0.get("carve") else "")
-    head = (f"Start -> aligned{' -> carved' if carve else ''} -> fit, at the letter's and tilted plane's configuration "
-            f"and defaults ({r0['width']} x {r0['width']} pixels of {32 / r0['width']:g} cm, {r0['spots']} x "
+    head = (f"Start -> aligned{' -> carved' if carve else ''} -> fit, {where} ({r0['width']} x {r0['width']} pixels of {32 / r0['width']:g} cm, {r0['spots']} x "
             f"{r0['spots']} laser spots, {r0['exposure_ms']:g} ms per spot, {r0['align']} alignment iterations, "
             f"{carve}{r0['iterations']} iterations in "
             f"{r0['stages']} stages from {100 * r0['cell_m']:g} cm cells):")
-    closed = recs[1]["result"]["targets"].get("closed_hole_on_the_grid")
+    closed = recs[-1]["result"]["targets"].get("closed_hole_on_the_grid")
     tail = ""
     if closed:
         tail = (f"The plate's square without the hole, placed exactly, scores silhouette IoU "
