@@ -2,11 +2,11 @@
 
 A fit renders the same mesh more than once: the carving fits one reflectance per face with the vertices held
 (a forward and a reverse pass per evaluation of its objective, :mod:`transient_mi.fit.mesh_carve`), and every
-reverse pass of an Adam or alignment step follows a forward pass at the same vertices. The deterministic
+reverse pass of the vertex stage (Adam) follows a forward pass at the same vertices. The deterministic
 estimator's visibility (:func:`~._nlos_surfaces.visibility_masks`: Mitsuba's shadow-ray tests from the laser
 spots and the wall's cells to every element's samples) depends on the scene's geometry and the rays alone, not on
-reflectances, blurs or the adjoint, so those renders trace the same rays again: about a quarter of a carving
-evaluation's time on the letter's 8 x 8 capture.
+reflectances, blurs or the adjoint, so those renders traced the same rays again: about a third of a carving
+evaluation's time on the letter's 8 x 8 capture (``bench/bench_visibility_memo.py``, docs/fit.md).
 
 A :class:`VisibilityMemo`, made active around a render (:meth:`VisibilityMemo.active`), keeps each call's masks
 under a digest of the call's inputs (the ray origins, the wall normal, the elements' samples, the pairs asked
