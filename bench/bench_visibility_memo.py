@@ -18,6 +18,7 @@ import contextlib
 import hashlib
 import json
 import os
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -76,7 +77,7 @@ def main() -> None:
     med = {}
     for memo in (False, True):
         rs = [r for r in runs if r["memo"] is memo]
-        med["on" if memo else "off"] = {key: sorted(r[key] for r in rs)[len(rs) // 2] for key in
+        med["on" if memo else "off"] = {key: statistics.median(r[key] for r in rs) for key in
                                         ("fit_wall_s", "align_s", "carve_s", "optimisation_s")}
     same = len({json.dumps(r["digests"], sort_keys=True) for r in runs}) == 1
     result = {"scene": a.scene, "width": a.width, "spots": a.spots, "exposure_ms": a.exposure_ms,
