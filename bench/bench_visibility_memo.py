@@ -1,4 +1,4 @@
-"""The free-mesh fit with and without its visibility memo (``transient_mi.integrators._nlos_visibility_memo``):
+"""The free-mesh fit with and without its visibility memo (``transient_mi._visibility_memo``):
 stage times and whether the outputs are the same bytes.
 
 The fit of ``bench_fit_mesh.py``'s capture and defaults (the letter, 8 x 8 pixels, 2 x 2 spots, 10 ms per spot)

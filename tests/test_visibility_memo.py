@@ -1,4 +1,4 @@
-"""The fits' visibility memo (``transient_mi.integrators._nlos_visibility_memo``): a capture model traces each of
+"""The fits' visibility memo (``transient_mi._visibility_memo``): a capture model traces each of
 the quadrature's visibility rays once per mesh geometry, and what it serves from the memo is what it would have
 traced.
 
@@ -18,7 +18,7 @@ import pytest
 import transient_mi  # noqa: F401  (before mitsuba/drjit)
 from transient_mi.fit import FitSettings
 from transient_mi.fit.mesh_fit import _capture_model
-from transient_mi.integrators._nlos_visibility_memo import VisibilityMemo, current
+from transient_mi._visibility_memo import VisibilityMemo, current
 from mesh_helpers import tilted_grid
 
 
@@ -103,6 +103,22 @@ def test_a_moved_mesh_is_traced_again(capture, monkeypatch):
     assert _forward_and_reverse(cap, moved, rho) == _forward_and_reverse(_model(capture, moved, f), moved, rho)
     assert cap.visibility.misses > misses
     assert _forward_and_reverse(cap, v, rho) == first
+
+
+def test_the_memo_is_served_after_a_variant_change(capture):
+    """A variant change re-imports the plug-in sub-packages' modules (``transient_mi._registry``); the memo's context
+    variable must be the one the quadrature reads afterwards too (when the memo lived in ``transient_mi.integrators``
+    it was imported twice and the fit's renders traced everything again; found by the CI's test order)."""
+    import transient_mi
+
+    before = transient_mi.variant()
+    other = "llvm_ad_mono_polarized" if before != "llvm_ad_mono_polarized" else "llvm_ad_rgb"
+    transient_mi.set_variant(other)
+    transient_mi.set_variant(before)
+    v, f = _two_grids()
+    cap = _model(capture, v, f)
+    _forward_and_reverse(cap, v, np.full(len(f), 0.5))
+    assert cap.visibility.misses > 0 and cap.visibility.hits > 0
 
 
 def test_the_memo_keeps_one_geometry_within_its_bytes_and_only_while_active():

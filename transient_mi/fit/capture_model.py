@@ -188,7 +188,7 @@ class CaptureModel:
         self._blurred = {}
         self._probs = None
         self._keep = None
-        from transient_mi.integrators._nlos_visibility_memo import VisibilityMemo
+        from transient_mi._visibility_memo import VisibilityMemo
 
         #: The quadrature's visibility masks of the mesh last rendered (:meth:`_held_geometry`).
         self.visibility = VisibilityMemo()
@@ -417,7 +417,7 @@ class CaptureModel:
 
     def _held_geometry(self):
         """The visibility memo active for the vertices the scene holds now (a context; this model owns its scene and
-        moves only them: :mod:`~transient_mi.integrators._nlos_visibility_memo`)."""
+        moves only them: :mod:`~transient_mi._visibility_memo`)."""
         self.visibility.set_geometry(np.asarray(dr.detach(self.params[self.vkey])))
         return self.visibility.active()
 

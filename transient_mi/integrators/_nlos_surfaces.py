@@ -21,8 +21,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from transient_mi import _visibility_memo
 from transient_mi._upload import upload
-from transient_mi.integrators import _nlos_visibility_memo
 from transient_mi.integrators._lanes import to_mono
 
 #: Relative tolerance on a hit distance for a point to count as visible (as the Monte Carlo estimator).
@@ -115,14 +115,14 @@ def visibility_masks(scene, origins: np.ndarray, normal: np.ndarray, pts: np.nda
     distance to the sample (the sample lies on its own surface, so the ray is not tested there). The rays are
     built in float64 from ``pts`` (``[n, 4, 3]``, all elements' samples, centroid first) and cast to float32 in
     the launch that traces them; the four bits are combined there too. Inside an active
-    :class:`~._nlos_visibility_memo.VisibilityMemo` (a fit's renders of one geometry) a call already traced is
+    :class:`~transient_mi._visibility_memo.VisibilityMemo` (a fit's renders of one geometry) a call already traced is
     served from it (the same bytes).
     """
     ne, no = e1 - e0, len(origins)
     n_pairs = no * ne if pairs is None else len(pairs)
     if n_pairs == 0:
         return np.zeros(0, dtype=np.uint8)
-    memo = _nlos_visibility_memo.current()  # (a fit's renders of one geometry: the masks traced once)
+    memo = _visibility_memo.current()  # (a fit's renders of one geometry: the masks traced once)
     key = None if memo is None else memo.key(scene, origins, normal, pts[e0:e1], pairs, element_major)
     kept = None if memo is None else memo.get(key)
     if kept is not None:

@@ -3,21 +3,26 @@
 A fit renders the same mesh more than once: the carving fits one reflectance per face with the vertices held
 (a forward and a reverse pass per evaluation of its objective, :mod:`transient_mi.fit.mesh_carve`), and every
 reverse pass of the vertex stage (Adam) follows a forward pass at the same vertices. The deterministic
-estimator's visibility (:func:`~._nlos_surfaces.visibility_masks`: Mitsuba's shadow-ray tests from the laser
-spots and the wall's cells to every element's samples) depends on the scene's geometry and the rays alone, not on
-reflectances, blurs or the adjoint, so those renders traced the same rays again: about a third of a carving
-evaluation's time on the letter's 8 x 8 capture (``bench/bench_visibility_memo.py``, docs/fit.md).
+estimator's visibility (:func:`~transient_mi.integrators._nlos_surfaces.visibility_masks`: Mitsuba's shadow-ray
+tests from the laser spots and the wall's cells to every element's samples) depends on the scene's geometry and the
+rays alone, not on reflectances, blurs or the adjoint, so those renders traced the same rays again: about a third
+of a carving evaluation's time on the letter's 8 x 8 capture (``bench/bench_visibility_memo.py``, docs/fit.md).
 
 A :class:`VisibilityMemo`, made active around a render (:meth:`VisibilityMemo.active`), keeps each call's masks
 under a digest of the call's inputs (the ray origins, the wall normal, the elements' samples, the pairs asked
 for, the layout) and of the scene's geometry, which its owner states with :meth:`VisibilityMemo.set_geometry`
 (the :class:`~transient_mi.fit.capture_model.CaptureModel` owns its scene and moves nothing but its model mesh: it
 states the mesh's vertices). A new geometry forgets every mask. A mask taken from the memo is the traced one's
-bytes: a ray's result does not depend on the launch it is traced in (as :class:`~._nlos_pairs.TracedVisibility`
-relies on), so a render with the memo equals one without, bit for bit (``tests/test_visibility_memo.py``).
+bytes: a ray's result does not depend on the launch it is traced in (as
+:class:`~transient_mi.integrators._nlos_pairs.TracedVisibility` relies on), so a render with the memo equals one
+without, bit for bit (``tests/test_visibility_memo.py``).
 
 Outside an active memo (every ``mi.render`` and ``transient-mi render``) nothing is kept: a scene a user changes
 between renders (a shape moved through ``mi.traverse``) has no owner to state its geometry.
+
+The module lives outside ``transient_mi.integrators`` on purpose: a variant change re-imports every module of the
+plug-in sub-packages (:mod:`transient_mi._registry`), and a second copy of this one would hold a second context
+variable, which the capture model would set and the quadrature would not read.
 """
 
 from __future__ import annotations
