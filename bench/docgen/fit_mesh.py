@@ -264,7 +264,8 @@ def visibility_memo_para(R) -> str:
 
     same = ("every run wrote the same `fitted.ply`, carved mesh and metrics" if r["same_bytes"] else
             "**the runs' outputs differ**")
-    return (f"The letter's fit of the table above ({r['width']} x {r['width']} pixels, {r['spots']} x {r['spots']} "
+    return (f"The letter's small fit (its record under \"Any shape\"; {r['width']} x {r['width']} pixels, "
+            f"{r['spots']} x {r['spots']} "
             f"spots, {r['exposure_ms']:g} ms), {r['repeats']} runs without the memo and {r['repeats']} with it, "
             f"alternating in one process (the range of each mode's runs; the change of their midpoints): "
             f"{change('carve_s', 'carving')}, {change('optimisation_s', 'vertex stage')}, "
