@@ -81,8 +81,8 @@ class VisibilityMemo:
 
     @contextlib.contextmanager
     def active(self):
-        """Serve :func:`~._nlos_surfaces.visibility_masks` from this memo inside the ``with`` block (this thread
-        and context only)."""
+        """Serve :func:`~transient_mi.integrators._nlos_surfaces.visibility_masks` from this memo inside the ``with``
+        block (this thread and context only)."""
         token = _ACTIVE.set(self)
         try:
             yield self
@@ -90,7 +90,8 @@ class VisibilityMemo:
             _ACTIVE.reset(token)
 
     def key(self, scene, origins, normal, samples, pairs, element_major: bool) -> bytes | None:
-        """The digest of one :func:`~._nlos_surfaces.visibility_masks` call (None before a geometry is stated)."""
+        """The digest of one :func:`~transient_mi.integrators._nlos_surfaces.visibility_masks` call (None before a
+        geometry is stated)."""
         if self._geometry is None:
             return None
         return _digest(self._geometry, id(scene), np.asarray(origins, dtype=np.float64),
