@@ -201,8 +201,8 @@ def _topology_table(recs: list, where: str) -> str:
         captures.append(f"{names[r['scene']]}: {_capture(r)}")
     r0 = recs[0]["result"]
     carve = (f"carving ({r0['carve']} iterations), " if r0.get("carve") else "")
-    head = (f"Start -> aligned{' -> carved' if carve else ''} -> fit, {where} ({r0['width']} x {r0['width']} pixels of {32 / r0['width']:g} cm, {r0['spots']} x "
-            f"{r0['spots']} laser spots, {r0['exposure_ms']:g} ms per spot, {r0['align']} alignment iterations, "
+    head = (f"Start -> aligned{' -> carved' if carve else ''} -> fit, {where} ({r0['width']} x {r0['width']} pixels "
+            f"of {32 / r0['width']:g} cm, {r0['spots']} x {r0['spots']} laser spots, {r0['exposure_ms']:g} ms per spot, {r0['align']} alignment iterations, "
             f"{carve}{r0['iterations']} iterations in "
             f"{r0['stages']} stages from {100 * r0['cell_m']:g} cm cells):")
     closed = recs[-1]["result"]["targets"].get("closed_hole_on_the_grid")
@@ -265,8 +265,7 @@ def visibility_memo_para(R) -> str:
     same = ("every run wrote the same `fitted.ply`, carved mesh and metrics" if r["same_bytes"] else
             "**the runs' outputs differ**")
     return (f"The letter's small fit (its record under \"Any shape\"; {r['width']} x {r['width']} pixels, "
-            f"{r['spots']} x {r['spots']} "
-            f"spots, {r['exposure_ms']:g} ms), {r['repeats']} runs without the memo and {r['repeats']} with it, "
+            f"{r['spots']} x {r['spots']} spots, {r['exposure_ms']:g} ms), {r['repeats']} runs without the memo and {r['repeats']} with it, "
             f"alternating in one process (the range of each mode's runs; the change of their midpoints): "
             f"{change('carve_s', 'carving')}, {change('optimisation_s', 'vertex stage')}, "
             f"{change('align_s', 'alignment')}, {change('fit_wall_s', 'the whole fit')}; {same}. {provenance(rec)}\n")
