@@ -249,6 +249,8 @@ def test_alignment_recovers_a_planes_tilt(capture_8x8):
     (MeshSettings(grow=True), ["grow=True", "0 to 4"]),
     (MeshSettings(carve_tv=-1.0), ["carve_tv=-1.0", ">= 0"]),
     (MeshSettings(cell_m=0.0), ["cell_m=0.0", "0.005 to 0.5"]),
+    (MeshSettings(pixel_step=0), ["pixel_step=0", "1 to 16"]),
+    (MeshSettings(pixel_step=3), ["--pixel-step 3", "4 x 4"]),
     (MeshSettings(start_mesh="/nonexistent/surface.ply"), ["--start-mesh", "no such file"]),
 ])
 def test_bad_mesh_settings_are_refused_before_anything_is_written(capture, tmp_path, mesh, words):
@@ -486,3 +488,40 @@ def test_carving_drops_a_spurious_wing_and_keeps_the_square(capture_8x8):
         vk, fk = drop_faces(v, f, keep)
         assert len(fk) == keep.sum() and fk.max() == len(vk) - 1 and np.allclose(vk[fk], v[f[keep]])
     assert spread[0] < 0.8 * spread[1], spread
+
+
+def test_a_fit_on_every_second_pixel_renders_and_compares_those_pixels_only(capture_8x8, tmp_path):
+    """``pixel_step=2`` (``--pixel-step 2``): the fit's capture model holds the 4 x 4 pixels ``(2 j, 2 i)`` of the
+    8 x 8 capture (its counts are theirs, bin for bin), renders them exactly as the full model renders those pixels,
+    and a short fit runs through alignment, carving and the vertex stage on them and says so in ``fit.json``.
+    Deterministic (quadrature renders, a fixed detection seed)."""
+    v, f = _grid(4, 0.4, tilt_deg=30.0)
+    st = FitSettings(iterations=2, element_size_m=0.06)
+    full = _capture_model(capture_8x8, v, f, st, 32.0)
+    half = _capture_model(capture_8x8, v, f, st, 32.0, "global", 2)
+    assert (half.width, half.height) == (4, 4) and half.pixel_step == 2
+    keep = (np.arange(8)[:, None] % 2 == half.pixel_offset) & (np.arange(8)[None, :] % 2 == half.pixel_offset)
+    np.testing.assert_array_equal(half.counts, full.counts[:, keep.ravel()])
+    for cap in (full, half):
+        cap.set_element_size(0.06)
+        cap.set_mesh(v, 0.6)
+    a = full.ideal(0, 0, full.jitter_sigma_ps)[:, keep.ravel()]
+    b = half.ideal(0, 0, half.jitter_sigma_ps)
+    assert a.sum() > 0
+    np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-6 * float(a.max()))
+    res = fit_capture(capture_8x8, tmp_path / "fit", model="mesh", bin_width_ps=32.0, progress=False,
+                      log=lambda *x: None, settings=st, mesh=MeshSettings(align=1, carve=1, grow=0, stages=1,
+                                                                           pixel_step=2))
+    assert res["config"]["mesh"]["pixel_step"] == 2 and (tmp_path / "fit" / "fitted.ply").is_file()
+
+
+@pytest.mark.parametrize("width, height, step", [(32, 32, 2), (16, 16, 1), (8, 8, 1), (64, 64, 4), (48, 32, 2),
+                                                 (30, 30, 1)])
+def test_the_default_pixel_step_keeps_sixteen_pixels_per_side(width, height, step):
+    """``pixel_step=None`` (no ``--pixel-step``): the largest step dividing both sides that keeps
+    :data:`~transient_mi.fit.mesh_settings.MIN_PIXELS` (16) pixels along each; a step given is kept."""
+    from transient_mi.fit.mesh_settings import MIN_PIXELS, resolve_pixel_step
+
+    assert MIN_PIXELS == 16
+    assert resolve_pixel_step(MeshSettings(), width, height).pixel_step == step
+    assert resolve_pixel_step(MeshSettings(pixel_step=1), width, height).pixel_step == 1

@@ -73,6 +73,10 @@ def fit_command(
     carve_tv: float = typer.Option(None, "--carve-tv", help="--model mesh: weight of the carving's total-variation "
                                    "prior on the faces' reflectances, a share of the signal energy (default 4e-4, "
                                    "transient_mi.fit.mesh_carve.TV_WEIGHT; 0: none; docs/fit.md)."),
+    pixel_step: int = typer.Option(None, "--pixel-step", parser=whole_number("--pixel-step"), metavar="<int>",
+                                   help="--model mesh: fit every n-th pixel along each axis, 1 to 16, dividing the "
+                                        "array (1: all; default: the largest step keeping 16 pixels per side, 2 on "
+                                        "the paper's 32 x 32 array; docs/fit.md)."),
     seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed."),
     resume: bool = typer.Option(False, "--resume", help="Continue the fit in OUT from its checkpoint."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier fit in OUT."),
@@ -85,11 +89,11 @@ def fit_command(
     settings = FitSettings(iterations=iterations, spp=spp, spp_residual=spp_residual, sigma_start_ps=sigma_start_ps,
                            sigma_end_ps=sigma_end_ps, seed=seed, estimator=estimator, element_size_m=element_size_m,
                            optimizer=optimizer)
-    from transient_mi.fit.mesh_fit import MeshSettings, check_mesh_options
+    from transient_mi.fit.mesh_settings import MeshSettings, check_mesh_options
 
     mesh = MeshSettings(start=start, start_mesh=None if start_mesh is None else str(start_mesh), cell_m=cell_m,
                         stages=stages, smoothing=smoothing, align=align, carve=carve, grow=grow,
-                        reflectance=reflectance, albedo_smoothness=albedo_smoothness,
+                        reflectance=reflectance, albedo_smoothness=albedo_smoothness, pixel_step=pixel_step,
                         **({} if carve_tv is None else {"carve_tv": carve_tv}))
     check_mesh_options(mesh)  # whatever --model: a bad value is refused before any work
     result = fit_capture(capture, out, model=model, settings=settings, bin_width_ps=bin_width_ps, n_patches=patches,

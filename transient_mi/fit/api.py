@@ -142,7 +142,7 @@ def fit_capture(capture, out_dir, *, model: str = "mannequin", settings: FitSett
     overwrite : bool
         Replace an existing output directory.
     mesh : MeshSettings, optional
-        ``mesh``: start, resolution, stages and regularisers (:class:`~transient_mi.fit.mesh_fit.MeshSettings`;
+        ``mesh``: start, resolution, stages and regularisers (:class:`~transient_mi.fit.mesh_settings.MeshSettings`;
         default its defaults); see :func:`~transient_mi.fit.mesh_fit.fit_mesh_capture`.
     """
     from transient_core.progress import progress_bar

@@ -58,96 +58,21 @@ from transient_core.errors import UserInputError
 from transient_core.lock import output_lock
 
 from .mesh_align import realign_iterations
-from .mesh_carve import TV_WEIGHT
-from .mesh_model import REFLECTANCES
 from .mesh_regularizers import RegularizerWeights
+from .mesh_settings import (CARVE_ITERATIONS, GROW_RINGS, MeshSettings, carve_iterations,  # noqa: F401  (re-exported)
+                            check_mesh_options, grow_rings, resolve_pixel_step)
 from .optimize import FitState
 
 __all__ = ["MeshSettings", "fit_mesh_capture"]
 
-_OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "aligned.ply", "carved.ply", "start.json", "align.json",
-            "carve.json", "loss.png", "fit.png", "views.png", "checkpoint.json", "stage.json", "config.json")
-_STARTS = ("front", "closed")
-#: The carving step's default iterations (:func:`carve_iterations`).
-CARVE_ITERATIONS = 40
-#: Rings of faces grown around the aligned start before carving, by default (:func:`grow_rings`).
-GROW_RINGS = 2
 #: A face grown around the aligned start (``grow``) starts the carving at this share of the aligned faces' median
 #: reflectance (the aligned ones at theirs).
 GROWN_SHARE = 0.5
 #: fitted.ply's face property of a per-face reflectance (Mitsuba's PLY loader: the attribute ``face_reflectance``).
 FACE_PLY_PROPERTY = "reflectance_0"
 
-
-@dataclass(frozen=True)
-class MeshSettings:
-    """Settings of the free-mesh model (units: metres; weights dimensionless, see
-    :mod:`~transient_mi.fit.mesh_regularizers`)."""
-
-    start: str = "front"  # front | closed (from the backprojection); ignored with start_mesh
-    start_mesh: str | None = None  # a mesh file (e.g. a recon method's surface.ply)
-    cell_m: float = 0.04  # the start mesh's resolution (halved at every later stage)
-    stages: int = 2  # resolution stages (1: no subdivision)
-    smoothing: float = 10.0  # lambda of the large-steps parametrisation
-    laplacian: float = 1.0
-    edge: float = 0.05
-    normal: float = 0.1
-    step_m: float = 0.003  # Adam's step per iteration at the start
-    moments: str = "uniform"  # Adam's second moments of the vertices: uniform (one) or vertex (one per vertex)
-    align: int = 8  # Levenberg-Marquardt iterations of the global affine map and reflectance first (0: none)
-    carve: int | None = None  # per-face reflectance iterations on the aligned start, then its dark faces go
-    #                           (None: CARVE_ITERATIONS with one reflectance, 0 with reflectance="face")
-    grow: int | None = None  # rings of faces cell_m wide added around the aligned start's open boundary before
-    #                          carving (None: GROW_RINGS where the fit carves, else 0)
-    reflectance: str = "global"  # global (one reflectance) | face (one per face, held smooth by albedo_smoothness)
-    albedo_smoothness: float = 1.0  # weight of the per-face reflectance's smoothness (mesh_regularizers)
-    carve_tv: float = TV_WEIGHT  # weight of the carving's total-variation prior (mesh_carve; 0: none)
-
-
-def check_mesh_options(mesh: MeshSettings) -> None:
-    """Refuse, in one line, a free-mesh setting out of range (the command line checks these whatever the model)."""
-    if mesh.start not in _STARTS:
-        raise UserInputError(f"--start {mesh.start!r} is not known; allowed: {', '.join(_STARTS)}")
-    if not (isinstance(mesh.cell_m, (int, float)) and math.isfinite(mesh.cell_m) and 0.005 <= mesh.cell_m <= 0.5):
-        raise UserInputError(f"cell_m={mesh.cell_m!r}: expected a length in metres from 0.005 to 0.5")
-    if isinstance(mesh.stages, bool) or not isinstance(mesh.stages, (int, np.integer)) or not 1 <= mesh.stages <= 3:
-        raise UserInputError(f"stages={mesh.stages!r}: expected a whole number from 1 to 3")
-    if mesh.reflectance not in REFLECTANCES:
-        raise UserInputError(f"--reflectance {mesh.reflectance!r} is not known; allowed: {', '.join(REFLECTANCES)}")
-    for name in ("smoothing", "laplacian", "edge", "normal", "albedo_smoothness", "carve_tv"):
-        v = getattr(mesh, name)
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-            raise UserInputError(f"{name}={v!r}: expected a finite number >= 0")
-    if not (isinstance(mesh.step_m, (int, float)) and math.isfinite(mesh.step_m) and 0 < mesh.step_m <= 0.05):
-        raise UserInputError(f"step_m={mesh.step_m!r}: expected a step in metres, > 0 and <= 0.05")
-    if mesh.moments not in ("uniform", "vertex"):
-        raise UserInputError(f"moments={mesh.moments!r}: expected uniform or vertex")
-    if isinstance(mesh.align, bool) or not isinstance(mesh.align, (int, np.integer)) or not 0 <= mesh.align <= 100:
-        raise UserInputError(f"align={mesh.align!r}: expected a whole number of iterations from 0 to 100")
-    if mesh.carve is not None and (isinstance(mesh.carve, bool) or not isinstance(mesh.carve, (int, np.integer))
-                                   or not 0 <= mesh.carve <= 200):
-        raise UserInputError(f"carve={mesh.carve!r}: expected a whole number of iterations from 0 to 200")
-    if mesh.grow is not None and (isinstance(mesh.grow, bool) or not isinstance(mesh.grow, (int, np.integer))
-                                  or not 0 <= mesh.grow <= 4):
-        raise UserInputError(f"grow={mesh.grow!r}: expected a whole number of rings from 0 to 4")
-
-
-def carve_iterations(mesh: MeshSettings) -> int:
-    """The carving step's iterations: ``mesh.carve``, or by default :data:`CARVE_ITERATIONS` with one reflectance
-    and none with ``reflectance="face"`` (its cut assumes one material: a darker one would be dropped)."""
-    if mesh.carve is not None:
-        return int(mesh.carve)
-    return CARVE_ITERATIONS if mesh.reflectance == "global" else 0
-
-
-def grow_rings(mesh: MeshSettings) -> int:
-    """The rings grown around the aligned start before carving: ``mesh.grow``, or by default :data:`GROW_RINGS`
-    where the fit carves (:func:`carve_iterations`) and none where it does not (a ring nothing carves would stay)."""
-    if mesh.grow is not None:
-        return int(mesh.grow)
-    return GROW_RINGS if carve_iterations(mesh) else 0
-
-
+_OUTPUTS = ("fit.json", "fitted.ply", "start.ply", "aligned.ply", "carved.ply", "start.json", "align.json",
+            "carve.json", "loss.png", "fit.png", "views.png", "checkpoint.json", "stage.json", "config.json")
 def _check(mesh: MeshSettings, settings) -> None:
     check_mesh_options(mesh)
     if settings.iterations < mesh.stages:
@@ -162,13 +87,13 @@ def stage_starts(n: int, stages: int) -> list[int]:
     return [round(half * k / (stages - 1)) for k in range(stages - 1)] + [half]
 
 
-def _capture_model(capture, v, f, settings, bin_width_ps, reflectance: str = "global"):
+def _capture_model(capture, v, f, settings, bin_width_ps, reflectance: str = "global", pixel_step: int = 1):
     from .capture_model import CaptureModel
 
     try:  # (always the quadrature, whatever settings.estimator says: see the module docstring)
         return CaptureModel(capture, np.asarray(f, dtype=np.uint32), len(v), bin_width_ps=bin_width_ps,
                             estimator="quadrature", element_size_m=settings.element_size_m, dead_time="renewal",
-                            reflectance=reflectance)
+                            reflectance=reflectance, pixel_step=pixel_step)
     except UserInputError as e:
         if not str(e).startswith("estimator=quadrature:"):
             raise
@@ -251,6 +176,7 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
         existing = claim_output(out, config, resume, overwrite)
         t_start = time.perf_counter()
         manifest = read_manifest(capture)
+        mesh = resolve_pixel_step(mesh, int(manifest["width"]), int(manifest["height"]))
         bounds = _bounds(manifest)
         rec_bp = _backprojection(capture, bounds)
         ckpt, stage_file = out / "checkpoint.json", out / "stage.json"
@@ -260,7 +186,7 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
         else:
             st = json.loads(stage_file.read_text())
             v0, f0 = np.asarray(st["vertices"]), np.asarray(st["faces"])
-        cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance)
+        cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance, mesh.pixel_step)
         if not resuming:  # (the start's faces across the device's lines of sight dropped: mesh_start)
             from .mesh_start import clear_view, device_sight_lines
 
@@ -268,7 +194,7 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
             v1, f1 = clear_view(v0, f0, *sight)
             if len(f1) != len(f0):
                 v0, f0 = v1, f1
-                cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance)
+                cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance, mesh.pixel_step)
         # (everything checked: only now is anything written)
         if existing and overwrite and not resume:
             for name in _OUTPUTS:
@@ -314,7 +240,7 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
             if carve_iterations(mesh):
                 v0, f0, albedo = _carve(out, capture, v0, f0, albedo, mesh, settings, bin_width_ps, end, log,
                                         progress, sight)
-                cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance)
+                cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance, mesh.pixel_step)
                 if realign_iterations(mesh.align) and mesh.reflectance == "global":
                     from .mesh_align import realign_carved
 
@@ -344,7 +270,7 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
                 a1 = model.albedo(theta)  # (per face: each face's four children, consecutive, inherit it)
                 a1 = a1 if mesh.reflectance == "global" else np.repeat(a1, 4)
                 stage += 1
-                cap = _capture_model(capture, v1, f1, settings, bin_width_ps, mesh.reflectance)
+                cap = _capture_model(capture, v1, f1, settings, bin_width_ps, mesh.reflectance, mesh.pixel_step)
                 model = _model(v1, f1, a1, replace(mesh, step_m=mesh.step_m / 2 ** stage), reg_scale)
                 _write_stage(stage_file, stage, v1, f1, a1, reg_scale)
                 state = FitState(theta=model.initial().tolist(), iteration=state.iteration, history=state.history,
@@ -390,7 +316,7 @@ def _carve(out: Path, capture, v, f, albedo, mesh: MeshSettings, settings, bin_w
         log(f"fit mesh: grown by {rings} ring(s) of {100 * mesh.cell_m:.0f} cm: {n_aligned} -> {len(f)} faces")
     vs, fs = subdivide(v, f)
     start = np.broadcast_to(albedo, (len(f),))
-    capf = _capture_model(capture, vs, fs, settings, bin_width_ps, "face")
+    capf = _capture_model(capture, vs, fs, settings, bin_width_ps, "face", mesh.pixel_step)
     capf.keep_blur(end_ps)
     n = carve_iterations(mesh)
     with progress_bar("fit mesh: carve", n, disable=None if progress is None else not progress) as advance:
@@ -431,7 +357,7 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
     if hasattr(cap, "set_element_size"):
         cap.set_element_size(settings.element_size_m)
     nll = {"fit": _nll(cap, fitted.vertices, fitted.faces, model.albedo(theta))}
-    cap0 = _capture_model(capture, sv, sf, settings, bin_width_ps, model.reflectance)
+    cap0 = _capture_model(capture, sv, sf, settings, bin_width_ps, model.reflectance, cap.pixel_step)
     cap0.set_element_size(settings.element_size_m) if hasattr(cap0, "set_element_size") else None
     nll["start"] = _nll(cap0, np.asarray(sv), sf, float(salb))
     del cap0
@@ -469,7 +395,8 @@ def _finish(out, model, cap, manifest, rec_bp, start, state, settings, config, f
                                  "source": mcfg["start_mesh"] or f"backprojection ({mcfg['start']})"},
                        "fit": model.as_dict(theta), "truth": None, "error": None},
         "regularizer": {"scale": model.reg_scale, "parts_at_fit": model.total_regularization(theta)[1]},
-        "estimator": {"used": cap.estimator, "element_size_m": cap.element_size_m},
+        "estimator": {"used": cap.estimator, "element_size_m": cap.element_size_m, "pixel_step": cap.pixel_step,
+                      "pixels_used": [cap.height, cap.width]},
         "poisson_nll": {**nll, "counts": float(cap.counts.sum())},
         "metrics": metrics,
         "history": {"objective": [h[0] for h in state.history], "sigma_ps": [h[1] for h in state.history],

@@ -167,7 +167,7 @@ def _mesh_start(work: Path, rec, iterations: int):
     written to ``work / "start_mesh.ply"``; its carving takes at most ``iterations`` steps, the fit's own count (a
     small fit stays small)."""
     from recon.surface import write_ply
-    from transient_mi.fit.mesh_fit import MeshSettings, carve_iterations
+    from transient_mi.fit.mesh_settings import MeshSettings, carve_iterations
     from transient_mi.fit.mesh_start import front_surface
 
     mesh = MeshSettings()
