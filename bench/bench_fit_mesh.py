@@ -158,6 +158,8 @@ def main() -> None:
                     help="one reflectance for the mesh, or one per face (the record's name gets '_face')")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "bench_fit_mesh")
     ap.add_argument("--figure", type=Path, default=None, help="also copy the fit's views.png here")
+    ap.add_argument("--pixel-step", type=int, default=None,
+                    help="fit every n-th pixel along each axis (--pixel-step; default: the fit's own)")
     _record.add_arguments(ap)
     a = ap.parse_args()
     load_start = list(os.getloadavg())
@@ -175,6 +177,7 @@ def main() -> None:
                                            element_size_m=a.element_size_m),
                       mesh=MeshSettings(cell_m=a.cell_m, stages=a.stages, moments=a.moments, step_m=a.step_m,
                                         align=a.align, reflectance=a.reflectance, grow=a.grow,
+                                        pixel_step=a.pixel_step,
                                         **({} if a.carve is None else {"carve": a.carve}),
                                         **({} if a.carve_tv is None else {"carve_tv": a.carve_tv})),
                       progress=False)
@@ -188,8 +191,8 @@ def main() -> None:
               "moments": a.moments, "step_m": a.step_m, "align": a.align, "align_albedo": res["align"]["albedo"],
               "carve": carve_iterations(MeshSettings(**res["config"]["mesh"])), "carve_result": res.get("carve"),
               "grow": grow_rings(MeshSettings(**res["config"]["mesh"])), "carve_tv": res["config"]["mesh"]["carve_tv"],
-              "reflectance": a.reflectance, "fit_albedo_range": [res["parameters"]["fit"].get("albedo_min"),
-                                                                 res["parameters"]["fit"].get("albedo_max")],
+              "reflectance": a.reflectance, "pixel_step": res["estimator"]["pixel_step"],
+              "fit_albedo_range": [res["parameters"]["fit"].get("albedo_min"), res["parameters"]["fit"].get("albedo_max")],
               "metrics": rows, "dead_time_check": dead_time, "poisson_nll": res["poisson_nll"], "fit_albedo": res["parameters"]["fit"]["albedo"],
               "n_faces": {"start": res["parameters"]["start"]["n_faces"], "fit": res["parameters"]["fit"]["n_faces"]},
               "time_s": {"capture": t_cap, "fit_wall": t_fit, "align": res["time_s"]["align"],

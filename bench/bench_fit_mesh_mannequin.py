@@ -10,8 +10,10 @@ f-k reconstructs the counts on the methods study's grid; the free mesh starts fr
 (:mod:`transient_mi.study.metrics_rows`), beside midpoint-fk's own. Time: the fit's wall time (start mesh to
 ``fit.json``), the budget the target names.
 
-    python bench/bench_fit_mesh_mannequin.py --save    # fit_mesh_mannequin.json
-    python bench/bench_fit_mesh_mannequin.py --start-shape closed --iterations 20 --align 8 --save   # ..._closed
+    python bench/bench_fit_mesh_mannequin.py --pixel-step 1 --save    # fit_mesh_mannequin.json (every pixel)
+    python bench/bench_fit_mesh_mannequin.py --pixel-step 2 --save-as bench/results/fit_mesh_mannequin_step2.json
+    python bench/bench_fit_mesh_mannequin.py --start-shape closed --iterations 20 --align 8 --pixel-step 2 \
+        --save-as bench/results/fit_mesh_mannequin_closed_step2.json
 """
 
 from __future__ import annotations
@@ -43,6 +45,11 @@ def main(argv=None) -> int:
     ap.add_argument("--start-shape", choices=("front", "closed"), default="front",
                     help="midpoint-fk's front surface (as the study's fit:mesh row) or a closed surface around its "
                          "occupied voxels (mesh_start.closed_surface)")
+    ap.add_argument("--pixel-step", type=int, default=None,
+                    help="fit every n-th pixel along each axis (MeshSettings.pixel_step; default: the fit's own)")
+    ap.add_argument("--carve", type=int, default=None,
+                    help="carving iterations (MeshSettings.carve; default: the fit's, capped at --iterations)")
+    ap.add_argument("--suffix", default="", help="appended to the record's name")
     _record.add_arguments(ap)
     a = ap.parse_args(argv)
     load_start = list(os.getloadavg())
@@ -82,6 +89,10 @@ def main(argv=None) -> int:
         bw = fit_bin_width_ps(float(t["bin_width_ps"]), int(t["n_bins"]))
         # (its carving capped at the iterations, as the methods study caps it)
         mesh = replace(_mesh_start(td / "fit_work", rec, a.iterations), align=a.align)
+        if a.pixel_step is not None:
+            mesh = replace(mesh, pixel_step=a.pixel_step)
+        if a.carve is not None:
+            mesh = replace(mesh, carve=a.carve)
         if a.start_shape == "closed":
             from recon.surface import write_ply
             from transient_mi.fit.mesh_start import closed_surface
@@ -100,7 +111,8 @@ def main(argv=None) -> int:
     fit_row = {k: fit_metrics.get(k) for k in keep}
     result = {"scene": "paper_mannequin", "bounds_m": list(bounds), "voxels": list(VOXELS), "array": a.array, "spots": 2, "exposure_ms": a.exposure_ms,
               "iterations": a.iterations, "align": a.align, "fit_bin_width_ps": bw, "start": FIT_MESH_START,
-              "start_shape": a.start_shape,
+              "start_shape": a.start_shape, "pixel_step": res["estimator"]["pixel_step"],
+              "carve": res["config"]["mesh"]["carve"], "grow": res["config"]["mesh"]["grow"],
               "render_s": render_s, "reconstruct_s": rec_s, "fit_wall_s": fit_s,
               "fit_time_s": res["time_s"], "n_faces": {"start": res["parameters"]["start"]["n_faces"],
                                                         "fit": res["parameters"]["fit"]["n_faces"]},
@@ -112,7 +124,7 @@ def main(argv=None) -> int:
     for k, r in result["metrics"].items():
         print(f"{k:12s} " + "  ".join(f"{c}={v:.4g}" for c, v in r.items() if isinstance(v, float)))
     print(f"fit {fit_s:.0f} s (render {render_s:.0f} s, {FIT_MESH_START} {rec_s:.1f} s)")
-    _record.maybe_save(a, "fit_mesh_mannequin" + ("_closed" if a.start_shape == "closed" else ""), result,
+    _record.maybe_save(a, "fit_mesh_mannequin" + ("_closed" if a.start_shape == "closed" else "") + a.suffix, result,
                        load_start=load_start)
     return 0
 

@@ -57,8 +57,9 @@ from docgen.quadrature import (  # noqa: E402
 )
 from docgen.nlos_quadrature import array_speedup_inline, nlos_quadrature_table, work_arrays_inline  # noqa: E402
 from docgen.fit_mesh import (GROWTH_PAIRS, fit_mesh_full_table, fit_mesh_growth_table,  # noqa: E402
-                              fit_mesh_mannequin_para, fit_mesh_plane_table, fit_mesh_table, fit_mesh_topology_table,
-                              fit_mesh_topology_16_table, TOPOLOGY_16, visibility_memo_para)
+                              fit_mesh_mannequin_para, fit_mesh_pixel_step_inline, fit_mesh_plane_table,
+                              fit_mesh_table, fit_mesh_topology_table, fit_mesh_topology_16_table, TOPOLOGY_16,
+                              visibility_memo_para)
 from docgen.studies import (  # noqa: E402
     studies_para, _study_inline, dataset_para, dataset_docs_table, dataset_nlos_inline, view_para, view_docs_table,
     fit_para, dataset_noise_standard_table, DATASET_NT, fit_quadrature_cost_table,
@@ -131,7 +132,9 @@ GENERATORS = {
     "fit_mesh_topology": (fit_mesh_topology_table, ["fit_mesh_chair", "fit_mesh_holed_plate"], False),
     "fit_mesh_topology_16": (fit_mesh_topology_16_table, list(TOPOLOGY_16), False),
     "fit_mesh_full": (fit_mesh_full_table, ["fit_mesh_letter_16", "fit_mesh_tilted_plane_16"], False),
-    "fit_mesh_mannequin": (fit_mesh_mannequin_para, ["fit_mesh_mannequin"], False),
+    "fit_mesh_mannequin": (fit_mesh_mannequin_para, ["fit_mesh_mannequin", "fit_mesh_mannequin_step2"], False),
+    "fit_mesh_pixel_step": (fit_mesh_pixel_step_inline, ["fit_mesh_mannequin", "fit_mesh_mannequin_step2",
+                                                         "fit_mesh_mannequin_step4"], True),
     "visibility_memo": (visibility_memo_para, ["visibility_memo_letter_8"], False),
     "fit_mesh_growth": (fit_mesh_growth_table, [n for name, _ in GROWTH_PAIRS for n in (f"{name}_grow0", name)],
                         False),

@@ -62,25 +62,33 @@ def fit_mesh_mannequin_para(R) -> str:
     from .common import Missing
 
     recs = [R("fit_mesh_mannequin")]
-    try:  # (the closed start: a second record, where measured)
-        recs.append(R("fit_mesh_mannequin_closed"))
-    except Missing:
-        pass
+    for names in (["fit_mesh_mannequin_step2"], ["fit_mesh_mannequin_closed_step2", "fit_mesh_mannequin_closed"]):
+        for name in names:  # (further records, where measured: the first of each list found)
+            try:
+                recs.append(R(name))
+                break
+            except Missing:
+                pass
     r = recs[0]["result"]
     start, t = r["metrics"][r["start"]], r["targets"]
     rows = ["| | occupancy IoU (>= 0.7) | Chamfer (<= 0.8 cm) | silhouette IoU | depth MAE | triangles | time |",
             "|---|---|---|---|---|---|---|",
             f"| {r['start']} | {_f(start['iou'])} | {_cm(start['chamfer_m'])} "
             f"| {_f(start.get('silhouette_iou'))} | {_cm(start.get('depth_mae_m'))} | | {r['reconstruct_s']:.1f} s |"]
+    starts = set()
     for rec in recs:
         q = rec["result"]
         fit, t = q["metrics"]["fit"], q["targets"]
         shape = "closed surface around its voxels" if q.get("start_shape") == "closed" else "front surface"
         sm = q["metrics"].get("start_mesh")
-        if sm:  # (records from 2026-12-05 on score the start mesh too)
+        if sm and shape not in starts:  # (records from 2026-12-05 on score the start mesh too)
+            starts.add(shape)
             rows.append(f"| its {shape} (the start) | {_f(sm['iou'])} | {_cm(sm['chamfer_m'])} "
                         f"| {_f(sm.get('silhouette_iou'))} | {_cm(sm.get('depth_mae_m'))} | {q['n_faces']['start']} | |")
-        rows.append(f"| fit:mesh from its {shape}, {q['align']} + {q['iterations']} iterations "
+        step = int(q.get("pixel_step") or 1)  # (records before 2026-12-07 fitted every pixel)
+        n = q["array"] // step
+        on = "every pixel" if step == 1 else f"every {'second' if step == 2 else f'{step}th'} pixel"
+        rows.append(f"| fit:mesh from its {shape}, {on} ({n} x {n}), {q['align']} + {q['iterations']} iterations "
                     f"| {_f(fit['iou'])}: {'met' if t['met']['iou'] else 'not met'} "
                     f"| {_cm(fit['chamfer_m'])}: {'met' if t['met']['chamfer'] else 'not met'} "
                     f"| {_f(fit.get('silhouette_iou'))} | {_cm(fit.get('depth_mae_m'))} "
@@ -269,3 +277,16 @@ def visibility_memo_para(R) -> str:
             f"alternating in one process (the range of each mode's runs; the change of their midpoints): "
             f"{change('carve_s', 'carving')}, {change('optimisation_s', 'vertex stage')}, "
             f"{change('align_s', 'alignment')}, {change('fit_wall_s', 'the whole fit')}; {same}. {provenance(rec)}\n")
+
+
+def fit_mesh_pixel_step_inline(R) -> str:
+    """The paper mannequin's free-mesh fit on every pixel against every second and every fourth (``--pixel-step``)."""
+    recs = [R("fit_mesh_mannequin"), R("fit_mesh_mannequin_step2"), R("fit_mesh_mannequin_step4")]
+    q = [rec["result"] for rec in recs]
+    m = [r["metrics"]["fit"] for r in q]
+    sides = [r["array"] // int(r.get("pixel_step") or 1) for r in q]  # (records before 2026-12-07: every pixel)
+    times = [f"{r['fit_wall_s']:.0f} s" for r in q]
+    return (f"on the mannequin below ({' / '.join(f'{n} x {n}' for n in sides)} pixels) {' / '.join(times)}, occupancy "
+            f"IoU {' / '.join(_f(x['iou']) for x in m)}, Chamfer {' / '.join(_cm(x['chamfer_m']) for x in m)}, "
+            f"silhouette IoU {' / '.join(_f(x.get('silhouette_iou')) for x in m)} "
+            f"({'; '.join(provenance(rec, short=True) for rec in recs)})")
