@@ -515,13 +515,15 @@ def test_a_fit_on_every_second_pixel_renders_and_compares_those_pixels_only(capt
     assert res["config"]["mesh"]["pixel_step"] == 2 and (tmp_path / "fit" / "fitted.ply").is_file()
 
 
-@pytest.mark.parametrize("width, height, step", [(32, 32, 2), (16, 16, 1), (8, 8, 1), (64, 64, 4), (48, 32, 2),
-                                                 (30, 30, 1)])
-def test_the_default_pixel_step_keeps_sixteen_pixels_per_side(width, height, step):
+@pytest.mark.parametrize("width, height, step", [(32, 32, 4), (16, 16, 2), (8, 8, 1), (64, 64, 8), (48, 32, 4),
+                                                 (30, 30, 3), (4, 4, 1)])
+def test_the_default_pixel_step_keeps_eight_pixels_per_side(width, height, step):
     """``pixel_step=None`` (no ``--pixel-step``): the largest step dividing both sides that keeps
-    :data:`~transient_mi.fit.mesh_settings.MIN_PIXELS` (16) pixels along each; a step given is kept."""
-    from transient_mi.fit.mesh_settings import MIN_PIXELS, resolve_pixel_step
+    :data:`~transient_mi.fit.gauss_newton.MIN_PIXELS` (8) pixels along each, as the Gauss-Newton fit; a step given is
+    kept."""
+    from transient_mi.fit.gauss_newton import MIN_PIXELS
+    from transient_mi.fit.mesh_settings import resolve_pixel_step
 
-    assert MIN_PIXELS == 16
+    assert MIN_PIXELS == 8
     assert resolve_pixel_step(MeshSettings(), width, height).pixel_step == step
     assert resolve_pixel_step(MeshSettings(pixel_step=1), width, height).pixel_step == 1

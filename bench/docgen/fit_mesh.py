@@ -18,6 +18,16 @@ def _arrow(m: dict, key: str, fmt) -> str:
     return " -> ".join(fmt(m[c][key]) for c in ("start", "aligned", "carved", "fit") if c in m)
 
 
+def _pixels(r) -> str:
+    """``", fitted on every second pixel (8 x 8)"`` where the record's fit used a pixel step (records before
+    2026-12-07 fitted every pixel), else nothing."""
+    step = int(r.get("pixel_step") or 1)
+    if step == 1:
+        return ""
+    n = int(r["width"]) // step
+    return f", fitted on every {'second' if step == 2 else f'{step}th'} pixel ({n} x {n})"
+
+
 def fit_mesh_table(R) -> str:
     """The letter: fit, start and backprojection against the scene's hidden shapes, and the targets."""
     return _table(R("fit_mesh_letter"))
@@ -50,8 +60,8 @@ def fit_mesh_full_table(R) -> str:
     then = f", then realigned in {ra['iterations']}" if ra else ""
     carve = f"carving ({r0['carve']} iterations{then}), " if r0.get("carve") else ""
     head = (f"Start -> aligned{' -> carved' if carve else ''} -> fit at the issue's full size ({r0['width']} x "
-            f"{r0['width']} pixels of {32 / r0['width']:g} cm, {r0['spots']} x {r0['spots']} laser spots, "
-            f"{r0['exposure_ms']:g} ms per spot, {r0['align']} alignment iterations, {carve}"
+            f"{r0['width']} pixels of {32 / r0['width']:g} cm{_pixels(r0)}, {r0['spots']} x {r0['spots']} laser "
+            f"spots, {r0['exposure_ms']:g} ms per spot, {r0['align']} alignment iterations, {carve}"
             f"{r0['iterations']} iterations in {r0['stages']} stages from "
             f"{100 * r0['cell_m']:g} cm cells), `python bench/bench_fit_mesh.py --width 16 --spots 4`:")
     return head + "\n\n" + "\n".join(rows) + "\n\n" + "; ".join(captures) + "\n"
@@ -62,7 +72,8 @@ def fit_mesh_mannequin_para(R) -> str:
     from .common import Missing
 
     recs = [R("fit_mesh_mannequin")]
-    for names in (["fit_mesh_mannequin_step2"], ["fit_mesh_mannequin_closed_step2", "fit_mesh_mannequin_closed"]):
+    for names in (["fit_mesh_mannequin_step2"], ["fit_mesh_mannequin_step4"],
+                  ["fit_mesh_mannequin_closed_step2", "fit_mesh_mannequin_closed"]):
         for name in names:  # (further records, where measured: the first of each list found)
             try:
                 recs.append(R(name))
@@ -210,7 +221,8 @@ def _topology_table(recs: list, where: str) -> str:
     r0 = recs[0]["result"]
     carve = (f"carving ({r0['carve']} iterations), " if r0.get("carve") else "")
     head = (f"Start -> aligned{' -> carved' if carve else ''} -> fit, {where} ({r0['width']} x {r0['width']} pixels "
-            f"of {32 / r0['width']:g} cm, {r0['spots']} x {r0['spots']} laser spots, {r0['exposure_ms']:g} ms per spot, {r0['align']} alignment iterations, "
+            f"of {32 / r0['width']:g} cm{_pixels(r0)}, {r0['spots']} x {r0['spots']} laser spots, "
+            f"{r0['exposure_ms']:g} ms per spot, {r0['align']} alignment iterations, "
             f"{carve}{r0['iterations']} iterations in "
             f"{r0['stages']} stages from {100 * r0['cell_m']:g} cm cells):")
     closed = recs[-1]["result"]["targets"].get("closed_hole_on_the_grid")

@@ -75,8 +75,8 @@ def fit_command(
                                    "transient_mi.fit.mesh_carve.TV_WEIGHT; 0: none; docs/fit.md)."),
     pixel_step: int = typer.Option(None, "--pixel-step", parser=whole_number("--pixel-step"), metavar="<int>",
                                    help="--model mesh: fit every n-th pixel along each axis, 1 to 16, dividing the "
-                                        "array (1: all; default: the largest step keeping 16 pixels per side, 2 on "
-                                        "the paper's 32 x 32 array; docs/fit.md)."),
+                                        "array (1: all; default: the largest step keeping 8 pixels per side, 4 on "
+                                        "the paper's 32 x 32 array, 2 on a 16 x 16 one; docs/fit.md)."),
     seed: int = typer.Option(0, "--seed", parser=whole_number("--seed"), metavar="<int>", help="Random seed."),
     resume: bool = typer.Option(False, "--resume", help="Continue the fit in OUT from its checkpoint."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier fit in OUT."),
