@@ -330,6 +330,31 @@ def test_orient_to_wall_mends_an_inconsistent_winding():
     assert out.is_winding_consistent and out.volume > 0
 
 
+def test_orient_to_wall_winds_a_leaky_closed_surface_outwards_and_a_sheet_towards_the_wall():
+    """A closed surface that is not watertight (a sphere with two faces dropped, as clustering or the view check
+    leave midpoint-fk's closed surface) wound inwards comes out wound outwards: its normals sum to about zero, so the
+    open rule (the mean normal towards the wall) would wind it at random. A sheet facing away from the wall, and a
+    bowl, come out facing the wall (-z)."""
+    import trimesh
+
+    from transient_mi.fit.mesh_start import CLOSED_NORMAL_SHARE, orient_to_wall
+
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
+    v, f = np.asarray(ball.vertices), np.asarray(ball.faces)[2:, ::-1].copy()  # (inwards, two faces gone)
+    leaky = trimesh.Trimesh(vertices=v, faces=f, process=False)
+    assert not leaky.is_watertight and leaky.volume < 0
+    assert np.linalg.norm((leaky.face_normals * leaky.area_faces[:, None]).sum(0)) < CLOSED_NORMAL_SHARE * leaky.area
+    assert trimesh.Trimesh(vertices=v, faces=orient_to_wall(v, f), process=False).volume > 0
+    sv, sf = _grid(4, 0.4, tilt_deg=20.0)
+    for faces in (np.asarray(sf), np.asarray(sf)[:, ::-1]):
+        out = trimesh.Trimesh(vertices=sv, faces=orient_to_wall(sv, faces), process=False)
+        assert (out.face_normals[:, 2] < 0).all()
+    bowl = v[:, 2] < 0.05  # (the sphere's half nearer the wall and a bit more: an open shell)
+    bf = f[bowl[f].all(axis=1)]
+    out = trimesh.Trimesh(vertices=v, faces=orient_to_wall(v, bf), process=False)
+    assert float((out.face_normals[:, 2] * out.area_faces).sum()) < 0
+
+
 def test_a_step_into_the_detectors_view_is_halved(capture):
     """An Adam step that would move the mesh into a line of sight from the detector to a wall patch (the scene
     refuses such a mesh) is halved until it does not: the iterate lands on the segment towards the step's end,

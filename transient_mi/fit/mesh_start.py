@@ -62,19 +62,28 @@ def cluster(v: np.ndarray, f: np.ndarray, cell_m: float) -> tuple[np.ndarray, np
     return _clean(c, lab[np.asarray(f, dtype=np.int64)])
 
 
+#: A mesh whose area-weighted normals sum to less than this share of its area encloses a volume (a closed surface's
+#: sum to zero; a sheet facing the wall's to about its area): :func:`orient_to_wall` winds it outwards.
+CLOSED_NORMAL_SHARE = 0.1
+
+
 def orient_to_wall(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """Faces of a closed mesh wound outwards (positive volume), of an open one with their area-weighted mean
-    normal towards the wall (-z)."""
+    """Faces wound consistently: those of a closed mesh outwards (positive signed volume), those of an open one with
+    their area-weighted mean normal towards the wall (-z). Closed: watertight, or with area-weighted normals summing
+    to under :data:`CLOSED_NORMAL_SHARE` of the area (a surface that encloses a volume but that clustering left with
+    non-manifold edges, or a face or two dropped). Such a surface's mean normal is about zero, and the open rule
+    wound midpoint-fk's closed surface of the paper mannequin inwards, its front faces turned from the wall, until
+    2026-12-07."""
     import trimesh
 
     f = np.asarray(f, dtype=np.int64)
     m = trimesh.Trimesh(vertices=v, faces=f, process=False)
     trimesh.repair.fix_winding(m)
     f = np.asarray(m.faces, dtype=np.int64)
-    if m.is_watertight:
+    na = m.face_normals * m.area_faces[:, None]
+    if m.is_watertight or np.linalg.norm(na.sum(axis=0)) < CLOSED_NORMAL_SHARE * float(m.area):
         return f if m.volume > 0 else f[:, ::-1].copy()
-    nz = float(np.sum(m.face_normals[:, 2] * m.area_faces))
-    return f if nz <= 0 else f[:, ::-1].copy()
+    return f if float(na[:, 2].sum()) <= 0 else f[:, ::-1].copy()
 
 
 def front_surface(volume: np.ndarray, grid, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
