@@ -12,8 +12,8 @@ f-k reconstructs the counts on the methods study's grid; the free mesh starts fr
 
     python bench/bench_fit_mesh_mannequin.py --pixel-step 1 --save    # fit_mesh_mannequin.json (every pixel)
     python bench/bench_fit_mesh_mannequin.py --pixel-step 2 --save-as bench/results/fit_mesh_mannequin_step2.json
-    python bench/bench_fit_mesh_mannequin.py --start-shape closed --iterations 20 --align 8 --pixel-step 2 \
-        --save-as bench/results/fit_mesh_mannequin_closed_step2.json
+    python bench/bench_fit_mesh_mannequin.py --pixel-step 4 --save-as bench/results/fit_mesh_mannequin_step4.json
+    python bench/bench_fit_mesh_mannequin.py --start-shape closed --iterations 20 --align 8 --carve 0 --save  # ..._closed
 """
 
 from __future__ import annotations

@@ -73,7 +73,7 @@ def fit_mesh_mannequin_para(R) -> str:
 
     recs = [R("fit_mesh_mannequin")]
     for names in (["fit_mesh_mannequin_step2"], ["fit_mesh_mannequin_step4"],
-                  ["fit_mesh_mannequin_closed_step2", "fit_mesh_mannequin_closed"]):
+                  ["fit_mesh_mannequin_closed"]):
         for name in names:  # (further records, where measured: the first of each list found)
             try:
                 recs.append(R(name))
@@ -99,7 +99,9 @@ def fit_mesh_mannequin_para(R) -> str:
         step = int(q.get("pixel_step") or 1)  # (records before 2026-12-07 fitted every pixel)
         n = q["array"] // step
         on = "every pixel" if step == 1 else f"every {'second' if step == 2 else f'{step}th'} pixel"
-        rows.append(f"| fit:mesh from its {shape}, {on} ({n} x {n}), {q['align']} + {q['iterations']} iterations "
+        nocarve = ", no carving" if q.get("carve") == 0 else ""
+        rows.append(f"| fit:mesh from its {shape}, {on} ({n} x {n}){nocarve}, {q['align']} + {q['iterations']} "
+                    f"iterations "
                     f"| {_f(fit['iou'])}: {'met' if t['met']['iou'] else 'not met'} "
                     f"| {_cm(fit['chamfer_m'])}: {'met' if t['met']['chamfer'] else 'not met'} "
                     f"| {_f(fit.get('silhouette_iou'))} | {_cm(fit.get('depth_mae_m'))} "
