@@ -47,9 +47,8 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
 from __future__ import annotations
 
 import json
-import math
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
