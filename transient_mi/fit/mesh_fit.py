@@ -22,7 +22,9 @@ triangle mesh (what ``transient-mi fit --model mesh`` runs).
    its scene, detector, gate, dark counts, pile-up, dead time, jitter) with the deterministic three-bounce
    estimator (``estimator="quadrature"``, always, whatever ``FitSettings.estimator`` or ``--estimator`` say),
    whose vertex derivative holds the area change a free deformation makes (the Monte Carlo renderer's does not);
-   a capture the quadrature cannot render is refused in one line.
+   a capture the quadrature cannot render is refused in one line. Every stage renders and compares every
+   ``pixel_step``-th pixel along each axis (:func:`~transient_mi.fit.mesh_settings.resolve_pixel_step`: by default
+   8 pixels per side kept, as the Gauss-Newton fit).
 5. Outputs in the output directory, each file written atomically, ``fit.json`` last:
 
    ``fit.json``        settings, the start and the fit summarised (vertices, faces, bounding box, reflectance),
