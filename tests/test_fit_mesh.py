@@ -337,7 +337,7 @@ def test_orient_to_wall_winds_a_leaky_closed_surface_outwards_and_a_sheet_toward
     bowl, come out facing the wall (-z)."""
     import trimesh
 
-    from transient_mi.fit.mesh_start import CLOSED_NORMAL_SHARE, orient_to_wall
+    from transient_mi.fit.mesh_start import CLOSED_NORMAL_SHARE, encloses_volume, orient_to_wall
 
     ball = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
     v, f = np.asarray(ball.vertices), np.asarray(ball.faces)[2:, ::-1].copy()  # (inwards, two faces gone)
@@ -345,14 +345,35 @@ def test_orient_to_wall_winds_a_leaky_closed_surface_outwards_and_a_sheet_toward
     assert not leaky.is_watertight and leaky.volume < 0
     assert np.linalg.norm((leaky.face_normals * leaky.area_faces[:, None]).sum(0)) < CLOSED_NORMAL_SHARE * leaky.area
     assert trimesh.Trimesh(vertices=v, faces=orient_to_wall(v, f), process=False).volume > 0
+    assert encloses_volume(v, f)
     sv, sf = _grid(4, 0.4, tilt_deg=20.0)
+    assert not encloses_volume(sv, sf)
     for faces in (np.asarray(sf), np.asarray(sf)[:, ::-1]):
         out = trimesh.Trimesh(vertices=sv, faces=orient_to_wall(sv, faces), process=False)
         assert (out.face_normals[:, 2] < 0).all()
     bowl = v[:, 2] < 0.05  # (the sphere's half nearer the wall and a bit more: an open shell)
     bf = f[bowl[f].all(axis=1)]
     out = trimesh.Trimesh(vertices=v, faces=orient_to_wall(v, bf), process=False)
-    assert float((out.face_normals[:, 2] * out.area_faces).sum()) < 0
+    assert float((out.face_normals[:, 2] * out.area_faces).sum()) < 0 and not encloses_volume(v, bf)
+
+
+def test_a_closed_start_is_not_carved_by_default(capture, tmp_path):
+    """A start mesh that encloses a volume (a closed box given as ``--start-mesh``) skips the carving by default
+    (``carve=None``): no ``carve.json``, ``fit.json``'s ``carve`` empty; an explicit ``carve`` still carves it."""
+    import trimesh
+
+    from recon.surface import write_ply
+
+    box = trimesh.creation.box(extents=(0.3, 0.3, 0.1))
+    box.apply_translation((0.0, 0.0, 0.5))
+    write_ply(tmp_path / "box.ply", np.asarray(box.vertices), np.asarray(box.faces))
+    st = FitSettings(iterations=2, element_size_m=0.08)
+    for carve, carved in ((None, False), (1, True)):
+        out = tmp_path / f"fit_{carve}"
+        res = fit_capture(capture, out, model="mesh", bin_width_ps=32.0, progress=False, log=lambda *x: None,
+                          settings=st, mesh=MeshSettings(start_mesh=str(tmp_path / "box.ply"), cell_m=0.1, align=0,
+                                                         stages=1, carve=carve))
+        assert (res["carve"] is not None) == carved and (out / "carve.json").is_file() == carved
 
 
 def test_a_step_into_the_detectors_view_is_halved(capture):

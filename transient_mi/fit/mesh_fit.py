@@ -189,13 +189,16 @@ def fit_mesh_capture(capture, out_dir, *, settings, bin_width_ps: float = 10.0, 
             v0, f0 = np.asarray(st["vertices"]), np.asarray(st["faces"])
         cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance, mesh.pixel_step)
         if not resuming:  # (the start's faces across the device's lines of sight dropped: mesh_start)
-            from .mesh_start import clear_view, device_sight_lines
+            from .mesh_start import clear_view, device_sight_lines, encloses_volume
 
             sight = device_sight_lines(cap.sensor, cap.scene, cap.width, cap.height)  # (the device's: no mesh in it)
             v1, f1 = clear_view(v0, f0, *sight)
             if len(f1) != len(f0):
                 v0, f0 = v1, f1
                 cap = _capture_model(capture, v0, f0, settings, bin_width_ps, mesh.reflectance, mesh.pixel_step)
+            if mesh.carve is None and encloses_volume(v0, f0):  # (a closed start is not carved: mesh_settings)
+                mesh = replace(mesh, carve=0)
+                log("fit mesh: the start encloses a volume: no carving")
         # (everything checked: only now is anything written)
         if existing and overwrite and not resume:
             for name in _OUTPUTS:

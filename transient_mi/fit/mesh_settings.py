@@ -40,7 +40,8 @@ class MeshSettings:
     moments: str = "uniform"  # Adam's second moments of the vertices: uniform (one) or vertex (one per vertex)
     align: int = 8  # Levenberg-Marquardt iterations of the global affine map and reflectance first (0: none)
     carve: int | None = None  # per-face reflectance iterations on the aligned start, then its dark faces go
-    #                           (None: CARVE_ITERATIONS with one reflectance, 0 with reflectance="face")
+    #                           (None: CARVE_ITERATIONS with one reflectance, 0 with reflectance="face" or a
+    #                           start that encloses a volume, mesh_start.encloses_volume)
     grow: int | None = None  # rings of faces cell_m wide added around the aligned start's open boundary before
     #                          carving (None: GROW_RINGS where the fit carves, else 0)
     reflectance: str = "global"  # global (one reflectance) | face (one per face, held smooth by albedo_smoothness)
@@ -83,7 +84,10 @@ def check_mesh_options(mesh: MeshSettings) -> None:
 
 def carve_iterations(mesh: MeshSettings) -> int:
     """The carving step's iterations: ``mesh.carve``, or by default :data:`CARVE_ITERATIONS` with one reflectance
-    and none with ``reflectance="face"`` (its cut assumes one material: a darker one would be dropped)."""
+    and none with ``reflectance="face"`` (its cut assumes one material: a darker one would be dropped). The fit also
+    skips it by default when its start encloses a volume (:func:`~transient_mi.fit.mesh_start.encloses_volume`): the
+    carving, made for a start that over-covers, dropped faces of midpoint-fk's closed surface of the paper mannequin
+    and cost accuracy and time (docs/fit.md)."""
     if mesh.carve is not None:
         return int(mesh.carve)
     return CARVE_ITERATIONS if mesh.reflectance == "global" else 0

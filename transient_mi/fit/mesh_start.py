@@ -33,6 +33,7 @@ import numpy as np
 from transient_core.errors import UserInputError
 
 __all__ = ["front_surface", "closed_surface", "load_mesh", "cluster", "subdivide", "grow_ring", "orient_to_wall",
+           "encloses_volume",
            "device_sight_lines", "crossed_faces", "clear_view"]
 
 
@@ -80,10 +81,24 @@ def orient_to_wall(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     m = trimesh.Trimesh(vertices=v, faces=f, process=False)
     trimesh.repair.fix_winding(m)
     f = np.asarray(m.faces, dtype=np.int64)
-    na = m.face_normals * m.area_faces[:, None]
-    if m.is_watertight or np.linalg.norm(na.sum(axis=0)) < CLOSED_NORMAL_SHARE * float(m.area):
+    if _encloses(m):
         return f if m.volume > 0 else f[:, ::-1].copy()
-    return f if float(na[:, 2].sum()) <= 0 else f[:, ::-1].copy()
+    return f if float((m.face_normals[:, 2] * m.area_faces).sum()) <= 0 else f[:, ::-1].copy()
+
+
+def encloses_volume(v: np.ndarray, f: np.ndarray) -> bool:
+    """Whether the mesh is closed in :func:`orient_to_wall`'s sense: watertight, or its area-weighted normals sum to
+    under :data:`CLOSED_NORMAL_SHARE` of its area (whatever its winding, once made consistent)."""
+    import trimesh
+
+    m = trimesh.Trimesh(vertices=np.asarray(v, dtype=np.float64), faces=np.asarray(f, dtype=np.int64), process=False)
+    trimesh.repair.fix_winding(m)
+    return _encloses(m)
+
+
+def _encloses(m) -> bool:
+    na = m.face_normals * m.area_faces[:, None]
+    return bool(m.is_watertight or np.linalg.norm(na.sum(axis=0)) < CLOSED_NORMAL_SHARE * float(m.area))
 
 
 def front_surface(volume: np.ndarray, grid, cell_m: float) -> tuple[np.ndarray, np.ndarray]:
