@@ -165,7 +165,7 @@ def main() -> None:
     load_start = list(os.getloadavg())
     import transient_mi  # noqa: F401
     from transient_mi.fit import FitSettings, fit_capture
-    from transient_mi.fit.mesh_fit import MeshSettings, carve_iterations, grow_rings
+    from transient_mi.fit.mesh_settings import MeshSettings, carve_iterations, grow_rings
 
     t0 = time.perf_counter()
     counts = _capture(a.work, a.scene, a.width, a.spots, 1e-3 * a.exposure_ms, a.noise_target)

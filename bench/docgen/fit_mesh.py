@@ -18,14 +18,22 @@ def _arrow(m: dict, key: str, fmt) -> str:
     return " -> ".join(fmt(m[c][key]) for c in ("start", "aligned", "carved", "fit") if c in m)
 
 
+def _step(r) -> int:
+    """The record's pixel step (records before 2026-12-07 fitted every pixel and have none)."""
+    return int(r.get("pixel_step") or 1)
+
+
+def _every(step: int) -> str:
+    """``"every pixel"``, ``"every second pixel"``, ``"every 4th pixel"``."""
+    return "every pixel" if step == 1 else f"every {'second' if step == 2 else f'{step}th'} pixel"
+
+
 def _pixels(r) -> str:
-    """``", fitted on every second pixel (8 x 8)"`` where the record's fit used a pixel step (records before
-    2026-12-07 fitted every pixel), else nothing."""
-    step = int(r.get("pixel_step") or 1)
-    if step == 1:
+    """``", fitted on every second pixel (8 x 8)"`` where the record's fit used a pixel step, else nothing."""
+    if _step(r) == 1:
         return ""
-    n = int(r["width"]) // step
-    return f", fitted on every {'second' if step == 2 else f'{step}th'} pixel ({n} x {n})"
+    n = int(r["width"]) // _step(r)
+    return f", fitted on {_every(_step(r))} ({n} x {n})"
 
 
 def fit_mesh_table(R) -> str:
@@ -72,14 +80,11 @@ def fit_mesh_mannequin_para(R) -> str:
     from .common import Missing
 
     recs = [R("fit_mesh_mannequin")]
-    for names in (["fit_mesh_mannequin_step2"], ["fit_mesh_mannequin_step4"],
-                  ["fit_mesh_mannequin_closed"]):
-        for name in names:  # (further records, where measured: the first of each list found)
-            try:
-                recs.append(R(name))
-                break
-            except Missing:
-                pass
+    for name in ("fit_mesh_mannequin_step2", "fit_mesh_mannequin_step4", "fit_mesh_mannequin_closed"):
+        try:  # (further records, where measured)
+            recs.append(R(name))
+        except Missing:
+            pass
     r = recs[0]["result"]
     start, t = r["metrics"][r["start"]], r["targets"]
     rows = ["| | occupancy IoU (>= 0.7) | Chamfer (<= 0.8 cm) | silhouette IoU | depth MAE | triangles | time |",
@@ -96,9 +101,8 @@ def fit_mesh_mannequin_para(R) -> str:
             starts.add(shape)
             rows.append(f"| its {shape} (the start) | {_f(sm['iou'])} | {_cm(sm['chamfer_m'])} "
                         f"| {_f(sm.get('silhouette_iou'))} | {_cm(sm.get('depth_mae_m'))} | {q['n_faces']['start']} | |")
-        step = int(q.get("pixel_step") or 1)  # (records before 2026-12-07 fitted every pixel)
-        n = q["array"] // step
-        on = "every pixel" if step == 1 else f"every {'second' if step == 2 else f'{step}th'} pixel"
+        n = q["array"] // _step(q)
+        on = _every(_step(q))
         nocarve = ", no carving" if q.get("carve") == 0 else ""
         rows.append(f"| fit:mesh from its {shape}, {on} ({n} x {n}){nocarve}, {q['align']} + {q['iterations']} "
                     f"iterations "
@@ -298,7 +302,7 @@ def fit_mesh_pixel_step_inline(R) -> str:
     recs = [R("fit_mesh_mannequin"), R("fit_mesh_mannequin_step2"), R("fit_mesh_mannequin_step4")]
     q = [rec["result"] for rec in recs]
     m = [r["metrics"]["fit"] for r in q]
-    sides = [r["array"] // int(r.get("pixel_step") or 1) for r in q]  # (records before 2026-12-07: every pixel)
+    sides = [r["array"] // _step(r) for r in q]
     times = [f"{r['fit_wall_s']:.0f} s" for r in q]
     return (f"on the mannequin below ({' / '.join(f'{n} x {n}' for n in sides)} pixels) {' / '.join(times)}, occupancy "
             f"IoU {' / '.join(_f(x['iou']) for x in m)}, Chamfer {' / '.join(_cm(x['chamfer_m']) for x in m)}, "

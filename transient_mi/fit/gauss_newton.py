@@ -57,12 +57,12 @@ REL_TOL = 0.01
 STAGE_SHARES = (0.5, 0.375, 0.125)
 
 
-def pixel_step(width: int, height: int, min_pixels: int = MIN_PIXELS) -> int:
-    """The largest step (up to 16) that divides both sides and keeps at least ``min_pixels`` pixels along each (1 for
+def pixel_step(width: int, height: int) -> int:
+    """The largest step that divides both sides and keeps at least :data:`MIN_PIXELS` pixels along each (1 for
     arrays of fewer)."""
     best = 1
     for s in range(2, 17):
-        if width % s == 0 and height % s == 0 and min(width, height) // s >= min_pixels:
+        if width % s == 0 and height % s == 0 and min(width, height) // s >= MIN_PIXELS:
             best = s
     return best
 

@@ -60,8 +60,7 @@ from transient_core.lock import output_lock
 
 from .mesh_align import realign_iterations
 from .mesh_regularizers import RegularizerWeights
-from .mesh_settings import (CARVE_ITERATIONS, GROW_RINGS, MeshSettings, carve_iterations,  # noqa: F401  (re-exported)
-                            check_mesh_options, grow_rings, resolve_pixel_step)
+from .mesh_settings import MeshSettings, carve_iterations, check_mesh_options, grow_rings, resolve_pixel_step
 from .optimize import FitState
 
 __all__ = ["MeshSettings", "fit_mesh_capture"]
