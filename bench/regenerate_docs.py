@@ -51,7 +51,7 @@ from docgen.recon import (  # noqa: E402
 )
 from docgen.quadrature import (  # noqa: E402
     PAPER_ESTIMATORS, PROFILE_COMPARE, QUADRATURE_PARTS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, REFINEMENT_RULE,
-    CELLS_ERROR, SCENE_SETTINGS, cells_error_table, paper_estimators_table, profile_compare_inline, quadrature_parts_table, quadrature_settings_table,
+    CELLS_ERROR, ELEMENT_SLOPE, SCENE_SETTINGS, cells_error_table, element_slope_inline, element_slope_table, paper_estimators_table, profile_compare_inline, quadrature_parts_table, quadrature_settings_table,
     quadrature_cost_inline,
     quadrature_inline, quadrature_profile_inline, quadrature_table, refinement_rule_inline, scene_settings_table,
 )
@@ -123,6 +123,8 @@ GENERATORS = {
     "quadrature_parts": (quadrature_parts_table, [QUADRATURE_PARTS], False),
     "quadrature_scene_settings": (scene_settings_table, list(SCENE_SETTINGS), False),
     "quadrature_cells_error": (cells_error_table, [CELLS_ERROR], False),
+    "element_slope": (element_slope_table, [ELEMENT_SLOPE], False),
+    "element_slope_inline": (element_slope_inline, [ELEMENT_SLOPE], True),
     "nlos_quadrature_table": (nlos_quadrature_table, ["nlos_quadrature", "nlos_quadrature_64x64",
                                                       "nlos_quadrature_confocal"], False),
     "nlos_quadrature_array": (array_speedup_inline, ["nlos_quadrature_array"], True),

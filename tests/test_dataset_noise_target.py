@@ -52,7 +52,7 @@ def test_noise_target_is_recorded_only_when_given_and_needs_a_detector():
 
 def test_quadrature_item_is_refined_to_the_target_and_says_so(tmp_path):
     # a tight target at a large budget: the first round misses it, refinement meets it (or reports that it did not)
-    spec = _spec(detector={"pulses": 10**6}, noise_target=0.01)
+    spec = _spec(detector={"pulses": 10**7}, noise_target=0.01)
     item_dir, res, m = _build(spec, tmp_path)
     nt = m["render"]["noise_target"]
     assert m["render"]["estimator"] == "quadrature" and res["estimator"] == "quadrature"

@@ -289,3 +289,161 @@ def test_what_is_not_differentiated_is_refused_in_one_line():
                                             glossy.sensors()[0], 0, 1)
     assert "\n" not in str(e.value)
     detach_all(params)
+
+
+def _sum_cdf(z, u1, u2):
+    """CDF of ``U_1 + U_2`` (centred uniforms of widths ``u1``, ``u2``) at ``z`` (numpy, the reference's)."""
+    if u1 == 0.0 and u2 == 0.0:
+        return (z >= 0.0).astype(float)
+    if u1 == 0.0 or u2 == 0.0:
+        u = u1 + u2
+        return np.clip(z / u + 0.5, 0.0, 1.0)
+    h1, h2 = u1 / 2, u2 / 2
+    R = lambda y: 0.5 * np.maximum(y, 0.0) ** 2  # noqa: E731
+    return (R(z + h1 + h2) - R(z - h1 + h2) - R(z + h1 - h2) + R(z - h1 - h2)) / (u1 * u2)
+
+
+def test_element_slope_masses_equal_a_numerical_integral():
+    """The masses with the element's amplitude slope (the weight ``1 + beta (A - mu)`` over the triangular part
+    ``A``) equal ``int rho(A) (1 + beta (A - mu)) P(A + U_1 + U_2 in bin) dA`` integrated numerically (midpoint rule
+    on 400,000 points: error below 1e-9), with both widths finite, one, and none, for coincident knots too; their
+    total is the pair's (the slope moves light, it does not add any)."""
+    from transient_mi.integrators._nlos_time_spread import _masses
+
+    rng = np.random.default_rng(7)
+    n_ext = 64
+    for trial in range(40):
+        a, b = sorted(rng.uniform(0, 8, 2))
+        a = {1: 0.0, 2: b}.get(trial % 5, a)
+        u1, u2 = rng.uniform(0.2, 4, 2)
+        if trial % 4 == 1:
+            u1 = 0.0
+        if trial % 4 == 2:
+            u1 = u2 = 0.0
+        mu = (a + b) / 3
+        beta = rng.uniform(-1, 1) / max(mu, b - mu)
+        tlo = rng.uniform(20, 30)
+        buf = np.zeros(n_ext)
+        first, last, inside = _masses(buf, tlo, a, b, u1, u2, 0.0, 0.0, n_ext, beta)
+        got = np.zeros(n_ext)
+        got[first:last + 1] = buf[first:last + 1]
+        n = 400_000
+
+        def weighted(lo, hi):  # (points and weights of the midpoint rule on [lo, hi], density times weight)
+            x = lo + (np.arange(n) + 0.5) / n * (hi - lo)
+            rho = np.where(x <= a, 2 * x / (b * a) if a > 0 else 0.0, 2 * (b - x) / (b * (b - a)) if b > a else 0.0)
+            return x, rho * (1 + beta * (x - mu)) * ((hi - lo) / n)
+
+        edges = np.arange(n_ext + 1, dtype=float)
+        if u1 == 0.0 and u2 == 0.0:  # (a step: integrate up to the edge, so the integrand stays continuous)
+            cdf = np.array([weighted(0.0, min(max(e - tlo, 0.0), b))[1].sum() for e in edges])
+        else:
+            x, w = weighted(0.0, b)
+            cdf = np.array([np.sum(w * _sum_cdf(e - tlo - x, u1, u2)) for e in edges])
+        want = np.diff(cdf)
+        assert np.abs(got - want).max() <= 1e-9, (trial, np.abs(got - want).max())
+        assert inside == pytest.approx(1.0, abs=1e-12)
+
+
+def test_element_slope_is_the_regression_of_a_linear_amplitude():
+    """For an amplitude linear in the time over the element (``r_v = 1 + s (t_v - t_mean)``) the slope is ``s``;
+    an amplitude that does not vary with time (constant, or varying only along the knots' level line) gives 0;
+    slopes that would make the weight negative are clamped to the largest that keeps it >= 0 with the cell's."""
+    from transient_mi.integrators._nlos_element_slope import slope_of
+
+    t = np.array([3.0, 5.0, 4.0])
+    a, b = 1.0, 2.0  # sorted: 3, 4, 5
+    for s in (0.3, -0.2, 0.0):
+        r = 1 + s * (t - t.mean())
+        assert slope_of(*t, *r, a, b, 0.0, 0.0) == pytest.approx(s, abs=1e-15)
+    assert slope_of(3.0, 3.0, 5.0, 1.1, 0.9, 1.0, 0.0, 2.0, 0.0, 0.0) == pytest.approx(0.0, abs=1e-15)
+    mu = (a + b) / 3
+    reach = max(mu, b - mu)
+    r = 1 + 5.0 * (t - t.mean())
+    assert slope_of(*t, *r, a, b, 0.0, 0.0) == pytest.approx(1.0 / reach)
+    assert slope_of(*t, *r, a, b, 0.5, -0.5) == pytest.approx(0.5 / reach)
+    assert slope_of(2.0, 2.0, 2.0, 1.1, 0.9, 1.0, 0.0, 0.0, 0.0, 0.0) == 0.0
+
+
+def test_element_slope_mass_sum_and_shift_derivative_equal_the_primal():
+    """With the element's amplitude slope ``beta`` (and the cell's tilts), ``mass_adjoint``'s ``sum_j r_j m_j``
+    equals the primal's, its ``t_lo`` derivative equals central differences of the primal and its ``beta``
+    derivative the primal's difference over ``beta`` (the masses are linear in it), with both widths finite, one or
+    none infinitesimal (the slope term's own knot and width derivatives are not taken, as the cell's)."""
+    from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
+    from transient_mi.integrators._nlos_time_spread import _masses
+
+    rng = np.random.default_rng(3)
+    n_ext, h = 60, 1e-6
+    for trial in range(300):
+        a0, b0 = sorted(rng.uniform(0, 6, 2))
+        a0 = {1: 0.0, 2: b0}.get(trial % 4, a0)
+        u1, u2 = rng.uniform(0.05, 5, 2)
+        if trial % 5 == 4:
+            u1 = 0.0
+        if trial % 7 == 6:
+            u1 = u2 = 0.0
+            b0 = max(b0, 0.5)
+        t1, t2 = (rng.uniform(-0.5, 0.5, 2) if u1 > 0 and u2 > 0 else (0.0, 0.0))
+        mu = (a0 + b0) / 3
+        beta = rng.uniform(-0.5, 0.5) / max(mu, b0 - mu, 1e-9)
+        p0 = np.array([rng.uniform(5, 40), a0, b0, u1, u2])
+        row = rng.normal(size=n_ext)
+
+        def loss(p):
+            buf = np.zeros(n_ext)
+            f, last, _ = _masses(buf, *p, t1, t2, n_ext, beta)
+            return float(np.dot(row[f:last + 1], buf[f:last + 1]))
+
+        out = mass_adjoint(row, *p0, t1, t2, n_ext, beta, True)
+        assert out[0] == pytest.approx(loss(p0), abs=1e-11)
+        dp = np.array([h, 0, 0, 0, 0])
+        fd = (loss(p0 + dp) - loss(p0 - dp)) / (2 * h)
+        assert abs(out[1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, fd, out[1])
+        # the beta derivative: the masses are linear in beta, so the difference quotient is exact up to rounding
+        buf = np.zeros(n_ext)
+        f0, l0, _ = _masses(buf, *p0, t1, t2, n_ext, 0.0)
+        m0 = float(np.dot(row[f0:l0 + 1], buf[f0:l0 + 1]))
+        slope = (out[0] - m0) / beta if beta != 0.0 else out[6]
+        assert out[6] == pytest.approx(slope, rel=1e-7, abs=1e-10), (trial, out[6], slope)
+
+
+def test_element_slope_mass_derivatives_equal_central_differences():
+    """With the element's amplitude slope ``beta`` (no cell tilt), every derivative ``mass_adjoint`` returns (along
+    ``t_lo, a, b, w1, w2``) equals central differences of the primal: the slope term's knot and width derivatives
+    are taken (``mu`` moving with the knots included), with both widths finite, one or none infinitesimal, and for
+    coincident knots."""
+    from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
+    from transient_mi.integrators._nlos_time_spread import _masses
+
+    rng = np.random.default_rng(11)
+    n_ext, h = 50, 1e-6
+    for trial in range(400):
+        kind = trial % 6
+        a0, b0 = sorted(rng.uniform(0.2, 6, 2))
+        a0 = {1: 0.0, 2: b0}.get(kind, a0)
+        u1, u2 = rng.uniform(0.05, 4, 2)
+        if kind >= 4:
+            u1 = 0.0
+        if kind == 5:
+            u2, b0 = 0.0, max(b0, 1.0)
+        mu = (a0 + b0) / 3
+        beta = rng.uniform(-0.6, 0.6) / max(mu, b0 - mu)
+        p0 = np.array([rng.uniform(5, 25), a0, b0, u1, u2])
+        row = rng.normal(size=n_ext)
+
+        def loss(p):
+            buf = np.zeros(n_ext)
+            f, last, _ = _masses(buf, *p, 0.0, 0.0, n_ext, beta)
+            return float(np.dot(row[f:last + 1], buf[f:last + 1]))
+
+        out = mass_adjoint(row, *p0, 0.0, 0.0, n_ext, beta)
+        assert out[0] == pytest.approx(loss(p0), abs=1e-12)
+        for q in range(5):
+            dp = np.zeros(5)
+            dp[q] = h
+            pp, pm = p0 + dp, p0 - dp
+            if pm[1] < 0 or pp[1] > pp[2] or pm[2] < pm[1] or min(pm[3:]) < 0 or (q >= 3 and p0[q] == 0):
+                continue  # (a one-sided neighbourhood, or a width the primal ignores)
+            fd = (loss(pp) - loss(pm)) / (2 * h)
+            assert abs(out[q + 1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, q, fd, out[q + 1])

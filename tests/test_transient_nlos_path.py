@@ -60,7 +60,8 @@ def test_bad_parameters_fail_with_one_line_naming_parameter_and_value(name, valu
 def test_defaults_and_good_values():
     i = _plugin()
     assert (i.max_depth_param, i.rr_depth, i.variance_replicates, i.replicates_for(True)) == (-1, 5, None, 1)
-    quad = {"estimator": "monte_carlo", "element_size_m": 0.01, "patch_cells": 4, "refine_levels": 1}
+    quad = {"estimator": "monte_carlo", "element_size_m": 0.01, "patch_cells": 4, "refine_levels": 1,
+            "element_slope": True}
     assert i.nlos_options == {"rqmc": True, "hidden_geometry_prob": 0.8, **quad}
     i = _plugin(max_depth=4, rr_depth=3, variance_replicates=8, rqmc=False, hidden_geometry_prob=0.0)
     assert (i.max_depth_param, i.rr_depth, i.replicates_for(True)) == (4, 3, 8)
@@ -68,8 +69,11 @@ def test_defaults_and_good_values():
     assert str(i).startswith("TransientNLOSPath[max_depth=4, rr_depth=3, variance_replicates=8")
     q = _plugin(estimator="quadrature", element_size_m=0.02, patch_cells=2, refine_levels=0)
     assert q.nlos_options == {"rqmc": True, "hidden_geometry_prob": 0.8, "estimator": "quadrature",
-                              "element_size_m": 0.02, "patch_cells": 2, "refine_levels": 0}
+                              "element_size_m": 0.02, "patch_cells": 2, "refine_levels": 0, "element_slope": True}
     assert "estimator=quadrature, element_size_m=0.02, patch_cells=2, refine_levels=0" in q.to_string()
+    assert "element_slope" not in q.to_string()  # (the default: its configurations keep their digests)
+    flat = _plugin(estimator="quadrature", element_slope=False)
+    assert flat.nlos_options["element_slope"] is False and "element_slope=false" in flat.to_string()
     assert "estimator" not in _plugin().to_string()  # Monte Carlo configurations keep their digests
 
 

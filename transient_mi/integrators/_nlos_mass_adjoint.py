@@ -185,23 +185,37 @@ def _tilt_dx(x, w, w_other, a, b, mu, var, mu3, small_other):
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
-def _point(y, a, b, mu, var, mu3):
-    """``(G_1, G_2, G_3, dG_2/da, dG_2/db)`` at ``y`` in one pass through the pieces (the values of :func:`_gk` and
-    :func:`_gk_knots`, same expressions): what :func:`mass_adjoint` reads at each of an edge's four points when both
-    widths are finite."""
+def _poly3_knots(d, a, b, var):
+    """``(dP/da, dP/db)`` of the moments' polynomial ``P = (d^3 + 3 d var - mu3) / 6`` (``d = y - mu``), which is
+    ``G_3`` from ``b`` on (``mu``, ``var``, ``mu3`` of :func:`_gk` move with the knots)."""
+    da = (-d * d - var + d * (2.0 * a - b) / 6.0 - (2.0 * a * a - 2.0 * a * b - b * b) / 90.0) / 6.0
+    db = (-d * d - var + d * (2.0 * b - a) / 6.0 - (2.0 * b * b - 2.0 * a * b - a * a) / 90.0) / 6.0
+    return da, db
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _point(y, a, b, mu, var, mu3, g3_knots):
+    """``(G_1, G_2, G_3, dG_2/da, dG_2/db, dG_3/da, dG_3/db)`` at ``y`` in one pass through the pieces (the values of
+    :func:`_gk` and :func:`_gk_knots`, same expressions, and the knot derivatives of ``G_3`` that the element
+    slope's term reads; zeros unless ``g3_knots``): what :func:`mass_adjoint` reads at each of an edge's four points
+    when both widths are finite."""
     if y <= 0.0:
-        return 0.0, 0.0, 0.0, 0.0, 0.0
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if b <= 0.0:  # point mass at 0 (mu = 0)
-        return y, 0.5 * y * y, y * y * y / 6.0, -y / 3.0 + (2.0 * a - b) / 36.0, -y / 3.0 + (2.0 * b - a) / 36.0
+        e3a, e3b = _poly3_knots(y, a, b, var) if g3_knots else (0.0, 0.0)
+        return (y, 0.5 * y * y, y * y * y / 6.0, -y / 3.0 + (2.0 * a - b) / 36.0, -y / 3.0 + (2.0 * b - a) / 36.0,
+                e3a, e3b)
     if y >= b:
         d = y - mu
+        e3a, e3b = _poly3_knots(d, a, b, var) if g3_knots else (0.0, 0.0)
         return (d, 0.5 * (d * d + var), (d * d * d + 3.0 * d * var - mu3) / 6.0,
-                -d / 3.0 + (2.0 * a - b) / 36.0, -d / 3.0 + (2.0 * b - a) / 36.0)
+                -d / 3.0 + (2.0 * a - b) / 36.0, -d / 3.0 + (2.0 * b - a) / 36.0, e3a, e3b)
     if y <= a:  # (a > 0 here)
         c = 2.0 / (b * a)
         y3 = y * y * y
         g2 = c * y3 * y / 24.0
-        return c * y3 / 6.0, g2, c * y3 * y * y / 120.0, -g2 / a, -g2 / b
+        g3 = c * y3 * y * y / 120.0
+        return c * y3 / 6.0, g2, g3, -g2 / a, -g2 / b, -g3 / a, -g3 / b
     z = b - y
     c = 2.0 / (b * (b - a))
     d = y - mu
@@ -209,24 +223,30 @@ def _point(y, a, b, mu, var, mu3):
     z3 = z * z * z
     z4 = z3 * z
     base = -d / 3.0
+    e3a, e3b = _poly3_knots(d, a, b, var) if g3_knots else (0.0, 0.0)
     return (d + c * z3 / 6.0, 0.5 * (d * d + var) - c * z4 / 24.0,
             (d * d * d + 3.0 * d * var - mu3) / 6.0 + c * z4 * z / 120.0,
             base + (2.0 * a - b) / 36.0 + z4 * (-b) / (12.0 * K * K),
-            base + (2.0 * b - a) / 36.0 - z3 / (3.0 * K) + z4 * (2.0 * b - a) / (12.0 * K * K))
+            base + (2.0 * b - a) / 36.0 - z3 / (3.0 * K) + z4 * (2.0 * b - a) / (12.0 * K * K),
+            e3a + b * z4 * z / (60.0 * K * K),
+            e3b + z4 / (12.0 * K) - (2.0 * b - a) * z4 * z / (60.0 * K * K))
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
-def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3):
-    """``(C, dC/dx, dC/da, dC/db, dC/dw1, dC/dw2)`` at edge ``x`` with both widths finite, the tilts' terms added to
+def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3, beta, slope):
+    """``(C, dC/dx, dC/da, dC/db, dC/dw1, dC/dw2, E)`` at edge ``x`` with both widths finite, the tilts' terms added to
     ``C`` and ``dC/dx`` (the second difference of ``G_2`` over both widths, plus ``t_i`` :func:`_tilt` and
     :func:`_tilt_dx` as where a width is infinitesimal): every term is
     a second difference over the same four points ``y``, ``y - w1``, ``y - w2``, ``y - w1 - w2`` (``y = x + (w1 +
-    w2) / 2``), so ``G_1 .. G_3`` and the knot derivatives are evaluated once per point (:func:`_point`)."""
+    w2) / 2``), so ``G_1 .. G_3`` and the knot derivatives are evaluated once per point (:func:`_point`). ``E`` is
+    the element slope's term ``E[(A - mu) 1{T <= x}]`` (``C``'s derivative along ``beta``; 0 unless ``slope`` or
+    ``beta`` is not 0)."""
     y = x + 0.5 * (w1 + w2)
-    p1, p2, p3, pa, pb = _point(y, a, b, mu, var, mu3)
-    q1, q2, q3, qa, qb = _point(y - w1, a, b, mu, var, mu3)
-    r1, r2, r3, ra, rb = _point(y - w2, a, b, mu, var, mu3)
-    s1, s2, s3, sa, sb = _point(y - w1 - w2, a, b, mu, var, mu3)
+    g3k = beta != 0.0
+    p1, p2, p3, pa, pb, p3a, p3b = _point(y, a, b, mu, var, mu3, g3k)
+    q1, q2, q3, qa, qb, q3a, q3b = _point(y - w1, a, b, mu, var, mu3, g3k)
+    r1, r2, r3, ra, rb, r3a, r3b = _point(y - w2, a, b, mu, var, mu3, g3k)
+    s1, s2, s3, sa, sb, s3a, s3b = _point(y - w1 - w2, a, b, mu, var, mu3, g3k)
     ww = w1 * w2
     c = (p2 - q2 - r2 + s2) / ww
     cx = (p1 - q1 - r1 + s1) / ww
@@ -244,16 +264,71 @@ def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3):
         k_hi = (p2 - q2) / w1
         c += t2 * (((p3 - q3) - (r3 - s3)) / w1 - 0.5 * w2 * (k_lo + k_hi)) / (w2 * w2)
         cx += t2 * (k_hi - k_lo - 0.5 * w2 * ((r1 - s1) / w1 + (p1 - q1) / w1)) / (w2 * w2)
-    return c, cx, ca, cb, cw1, cw2
+    # the element's slope: E[(A - mu) 1{T <= x}] with H(y) = (y - mu) G_2(y) - 3 G_3(y) over the same four points,
+    # and its x derivative with (y - mu) G_1(y) - 2 G_2(y)
+    yq = y - w1
+    yr = y - w2
+    ys = y - w1 - w2
+    ce = 0.0
+    if slope or beta != 0.0:
+        ce = (((y - mu) * p2 - 3.0 * p3) - ((yq - mu) * q2 - 3.0 * q3) - ((yr - mu) * r2 - 3.0 * r3)
+              + ((ys - mu) * s2 - 3.0 * s3)) / ww
+    if beta != 0.0:
+        hp = (y - mu) * p1 - 2.0 * p2  # H'(y) at the four points
+        hq = (yq - mu) * q1 - 2.0 * q2
+        hr = (yr - mu) * r1 - 2.0 * r2
+        hs = (ys - mu) * s1 - 2.0 * s2
+        c += beta * ce
+        cx += beta * (hp - hq - hr + hs) / ww
+        # its knot derivatives (mu moves by 1/3 of a knot) and width derivatives (the points move by +-1/2)
+        g2 = (p2 - q2 - r2 + s2) / ww
+        ca += beta * (-g2 / 3.0 + ((y - mu) * pa - (yq - mu) * qa - (yr - mu) * ra + (ys - mu) * sa) / ww
+                      - 3.0 * (p3a - q3a - r3a + s3a) / ww)
+        cb += beta * (-g2 / 3.0 + ((y - mu) * pb - (yq - mu) * qb - (yr - mu) * rb + (ys - mu) * sb) / ww
+                      - 3.0 * (p3b - q3b - r3b + s3b) / ww)
+        cw1 += beta * (0.5 * (hp + hq - hr - hs) / ww - ce / w1)
+        cw2 += beta * (0.5 * (hp - hq + hr - hs) / ww - ce / w2)
+    return c, cx, ca, cb, cw1, cw2, ce
 
 
 @numba.njit(cache=True, fastmath=False)
-def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext):
+def _element_tilt(x, a, b, w1, w2, mu, var, mu3, small1, small2):
+    """``(E, dE/dx, dE/da, dE/db, dE/dw)`` of the element slope's term ``E = E[(A - mu) 1{T <= x}]`` where at least
+    one width is infinitesimal (:func:`~._nlos_time_spread.masses`; ``w`` the finite width, if any)."""
+    if small1 and small2:
+        g0 = _gk(0, x, a, b, mu, var, mu3)
+        g0a, g0b = _gk_knots(0, x, a, b, mu)
+        g1a, g1b = _gk_knots(1, x, a, b, mu)
+        return ((x - mu) * g0 - _gk(1, x, a, b, mu, var, mu3), (x - mu) * _density(x, a, b),
+                -g0 / 3.0 + (x - mu) * g0a - g1a, -g0 / 3.0 + (x - mu) * g0b - g1b, 0.0)
+    w = w2 if small1 else w1
+    hi = x + 0.5 * w
+    lo = x - 0.5 * w
+    g1h, g2h = _gk(1, hi, a, b, mu, var, mu3), _gk(2, hi, a, b, mu, var, mu3)
+    g1l, g2l = _gk(1, lo, a, b, mu, var, mu3), _gk(2, lo, a, b, mu, var, mu3)
+    g0h, g0l = _gk(0, hi, a, b, mu, var, mu3), _gk(0, lo, a, b, mu, var, mu3)
+    e = (((hi - mu) * g1h - 2.0 * g2h) - ((lo - mu) * g1l - 2.0 * g2l)) / w
+    dh = (hi - mu) * g0h - g1h  # H_1'(y) = (y - mu) G_0 - G_1
+    dl = (lo - mu) * g0l - g1l
+    a1h, b1h = _gk_knots(1, hi, a, b, mu)
+    a2h, b2h = _gk_knots(2, hi, a, b, mu)
+    a1l, b1l = _gk_knots(1, lo, a, b, mu)
+    a2l, b2l = _gk_knots(2, lo, a, b, mu)
+    ea = (-(g1h - g1l) / 3.0 + (hi - mu) * a1h - (lo - mu) * a1l - 2.0 * (a2h - a2l)) / w
+    eb = (-(g1h - g1l) / 3.0 + (hi - mu) * b1h - (lo - mu) * b1l - 2.0 * (b2h - b2l)) / w
+    return e, (dh - dl) / w, ea, eb, 0.5 * (dh + dl) / w - e / w
+
+
+@numba.njit(cache=True, fastmath=False)
+def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext, beta=0.0, slope=False):
     """For one pair (as ``_masses``: knots ``tlo``, ``tlo + a``, ``tlo + b``, widths ``u1``, ``u2``, the cell's
-    amplitude tilts ``t1``, ``t2``, bins of the padded axis) and a row of bin adjoints ``row [n_ext]``:
-    ``(sum_j row_j m_j`` and its derivatives with respect to ``tlo, a, b, u1, u2)``, the bins outside
-    ``[0, n_ext)`` left out as in the primal. The tilt's terms enter the sum and the ``tlo`` derivative exactly;
-    their own ``a, b, u`` derivatives are not taken (a first-order correction times a derivative: see
+    amplitude tilts ``t1``, ``t2``, the element's amplitude slope ``beta`` per bin, bins of the padded axis) and a
+    row of bin adjoints ``row [n_ext]``:
+    ``(sum_j row_j m_j`` and its derivatives with respect to ``tlo, a, b, u1, u2, beta)``, the bins outside
+    ``[0, n_ext)`` left out as in the primal. The tilts' terms (the cell's and the element's) enter the sum and the
+    ``tlo`` derivative exactly, the element slope's term its ``a, b, u`` derivatives too, and with ``slope`` the
+    ``beta`` derivative is returned (0 otherwise; the caller differentiates the slope through its inputs); the cell tilts' own ``a, b, u``
+    derivatives are not taken (a first-order correction times a derivative: see
     :mod:`~._nlos_quadrature_geom`)."""
     spread = b + u1 + u2
     eps = REL_WIDTH_EPS * spread
@@ -269,14 +344,14 @@ def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext):
     hi = tlo + b + 0.5 * (u1 + u2)
     b0 = int(np.floor(lo))
     b1 = int(np.floor(hi))
-    acc = st = sa = sb = s1 = s2 = 0.0  # the sum and its derivatives along tlo, a, b, u1, u2
-    p0 = p1 = p2 = p3 = p4 = p5 = 0.0  # C and its derivatives at the bin's lower edge
+    acc = st = sa = sb = s1 = s2 = se = 0.0  # the sum and its derivatives along tlo, a, b, u1, u2, beta
+    p0 = p1 = p2 = p3 = p4 = p5 = p6 = 0.0  # C and its derivatives at the bin's lower edge
     for bin_ in range(b0, b1 + 1):
         edge = float(bin_ + 1) - tlo
         if edge + tlo >= hi:
-            c0, c1, c2, c3, c4, c5 = 1.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            c0, c1, c2, c3, c4, c5, c6 = 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         elif both:
-            c0, cx, c2, c3, c4, c5 = _edge_both_widths(edge, a, b, u1, u2, t1, t2, mu, var, mu3)
+            c0, cx, c2, c3, c4, c5, c6 = _edge_both_widths(edge, a, b, u1, u2, t1, t2, mu, var, mu3, beta, slope)
             c1 = -cx
         else:
             c0, cx, c2, c3, c4, c5 = cdf_derivatives(edge, a, b, u1, u2, mu, var, small1, small2)
@@ -286,6 +361,18 @@ def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext):
             if tilt2:
                 c0 += t2 * _tilt(edge, a, b, u2, u1, mu, var, mu3, small1)
                 cx += t2 * _tilt_dx(edge, u2, u1, a, b, mu, var, mu3, small1)
+            c6 = 0.0
+            if slope or beta != 0.0:
+                c6, ex_, ea_, eb_, ew_ = _element_tilt(edge, a, b, u1, u2, mu, var, mu3, small1, small2)
+            if beta != 0.0:
+                c0 += beta * c6
+                cx += beta * ex_
+                c2 += beta * ea_
+                c3 += beta * eb_
+                if small1 and not small2:
+                    c5 += beta * ew_
+                elif small2 and not small1:
+                    c4 += beta * ew_
             c1 = -cx  # d/dtlo of C(edge - tlo)
         if 0 <= bin_ < n_ext:
             r = row[bin_]
@@ -296,5 +383,6 @@ def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext):
                 sb += r * (c3 - p3)
                 s1 += r * (c4 - p4)
                 s2 += r * (c5 - p5)
-        p0, p1, p2, p3, p4, p5 = c0, c1, c2, c3, c4, c5
-    return acc, st, sa, sb, s1, s2
+                se += r * (c6 - p6)
+        p0, p1, p2, p3, p4, p5, p6 = c0, c1, c2, c3, c4, c5, c6
+    return acc, st, sa, sb, s1, s2, se

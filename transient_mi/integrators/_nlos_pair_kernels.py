@@ -22,6 +22,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from transient_mi.integrators._nlos_element_slope import slope_of
 from transient_mi.integrators._nlos_time_spread import MASS_FASTMATH, cell_widths, masses
 
 
@@ -64,9 +65,20 @@ def _knots(A, B, i, e, s):
     return lo, mid - lo, hi - lo
 
 
+@numba.njit(cache=True, fastmath=False, inline="always")
+def element_slope(A, B, amp, amp_s, i, e, s, a, b, c1, c2):
+    """:func:`slope_of` for pair ``i`` (element ``e``) with spot ``s``: knots ``A[i, v] + B[e, s, v]``, relative
+    amplitudes ``amp[i, v] amp_s[e, s, v]`` (detector part per pair, laser part per element and spot); 0 without
+    them (empty arrays: ``element_slope=false``)."""
+    if amp.shape[0] == 0 or amp_s.shape[0] == 0:
+        return 0.0
+    return slope_of(A[i, 0] + B[e, s, 0], A[i, 1] + B[e, s, 1], A[i, 2] + B[e, s, 2],
+                    amp[i, 0] * amp_s[e, s, 0], amp[i, 1] * amp_s[e, s, 1], amp[i, 2] * amp_s[e, s, 2], a, b, c1, c2)
+
+
 @numba.njit(cache=True, parallel=True, fastmath=MASS_FASTMATH)
 def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, f_p, vis_p, A, w1, w2, tilt, side_x,
-                 fx_pair, vis_s, B, sw, fx_e, side_s, lambertian, confocal):
+                 fx_pair, vis_s, B, sw, fx_e, side_s, lambertian, confocal, amp, amp_s):
     """Every pair of a chunk with every spot of the group: weights, visibility, arrival knots, deposits.
 
     Outputs (added to), row ``r`` per spot (one row, the pixel's own spot, for ``confocal``): ``hist``, ``bound``
@@ -118,7 +130,8 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
                 frac = _SHARE[m]
                 f = full * frac
                 tlo, a, b = _knots(A, B, i, e, s)
-                first, last, inside = masses(buf, tlo, a, b, cell, n_ext)
+                beta = element_slope(A, B, amp, amp_s, i, e, s, a, b, tilt[i, 0], tilt[i, 1])
+                first, last, inside = masses(buf, tlo, a, b, cell, n_ext, beta)
                 if _NVIS[m] < 4:
                     fe = full * max(frac, 1.0 - frac)
                     if keep_bound:
@@ -142,7 +155,7 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
 
 
 @numba.njit(cache=True, parallel=True, fastmath=MASS_FASTMATH)
-def adjoint_group(g, grad_ext, per_pixel, e0, ne, vis_p, A, w1, w2, tilt, vis_s, B, confocal):
+def adjoint_group(g, grad_ext, per_pixel, e0, ne, vis_p, A, w1, w2, tilt, vis_s, B, confocal, amp, amp_s):
     """The adjoint of :func:`spread_group` with respect to the pairs' weights ``full = geo f_p f_x sw``: per pair
     and spot ``g[r, i] = share * sum_b grad_ext[r, k, b] m_b`` (``k`` the pair's pixel, ``m_b`` the masses of
     :func:`~._nlos_time_spread.masses`, ``share`` its visible share), so that ``sum(grad_ext * hist) =
@@ -166,7 +179,8 @@ def adjoint_group(g, grad_ext, per_pixel, e0, ne, vis_p, A, w1, w2, tilt, vis_s,
                 if m == 0:
                     continue
                 tlo, a, b = _knots(A, B, i, e, s)
-                first, last, _ = masses(buf, tlo, a, b, cell, n_ext)
+                beta = element_slope(A, B, amp, amp_s, i, e, s, a, b, tilt[i, 0], tilt[i, 1])
+                first, last, _ = masses(buf, tlo, a, b, cell, n_ext, beta)
                 acc = 0.0
                 for bin_ in range(first, last + 1):
                     acc += grad_ext[row, k, bin_] * buf[bin_]
@@ -220,7 +234,7 @@ PARALLEL_MIN_PAIRS = 1 << 18
 
 def pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, area, n_sh, wall_n_sh, wall_side, e0, e1,
                   ax, ay, fl, bin_m, photons, has_cells, wall_n, per_pixel, vis_s, side_s, wall_lambertian, lambertian,
-                  confocal, out=None):
+                  confocal, out=None, slope=True):
     """:func:`_pair_geometry` (its docstring has the arguments and results), on one thread for a chunk of fewer than
     :data:`PARALLEL_MIN_PAIRS` pairs. ``out``, optional: :func:`pair_results` of at least the chunk's pairs, which
     the results are written to (their first rows; a level's chunks reuse one set: see :func:`pair_results`)."""
@@ -228,7 +242,7 @@ def pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, are
     out = pair_results(n) if out is None else tuple(a[:n] for a in out)
     args = (cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, area, n_sh, wall_n_sh, wall_side, e0, e1, ax,
             ay, fl, bin_m, photons, has_cells, wall_n, per_pixel, vis_s, side_s, wall_lambertian, lambertian, confocal,
-            *out)
+            bool(slope), *out)
     if n >= PARALLEL_MIN_PAIRS:
         return _pair_geometry(*args)
     threads = numba.get_num_threads()
@@ -248,13 +262,13 @@ def pair_results(n: int) -> tuple:
     chunk, cost more system time than the geometry itself took (the paper scene's 32 x 32 capture: 1.2 million page
     faults a render and 6 s of system time over its two cores, when the kernel allocated them)."""
     return (np.empty(n), np.empty(n), np.empty((n, 3)), np.empty(n), np.empty(n), np.empty((n, 2)),
-            np.empty(n, dtype=np.int8), np.empty(n, dtype=np.bool_))
+            np.empty(n, dtype=np.int8), np.empty(n, dtype=np.bool_), np.empty((n, 3)))
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
 def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, area, n_sh, wall_n_sh, wall_side, e0,
                    e1, ax, ay, fl, bin_m, photons, has_cells, wall_n, per_pixel, vis_s, side_s, wall_lambertian,
-                   lambertian, confocal, geo, cos_p, A, w1, w2, tilt, side_x, lit):
+                   lambertian, confocal, slope, geo, cos_p, A, w1, w2, tilt, side_x, lit, amp):
     """Detector-side geometry of the chunk's pairs (cells x elements ``e0:e1``, cell-major), float64, one pair per
     iteration in parallel; ``rd_c``, ``uq_c``, ``w0_c``, ``corner_d``: :func:`cell_terms`; ``per_pixel`` (pairs
     per pixel), ``vis_s``, ``side_s``, ``lambertian``, ``confocal``: as :func:`spread_group`, ``wall_lambertian``
@@ -314,6 +328,9 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
         lit[i] = on
         tilt[i, 0] = 0.0
         tilt[i, 1] = 0.0
+        amp[i, 0] = 1.0
+        amp[i, 1] = 1.0
+        amp[i, 2] = 1.0
         if not on:
             A[i, 0] = 0.0
             A[i, 1] = 0.0
@@ -362,11 +379,16 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
                     sz = pz + cu * ax[2] + cv * ay[2]
                     acc += np.sqrt((X0[e, 0] - sx) ** 2 + (X0[e, 1] - sy) ** 2 + (X0[e, 2] - sz) ** 2)
             cell_shift = (acc * 0.25 - (fl * rd_c[c] + r)) * (1.0 / 3.0)
+        nx0, qx0 = _amplitude_parts(X0[e], px, py, pz, nrm[e], wall_n) if slope else (0.0, 1.0)
+        if nx0 > 0.0:
+            for v in range(3):
+                nv, qv = _amplitude_parts(tri[e, v], px, py, pz, nrm[e], wall_n)
+                amp[i, v] = nv * qx0 / (qv * nx0)
         base = fl * rd_c[c] + 0.75 * (r - (r_pv0 + r_pv1 + r_pv2) * (1.0 / 3.0)) + cell_shift
         A[i, 0] = (base + r_pv0) * inv_bin
         A[i, 1] = (base + r_pv1) * inv_bin
         A[i, 2] = (base + r_pv2) * inv_bin
-    return geo, cos_p, A, w1, w2, tilt, side_x, lit
+    return geo, cos_p, A, w1, w2, tilt, side_x, lit, amp
 
 
 def spot_knots(tri: np.ndarray, X0: np.ndarray, S: np.ndarray, spot_opl: np.ndarray, bin_m: float,

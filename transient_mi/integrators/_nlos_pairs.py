@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from transient_mi.integrators._nlos_element_slope import laser_amplitudes
 from transient_mi.integrators._nlos_elements import sample_points
 from transient_mi.integrators._nlos_pair_kernels import pair_geometry, spot_knots, spread_group
 from transient_mi.integrators._nlos_surfaces import ElementSurfaces, WallCells, spot_intensities, visibility_masks
@@ -132,6 +133,8 @@ class SpotSide:
         self.B, self.r_sv, self.r_sx = spot_knots(lv.tri, lv.X0, self.S, g.fl * self.laser_leg, g.bin_m,
                                        g.t0_m / g.bin_m - g.pad)
         self.sw = np.ascontiguousarray(self.intensity / self.r_sx ** 2)
+        self.amp_s = (laser_amplitudes(lv.tri, lv.X0, lv.nrm, self.S, np.asarray(setup.frame.normal, dtype=np.float64))
+                      if g.element_slope else np.empty((0, 0, 3)))
         if lv.surf.lambertian:
             self.fx_e, self.side_s = lv.surf.toward(self.S)
         else:
@@ -160,10 +163,12 @@ class Chunk:
         self.n = C * self.ne
         self.per_pixel = g.m * g.m * self.ne
         (self.geo, self.cos_p, self.A, self.w1, self.w2, self.tilt, self.side_x,
-         lit) = pair_geometry(g.cell_p, g.cell_w0, *g.cell_terms, lv.X0, lv.tri, lv.nrm, lv.area, lv.surf.n_sh,
+         lit, self.amp) = pair_geometry(g.cell_p, g.cell_w0, *g.cell_terms, lv.X0, lv.tri, lv.nrm, lv.area, lv.surf.n_sh,
                               wall.n_sh, wall.side, e0, e1, g.cell_ax, g.cell_ay, g.fl, g.bin_m, g.N,
                               g.cell_half_diag > 0, g.normal, self.per_pixel, side.vis, side.side_s, wall.lambertian,
-                              lv.surf.lambertian, confocal, out)
+                              lv.surf.lambertian, confocal, out, g.element_slope)
+        if not g.element_slope:  # (no amplitudes: every pair's slope is 0, the midpoint weight of before)
+            self.amp = np.empty((0, 3))
         if wall.lambertian:
             self.f_p = (wall.value[:, None] * self.cos_p.reshape(C, self.ne)).reshape(-1)
         else:
@@ -205,4 +210,4 @@ class Chunk:
         spread_group(out["hist"], out["bound"], out["steady"], out["vis_err"], out["outside"], self.per_pixel,
                      self.e0, self.ne, self.geo, self.f_p, self.vis_p, self.A, self.w1, self.w2, self.tilt,
                      self.side_x, fx_pair, side.vis, side.B, side.sw, side.fx_e, side.side_s, lv.surf.lambertian,
-                     confocal)
+                     confocal, self.amp, side.amp_s)

@@ -123,7 +123,7 @@ class _FineLevel:
     def __init__(self, scene, setup, film, options, spots=(0,)):
         self.confocal = setup.capture == "confocal"
         self.spot_ids = list(range(setup.n_spots)) if self.confocal else list(spots)
-        self.g = _Geometry(setup, film, patch_cells(setup, options))
+        self.g = _Geometry(setup, film, patch_cells(setup, options), options.get("element_slope", True))
         self.P = self.g.W * self.g.H
         self.active = bool(setup.hidden_shapes) and options.get("max_depth", 4) >= 4
         if not self.active:
@@ -177,7 +177,7 @@ class _FineLevel:
         ``[R, P, n_ext]``)."""
         g = np.zeros((len(self.rows()), ch.n))
         adjoint_group(g, grad_ext, ch.per_pixel, ch.e0, ch.ne, ch.vis_p, ch.A, ch.w1, ch.w2, ch.tilt, self.side.vis,
-                      self.side.B, self.confocal)
+                      self.side.B, self.confocal, ch.amp, self.side.amp_s)
         return g
 
     def pair_lengths(self, ch) -> tuple:
@@ -204,7 +204,8 @@ class _FineLevel:
                              ch.geo * ch.f_p, t["f_x"], vis_p, r_pv, r_px, opl_d, cell_shift, ch.w1, ch.w2, ch.tilt,
                              vis_s, np.ascontiguousarray(side.sw[:, s]), side.S[s],
                              np.ascontiguousarray(side.r_sv[:, s]), np.ascontiguousarray(side.r_sx[:, s]),
-                             g.fl * float(side.laser_leg[s]), g.bin_m, self.t_origin)
+                             g.fl * float(side.laser_leg[s]), g.bin_m, self.t_origin, ch.amp,
+                             np.ascontiguousarray(side.amp_s[:, s]) if side.amp_s.shape[0] else np.empty((0, 3)))
 
 
 def _grad_shape(setup, grad_in, T, G: int = 1) -> np.ndarray:
@@ -343,6 +344,7 @@ def quadrature_forward(integrator, scene, params, sensor) -> "mi.TensorXf":
             tan = ch.geo * (d_fp * f_x * sw + ch.f_p * d_fx * sw + ch.f_p * f_x * d_sw + ch.f_p * f_x * sw * d_log_n)
             spread_group(hist, scratch, z.copy(), z.copy(), z.copy(), ch.per_pixel, ch.e0, ch.ne, tan,
                          np.ones(ch.n), ch.vis_p, ch.A, ch.w1, ch.w2, ch.tilt, ch.side_x, np.ones((1, ch.n)),
-                         lv.side.vis, lv.side.B, ones_es, ones_es, lv.side.side_s, False, lv.confocal)
+                         lv.side.vis, lv.side.B, ones_es, ones_es, lv.side.side_s, False, lv.confocal, ch.amp,
+                         lv.side.amp_s)
     out = apply_kernel(hist[0], taps) if g.pad else hist[0]
     return upload_tensor(out.reshape(setup.height, setup.width, axis.n_bins))

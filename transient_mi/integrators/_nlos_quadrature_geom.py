@@ -34,6 +34,9 @@ edge, at a silhouette or where an element's visibility samples change their verd
 (the primal jumps there); neither is the cell tilt's dependence on the geometry (the first-order amplitude
 slope across a wall cell, ``Chunk.tilt``: its terms enter the masses and their shift derivative, not their
 knot, width or tilt derivatives; measured up to 4e-3 of the gradient on the test scene), the error estimate
+(the element's slope, by contrast, is differentiated: its term's knot and width derivatives in
+:func:`~._nlos_mass_adjoint.mass_adjoint`, and the slope itself through its knots and its vertices' amplitudes,
+:func:`~._nlos_element_slope.slope_adjoint`; without them the confocal rigid-motion gradient of the tests was 1.6 % off), the error estimate
 (coarse level), nor a branch switch of the primal
 (a cell width crossing ``REL_WIDTH_EPS`` of the spread: the primal's truncation there is below 1e-6).
 
@@ -53,6 +56,7 @@ from transient_mi._upload import upload
 from transient_mi.props import PluginParameterError
 
 from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
+from transient_mi.integrators._nlos_element_slope import laser_slope_terms, slope_adjoint, slope_of
 
 #: A cosine or distance below this does not take part in the log-derivative of a pair's light (a grazing pair).
 _TINY = 1e-12
@@ -87,24 +91,25 @@ def _visible_share(vis_p, vis_s, i, e):
 
 @numba.njit(cache=True, fastmath=False)
 def _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m, t_origin_bins):
-    """Pair ``i`` (element ``e``): its smallest knot (bins on the padded axis) and the other two relative to
-    it, ``(t_lo, a, b)``, ``0 <= a <= b``, from the lengths of :func:`pair_lengths` (the primal's knots,
-    :func:`~._nlos_pair_kernels._knots`, to rounding)."""
+    """Pair ``i`` (element ``e``): its knots in vertex order (bins on the padded axis), then sorted: the smallest
+    and the other two relative to it, ``(t_0, t_1, t_2, t_lo, a, b)``, ``0 <= a <= b``, from the lengths of
+    :func:`pair_lengths` (the primal's knots, :func:`~._nlos_pair_kernels._knots`, to rounding)."""
     l0 = opl_d[i] + r_pv[i, 0] + r_sv[e, 0] + spot_opl
     l1 = opl_d[i] + r_pv[i, 1] + r_sv[e, 1] + spot_opl
     l2 = opl_d[i] + r_pv[i, 2] + r_sv[e, 2] + spot_opl
     lc = opl_d[i] + r_px[i] + r_sx[e] + spot_opl
     shift = 0.75 * (lc - (l0 + l1 + l2) / 3.0) + cell_shift[i]
-    t0 = (l0 + shift) / bin_m - t_origin_bins
-    t1 = (l1 + shift) / bin_m - t_origin_bins
-    t2 = (l2 + shift) / bin_m - t_origin_bins
+    v0 = (l0 + shift) / bin_m - t_origin_bins
+    v1 = (l1 + shift) / bin_m - t_origin_bins
+    v2 = (l2 + shift) / bin_m - t_origin_bins
+    t0, t1, t2 = v0, v1, v2
     if t0 > t1:
         t0, t1 = t1, t0
     if t1 > t2:
         t1, t2 = t2, t1
     if t0 > t1:
         t0, t1 = t1, t0
-    return t0, t1 - t0, t2 - t0
+    return v0, v1, v2, t0, t1 - t0, t2 - t0
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
@@ -153,15 +158,16 @@ def pair_lengths(cell_p, X0, tri, e0, e1, D, ax, ay, fl, has_cells):
 GEOM_CELL_BLOCKS = 8
 #: Elements per block of :func:`geometry_adjoint` (blocks of cells x blocks of elements run in parallel).
 GEOM_ELEMENT_BLOCK = 64
-# accumulator layout per (cell block, element): adjoints of the centroid (0:3), the unit normal (3:6), the area (6)
-# and of the vertices directly (7:16, vertex-major)
-_ACC = 16
+# accumulator layout per (cell block, element): adjoints of the centroid (0:3), the unit normal (3:6), the area (6),
+# of the vertices directly (7:16, vertex-major) and the weights of the element slope's laser-side amplitude
+# gradients per vertex (16:19, applied once per element: :func:`~._nlos_element_slope.slope_adjoint`)
+_ACC = 19
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
 def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, ay, D, fl, has_cells, wall_n,
                      tri, X0, nrm, area, base, f_x, vis_p, r_pv, r_px, opl_d, cell_shift, w1, w2, tilt, vis_s,
-                     spot_weight, S, r_sv, r_sx, spot_opl, bin_m, t_origin_bins):
+                     spot_weight, S, r_sv, r_sx, spot_opl, bin_m, t_origin_bins, amp, amp_s):
     """Add to ``out [n, 3, 3]`` (per element, per vertex, xyz) the derivative of ``sum(grad_ext * hist)`` with
     respect to the element vertices, for one job of a chunk: the elements ``e0 .. e0 + ne - 1`` and the cells
     ``c_lo .. c_hi - 1`` (pair ``i = c ne + (e - e0)``) lit by the spot ``S``.
@@ -170,8 +176,10 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
     (chunk order, as :class:`~._nlos_pairs.Chunk`): ``base`` (``geo f_p``), ``f_x``, ``vis_p`` (bool ``[n, 4]``),
     ``r_pv``, ``r_px``, ``opl_d``, ``cell_shift`` (:func:`pair_lengths`), ``w1``, ``w2``. Per element (this spot): ``vis_s``, ``spot_weight``,
     ``r_sv``, ``r_sx``; ``tri``, ``X0``, ``nrm``, ``area`` of :func:`~._nlos_pairs.element_terms`. ``ax``,
-    ``ay``: the cell's edge vectors (m); ``wall_n``: the relay wall's unit normal; ``D``: the detector; ``fl``: 1
-    when the detector leg is in the path length. Lengths in metres, ``spot_opl`` the laser leg,
+    ``ay``: the cell's edge vectors (m); ``amp [n_pairs, 3]`` and ``amp_s [n, 3]`` (this spot): the relative
+    amplitudes at the vertices that give the element's slope (:func:`~._nlos_element_slope.slope_of`; empty
+    arrays: no slope); ``wall_n``: the relay wall's unit normal; ``D``: the detector; ``fl``: 1 when the detector
+    leg is in the path length. Lengths in metres, ``spot_opl`` the laser leg,
     ``t_origin_bins`` the padded axis's origin in path-length bins.
 
     Tiles of (:data:`GEOM_CELL_BLOCKS` blocks of cells) x (blocks of :data:`GEOM_ELEMENT_BLOCK` elements) run in
@@ -206,6 +214,7 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
         cx_e[j] = nrm[e, 0] * u0 + nrm[e, 1] * u1 + nrm[e, 2] * u2
         cs_e[j] = -(wall_n[0] * u0 + wall_n[1] * u1 + wall_n[2] * u2)
     n_ext = grad_ext.shape[1]
+    slope = amp.shape[0] > 0 and amp_s.shape[0] > 0  # (element_slope=false: no amplitudes, every slope 0)
     for tile in numba.prange(n_cb * n_eb):
         cb = tile // n_eb
         eb = tile - cb * n_eb
@@ -233,11 +242,16 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
                 if nvis == 0:
                     continue
                 f = full * frac
-                tlo, a, b = _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m,
-                                        t_origin_bins)
-                m_acc, s_t, s_a, s_b, s_w1, s_w2 = mass_adjoint(row, tlo, a, b, w1[i], w2[i], tilt[i, 0], tilt[i, 1],
-                                                              n_ext)
-                if m_acc == 0.0 and s_t == 0.0 and s_a == 0.0 and s_b == 0.0 and s_w1 == 0.0 and s_w2 == 0.0:
+                v0, v1, v2, tlo, a, b = _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl,
+                                                    bin_m, t_origin_bins)
+                beta = 0.0
+                if slope:
+                    beta = slope_of(v0, v1, v2, amp[i, 0] * amp_s[e, 0], amp[i, 1] * amp_s[e, 1],
+                                    amp[i, 2] * amp_s[e, 2], a, b, tilt[i, 0], tilt[i, 1])
+                m_acc, s_t, s_a, s_b, s_w1, s_w2, s_e = mass_adjoint(row, tlo, a, b, w1[i], w2[i], tilt[i, 0],
+                                                                     tilt[i, 1], n_ext, beta, slope)
+                if (m_acc == 0.0 and s_t == 0.0 and s_a == 0.0 and s_b == 0.0 and s_w1 == 0.0 and s_w2 == 0.0
+                        and s_e == 0.0):
                     continue
                 rs = rs_e[j]
                 c_x = cx_e[j]
@@ -284,6 +298,9 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
                 tb[perm[0]] = s_t - s_a - s_b
                 tb[perm[1]] = s_a
                 tb[perm[2]] = s_b
+                if slope and s_e != 0.0:  # the element's slope through its knots and its vertices' amplitudes
+                    slope_adjoint(acc[cb, j], f, s_e, tb, v0, v1, v2, beta, amp, amp_s, i, e, a, b, tilt, tri, X0,
+                                  nrm, p, S, wall_n)
                 fb = f / bin_m
                 for v in range(3):
                     lb = fb * (tb[v] - 0.25 * s_t)  # knot v = (l_v + 0.75 (l_c - mean l) + shift) / bin_m - origin
@@ -326,6 +343,8 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
         for cb in range(n_cb):
             for q in range(_ACC):
                 t[q] += acc[cb, j, q]
+        if slope:
+            laser_slope_terms(t, tri[e], X0[e], nrm[e], S, wall_n)
         nn = nrm[e]
         xb = t[0:3]
         nb = t[3:6]

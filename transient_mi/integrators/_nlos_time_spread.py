@@ -9,7 +9,8 @@ pixel's wall patch. Across such an element the optical path length (OPL) is line
     \ell(X, p) \approx \ell_0 + g_e \cdot (X - X_0) + g_c \cdot (p - p_0),
 
 and ``X``, ``p`` are independent and uniform on ``e`` and ``c`` (the radiometric weight is taken at the
-centre: a midpoint rule). The arrival time ``T`` is then the sum of three independent variables: ``A``,
+centre -- a midpoint rule -- with first-order slopes: the cell's along its two widths, the element's in arrival
+time, ``1 + beta (A - mu)``; each moves light within the pair, :func:`masses`). The arrival time ``T`` is then the sum of three independent variables: ``A``,
 the linear function over the triangle, whose distribution is the *triangular* distribution on the sorted
 vertex values ``t_0 <= t_1 <= t_2`` (the push-forward of area measure by a linear function over a triangle,
 a B-spline of degree 1 with knots ``t_0, t_1, t_2``), and two uniforms ``U_1, U_2`` of widths ``w_1, w_2``
@@ -123,28 +124,37 @@ def _g23(y, k):
 
 
 @numba.njit(cache=True, fastmath=MASS_FASTMATH, inline="always")
-def _cdf_widths(x, k, h1, h2, c0, c1, c2):
+def _cdf_widths(x, k, h1, h2, c0, c1, c2, c3):
     """:func:`_cdf` with both widths finite: ``G_2`` and ``G_3`` at the four points ``x +- h1 +- h2``, no branch
-    but the pieces' (the tilt terms are added with their factors, 0 without a tilt)."""
+    but the pieces' (the tilt terms are added with their factors, 0 without a tilt; the element's, ``c3``, reads
+    ``H_2(y) - mu G_2(y) = (y - mu) G_2(y) - 3 G_3(y)`` at the same points)."""
     pp2, pp3 = _g23(x + h1 + h2, k)
     mp2, mp3 = _g23(x - h1 + h2, k)
     pm2, pm3 = _g23(x + h1 - h2, k)
     mm2, mm3 = _g23(x - h1 - h2, k)
     d3 = pp3 - mp3 - pm3 + mm3
-    return (pp2 - mp2 - pm2 + mm2) * c0 + (c1 * (d3 - h1 * (pp2 + mp2 - pm2 - mm2))
-                                           + c2 * (d3 - h2 * (pp2 + pm2 - mp2 - mm2)))
+    d2 = pp2 - mp2 - pm2 + mm2
+    cur = d2 * c0 + (c1 * (d3 - h1 * (pp2 + mp2 - pm2 - mm2)) + c2 * (d3 - h2 * (pp2 + pm2 - mp2 - mm2)))
+    if c3 != 0.0:
+        cur += c3 * (((x - k[2]) * d2 + h1 * (pp2 + mp2 - pm2 - mm2) + h2 * (pp2 + pm2 - mp2 - mm2)) - 3.0 * d3)
+    return cur
 
 
 @numba.njit(cache=True, fastmath=MASS_FASTMATH, inline="always")
-def _cdf(x, k, h1, h2, mode, c0, c1, c2):
+def _cdf(x, k, h1, h2, mode, c0, c1, c2, c3):
     """The pair's tilted CDF at ``x`` (local: ``t_0 = 0``): ``P(T <= x) + t_1 E[v_1 1{T <= x}] + t_2 E[v_2
-    1{T <= x}]`` (see :func:`masses`), ``k`` the triangular part's :func:`_shape`. ``mode`` 0: both widths finite
-    (``G_2``, ``G_3`` at the four points ``x +- h1 +- h2``); 1: only ``w_2`` (``G_1``, ``G_2`` at ``x +- h2``);
-    2: only ``w_1``; 3: neither (``G_0``). ``c0, c1, c2``: the prepared factors of :func:`masses`."""
+    1{T <= x}] + beta E[(A - mu) 1{T <= x}]`` (see :func:`masses`), ``k`` the triangular part's :func:`_shape`.
+    ``mode`` 0: both widths finite (``G_2``, ``G_3`` at the four points ``x +- h1 +- h2``); 1: only ``w_2``
+    (``G_1``, ``G_2`` at ``x +- h2``); 2: only ``w_1``; 3: neither (``G_0``, and ``G_1`` with an element tilt).
+    ``c0, c1, c2, c3``: the prepared factors of :func:`masses`."""
     if mode == 0:
-        return _cdf_widths(x, k, h1, h2, c0, c1, c2)
+        return _cdf_widths(x, k, h1, h2, c0, c1, c2, c3)
     if mode == 3:
-        return _g0(x, k)
+        cur = _g0(x, k)
+        if c3 != 0.0:
+            g1, _ = _g12(x, k)
+            cur += c3 * ((x - k[2]) * cur - g1)
+        return cur
     h = h2 if mode == 1 else h1
     p1, p2 = _g12(x + h, k)
     m1, m2 = _g12(x - h, k)
@@ -152,6 +162,9 @@ def _cdf(x, k, h1, h2, mode, c0, c1, c2):
     c = c2 if mode == 1 else c1
     if c != 0.0:
         cur += c * (p2 - m2 - h * (p1 + m1))
+    if c3 != 0.0:
+        xm = x - k[2]
+        cur += c3 * (((xm + h) * p1 - 2.0 * p2) - ((xm - h) * m1 - 2.0 * m2))
     return cur
 
 
@@ -177,7 +190,7 @@ def _differences(v, prev):
 
 
 @numba.njit(cache=True, fastmath=MASS_FASTMATH)
-def masses(buf, tlo, a, b, cell, n_ext):
+def masses(buf, tlo, a, b, cell, n_ext, beta):
     """Bin masses of one pair's arrival distribution (knots ``tlo``, ``tlo + a``, ``tlo + b``, the cell's widths
     ``u1``, ``u2`` and tilts ``t1``, ``t2`` in ``cell`` = :func:`cell_widths`; bins of the padded axis; the cell's
     amplitude ``1 + t1 v1 + t2 v2`` linear in the cell coordinates
@@ -195,8 +208,14 @@ def masses(buf, tlo, a, b, cell, n_ext):
     * ``E[v_1 1{T <= x}] = [D_3 - h1 (G_2(x+h1+h2) + G_2(x-h1+h2) - G_2(x+h1-h2) - G_2(x-h1-h2))] / (u2 u1^2)``
       (integration by parts over ``v_1``; ``D_3`` the same second difference of ``G_3``), and ``v_2`` likewise;
 
+    * ``E[(A - mu) 1{T <= x}]`` (the element's slope ``beta``, a weight ``1 + beta (A - mu)`` over the triangular
+      part, ``mu = (a + b) / 3`` its mean) is the same second difference of ``H(y) = (y - mu) G_2(y) - 3 G_3(y)``
+      (``E[A (y - A)_+^2] / 2 = y G_2 - 3 G_3``), divided by ``u1 u2``;
+
     so one edge costs ``G_2`` and ``G_3`` at four points. A width below ``REL_WIDTH_EPS`` of the spread is taken
-    as zero (its difference becomes the derivative: ``G_1`` at two points, or ``G_0`` at one)."""
+    as zero (its difference becomes the derivative: ``G_1`` at two points, or ``G_0`` at one; the slope's term then
+    reads ``(y - mu) G_1 - 2 G_2``, or ``(x - mu) G_0 - G_1``). ``beta`` (per bin, 0: none) comes from
+    :func:`~._nlos_element_slope.slope_of`, which keeps the weight >= 0."""
     u1, u2, h1, h2, i1, i2, t1, t2 = cell
     spread = b + u1 + u2
     eps = REL_WIDTH_EPS * spread
@@ -221,6 +240,7 @@ def masses(buf, tlo, a, b, cell, n_ext):
         mode = 2
         c0 = i1
         c1 = t1 * c0 * c0
+    c3 = beta * c0
     lo = tlo - 0.5 * (u1 + u2)
     hi = tlo + b + 0.5 * (u1 + u2)
     b0 = int(np.floor(lo))
@@ -233,14 +253,14 @@ def masses(buf, tlo, a, b, cell, n_ext):
     prev = 0.0
     if first > b0:  # the CDF at the first inside bin's lower edge (the bins below the axis are not needed)
         edge = float(first) - tlo
-        prev = 1.0 if edge + tlo >= hi else _cdf(edge, k, h1, h2, mode, c0, c1, c2)
+        prev = 1.0 if edge + tlo >= hi else _cdf(edge, k, h1, h2, mode, c0, c1, c2, c3)
     if mode == 0 and last - first >= VECTOR_EDGES:
         # the CDF at every edge first (no edge depends on another: the loops run several edges per instruction), then
         # the masses as its differences
         v = buf[first:last + 1]  # (a view indexed from 0: with a bin index that could be negative no loop vectorises)
         for i in range(v.shape[0]):
             edge = float(i + first + 1) - tlo
-            cur = _cdf_widths(edge, k, h1, h2, c0, c1, c2)
+            cur = _cdf_widths(edge, k, h1, h2, c0, c1, c2, c3)
             v[i] = 1.0 if edge + tlo >= hi else cur
         return first, last, _differences(v, prev)
     for bin_ in range(first, last + 1):
@@ -248,7 +268,7 @@ def masses(buf, tlo, a, b, cell, n_ext):
         if edge + tlo >= hi:
             cur = 1.0
         else:
-            cur = _cdf(edge, k, h1, h2, mode, c0, c1, c2)
+            cur = _cdf(edge, k, h1, h2, mode, c0, c1, c2, c3)
         buf[bin_] = cur - prev
         inside += cur - prev
         prev = cur
@@ -256,9 +276,9 @@ def masses(buf, tlo, a, b, cell, n_ext):
 
 
 @numba.njit(cache=True, fastmath=MASS_FASTMATH)
-def _masses(buf, tlo, a, b, u1, u2, t1, t2, n_ext):
+def _masses(buf, tlo, a, b, u1, u2, t1, t2, n_ext, beta=0.0):
     """:func:`masses` of one pair given its cell's widths and tilts (the per-pair form)."""
-    return masses(buf, tlo, a, b, cell_widths(u1, u2, t1, t2), n_ext)
+    return masses(buf, tlo, a, b, cell_widths(u1, u2, t1, t2), n_ext, beta)
 
 
 @numba.njit(cache=True, fastmath=MASS_FASTMATH)

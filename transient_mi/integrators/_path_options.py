@@ -38,7 +38,8 @@ def read_path_params(props, plugin: str) -> tuple[int, int, int | None]:
 
 def read_nlos_options(props, plugin: str) -> dict:
     """The NLOS estimator's own parameters: ``rqmc``, ``hidden_geometry_prob``, ``estimator`` and the quadrature's
-    ``element_size_m``, ``patch_cells``, ``refine_levels`` (see :mod:`transient_mi.integrators._nlos_quadrature`).
+    ``element_size_m``, ``patch_cells``, ``refine_levels``, ``element_slope`` (see
+    :mod:`transient_mi.integrators._nlos_quadrature`).
 
     ``hidden_geometry_prob``: probability of choosing hidden-geometry (area) sampling over BSDF sampling
     for the direction leaving the relay-wall patch point (one-sample MIS with the balance heuristic, see
@@ -57,6 +58,7 @@ def read_nlos_options(props, plugin: str) -> dict:
         "patch_cells": get_int(props, plugin, "patch_cells", q.DEFAULT_PATCH_CELLS, min_value=1, max_value=64),
         "refine_levels": get_int(props, plugin, "refine_levels", q.DEFAULT_REFINE_LEVELS, min_value=0,
                                  max_value=8),
+        "element_slope": get_bool(props, plugin, "element_slope", True),
     }
 
 
@@ -66,7 +68,8 @@ def estimator_suffix(options: dict) -> str:
     if options.get("estimator", "monte_carlo") == "monte_carlo":
         return ""
     return (f", estimator=quadrature, element_size_m={options['element_size_m']:g}, "
-            f"patch_cells={options['patch_cells']}, refine_levels={options['refine_levels']}")
+            f"patch_cells={options['patch_cells']}, refine_levels={options['refine_levels']}"
+            + ("" if options.get("element_slope", True) else ", element_slope=false"))
 
 
 def check_render_call(plugin: str, sensor, seed: int, spp: int, replicates: int | None):

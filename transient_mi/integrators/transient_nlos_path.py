@@ -314,6 +314,13 @@ class TransientNLOSPath(mi.CppADIntegrator):
            0.10, 0.095, 0.093 at 10 ms in 1.5, 2.2, 3.8 and 4.4 s,
            bench/results/quadrature_settings_a8_b8.json; the light still
            mixed is bounded).
+       * - ``element_slope``
+         - boolean
+         - ``quadrature``: weight each element linearly in arrival time
+           (its weight's regression on its vertices' arrival times: exact
+           bin masses of that weight, docs/quadrature.md) (default true);
+           false takes the weight at the centroid alone, as before
+           2026-12-07, for comparisons.
 
     Determinism: each SIMD lane accumulates its own histogram slot (see
     :mod:`transient_mi.integrators._lanes`), so the same seed gives the same

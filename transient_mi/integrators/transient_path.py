@@ -116,8 +116,8 @@ class TransientPath(mi.CppADIntegrator):
          - float
          - NLOS only: probability of hidden-geometry sampling (vs BSDF
            sampling) at the relay-wall patch point, in [0, 1] (default 0.8).
-       * - ``estimator``, ``element_size_m``, ``patch_cells``, ``refine_levels``
-         - string, float, integer, integer
+       * - ``estimator``, ``element_size_m``, ``patch_cells``, ``refine_levels``, ``element_slope``
+         - string, float, integer, integer, boolean
          - NLOS only: ``estimator="quadrature"`` renders three-bounce light
            deterministically, with the quadrature's settings (beyond
            ``max_depth=4`` plus the Monte Carlo remainder); as
