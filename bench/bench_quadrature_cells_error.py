@@ -38,7 +38,7 @@ SPOTS = (0, 5, 10, 15)
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--array", type=int, default=8, help="pixels per side (default 8)")
-    ap.add_argument("--element-size-m", type=float, default=0.009)
+    ap.add_argument("--element-size-m", type=float, default=0.01)
     ap.add_argument("--cells", default="1,2,3,4,6", help="cells per patch side, comma-separated")
     ap.add_argument("--reference-cells", type=int, default=12)
     ap.add_argument("--exposure-ms", type=float, default=10.0)
