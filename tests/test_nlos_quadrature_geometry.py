@@ -45,10 +45,12 @@ STEP_DEG = 0.2
 REL_TOL = 1e-2
 
 
-def test_mass_derivatives_equal_central_differences():
+@pytest.mark.parametrize("slope", [False, True])
+def test_mass_derivatives_equal_central_differences(slope):
     """d(sum_j r_j m_j) / d(t_lo, a, b, w1, w2) against central differences of the primal's masses, for
     random pairs including coincident knots (a = 0, a = b, a ~ 1e-6 b) and widths the primal treats as
-    infinitesimal (w1 = 0; both zero)."""
+    infinitesimal (w1 = 0; both zero); with ``slope`` each pair has the element's amplitude slope ``beta`` too (no
+    cell tilt), whose term's knot and width derivatives (``mu`` moving with the knots included) are taken."""
     from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
     from transient_mi.integrators._nlos_time_spread import _masses
 
@@ -65,13 +67,15 @@ def test_mass_derivatives_equal_central_differences():
             u2, b0 = 0.0, max(b0, 1.0)
         p0 = np.array([rng.uniform(5, 25), a0, b0, u1, u2])
         row = rng.normal(size=n_ext)
+        mu = (a0 + b0) / 3
+        beta = rng.uniform(-0.6, 0.6) / max(mu, b0 - mu, 1e-9) if slope else 0.0
 
         def loss(p):
             buf = np.zeros(n_ext)
-            f, last, _ = _masses(buf, *p, 0.0, 0.0, n_ext)
+            f, last, _ = _masses(buf, *p, 0.0, 0.0, n_ext, beta)
             return float(np.dot(row[f:last + 1], buf[f:last + 1]))
 
-        out = mass_adjoint(row, *p0, 0.0, 0.0, n_ext)
+        out = mass_adjoint(row, *p0, 0.0, 0.0, n_ext, beta)
         assert out[0] == pytest.approx(loss(p0), abs=1e-12)
         for q in range(5):
             dp = np.zeros(5)
@@ -303,6 +307,22 @@ def _sum_cdf(z, u1, u2):
     return (R(z + h1 + h2) - R(z - h1 + h2) - R(z + h1 - h2) + R(z - h1 - h2)) / (u1 * u2)
 
 
+def _slope_case(rng, trial: int, span: float, widths: tuple[float, float]):
+    """A random pair with an element slope: knots ``0 <= a <= b`` below ``span`` bins (every 4th ``a = 0``, every
+    4th after that ``a = b``), widths in ``widths`` (every 4th ``w1`` infinitesimal, every 4th after that both; then
+    ``b >= 0.5``), and ``beta`` within the weight's clamp: ``(a, b, u1, u2, beta)``."""
+    a, b = sorted(rng.uniform(0, span, 2))
+    a = {1: 0.0, 2: b}.get(trial % 4, a)
+    u1, u2 = rng.uniform(*widths, 2)
+    if trial % 4 == 1:
+        u1 = 0.0
+    if trial % 4 == 2:
+        u1 = u2 = 0.0
+        b = max(b, 0.5)
+    mu = (a + b) / 3
+    return a, b, u1, u2, rng.uniform(-0.9, 0.9) / max(mu, b - mu, 1e-9)
+
+
 def test_element_slope_masses_equal_a_numerical_integral():
     """The masses with the element's amplitude slope (the weight ``1 + beta (A - mu)`` over the triangular part
     ``A``) equal ``int rho(A) (1 + beta (A - mu)) P(A + U_1 + U_2 in bin) dA`` integrated numerically (midpoint rule
@@ -313,15 +333,8 @@ def test_element_slope_masses_equal_a_numerical_integral():
     rng = np.random.default_rng(7)
     n_ext = 64
     for trial in range(40):
-        a, b = sorted(rng.uniform(0, 8, 2))
-        a = {1: 0.0, 2: b}.get(trial % 5, a)
-        u1, u2 = rng.uniform(0.2, 4, 2)
-        if trial % 4 == 1:
-            u1 = 0.0
-        if trial % 4 == 2:
-            u1 = u2 = 0.0
+        a, b, u1, u2, beta = _slope_case(rng, trial, 8.0, (0.2, 4.0))
         mu = (a + b) / 3
-        beta = rng.uniform(-1, 1) / max(mu, b - mu)
         tlo = rng.uniform(20, 30)
         buf = np.zeros(n_ext)
         first, last, inside = _masses(buf, tlo, a, b, u1, u2, 0.0, 0.0, n_ext, beta)
@@ -369,24 +382,17 @@ def test_element_slope_mass_sum_and_shift_derivative_equal_the_primal():
     """With the element's amplitude slope ``beta`` (and the cell's tilts), ``mass_adjoint``'s ``sum_j r_j m_j``
     equals the primal's, its ``t_lo`` derivative equals central differences of the primal and its ``beta``
     derivative the primal's difference over ``beta`` (the masses are linear in it), with both widths finite, one or
-    none infinitesimal (the slope term's own knot and width derivatives are not taken, as the cell's)."""
+    none infinitesimal (the knot and width derivatives with a slope: ``test_mass_derivatives_equal_central_differences``;
+    the cell tilts' own are not taken)."""
     from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
     from transient_mi.integrators._nlos_time_spread import _masses
 
     rng = np.random.default_rng(3)
     n_ext, h = 60, 1e-6
     for trial in range(300):
-        a0, b0 = sorted(rng.uniform(0, 6, 2))
-        a0 = {1: 0.0, 2: b0}.get(trial % 4, a0)
-        u1, u2 = rng.uniform(0.05, 5, 2)
-        if trial % 5 == 4:
-            u1 = 0.0
-        if trial % 7 == 6:
-            u1 = u2 = 0.0
-            b0 = max(b0, 0.5)
+        a0, b0, u1, u2, beta = _slope_case(rng, trial, 6.0, (0.05, 5.0))
         t1, t2 = (rng.uniform(-0.5, 0.5, 2) if u1 > 0 and u2 > 0 else (0.0, 0.0))
-        mu = (a0 + b0) / 3
-        beta = rng.uniform(-0.5, 0.5) / max(mu, b0 - mu, 1e-9)
+        beta *= 0.5  # (room left for the cell's tilts: the weight stays >= 0)
         p0 = np.array([rng.uniform(5, 40), a0, b0, u1, u2])
         row = rng.normal(size=n_ext)
 
@@ -407,43 +413,3 @@ def test_element_slope_mass_sum_and_shift_derivative_equal_the_primal():
         slope = (out[0] - m0) / beta if beta != 0.0 else out[6]
         assert out[6] == pytest.approx(slope, rel=1e-7, abs=1e-10), (trial, out[6], slope)
 
-
-def test_element_slope_mass_derivatives_equal_central_differences():
-    """With the element's amplitude slope ``beta`` (no cell tilt), every derivative ``mass_adjoint`` returns (along
-    ``t_lo, a, b, w1, w2``) equals central differences of the primal: the slope term's knot and width derivatives
-    are taken (``mu`` moving with the knots included), with both widths finite, one or none infinitesimal, and for
-    coincident knots."""
-    from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
-    from transient_mi.integrators._nlos_time_spread import _masses
-
-    rng = np.random.default_rng(11)
-    n_ext, h = 50, 1e-6
-    for trial in range(400):
-        kind = trial % 6
-        a0, b0 = sorted(rng.uniform(0.2, 6, 2))
-        a0 = {1: 0.0, 2: b0}.get(kind, a0)
-        u1, u2 = rng.uniform(0.05, 4, 2)
-        if kind >= 4:
-            u1 = 0.0
-        if kind == 5:
-            u2, b0 = 0.0, max(b0, 1.0)
-        mu = (a0 + b0) / 3
-        beta = rng.uniform(-0.6, 0.6) / max(mu, b0 - mu)
-        p0 = np.array([rng.uniform(5, 25), a0, b0, u1, u2])
-        row = rng.normal(size=n_ext)
-
-        def loss(p):
-            buf = np.zeros(n_ext)
-            f, last, _ = _masses(buf, *p, 0.0, 0.0, n_ext, beta)
-            return float(np.dot(row[f:last + 1], buf[f:last + 1]))
-
-        out = mass_adjoint(row, *p0, 0.0, 0.0, n_ext, beta)
-        assert out[0] == pytest.approx(loss(p0), abs=1e-12)
-        for q in range(5):
-            dp = np.zeros(5)
-            dp[q] = h
-            pp, pm = p0 + dp, p0 - dp
-            if pm[1] < 0 or pp[1] > pp[2] or pm[2] < pm[1] or min(pm[3:]) < 0 or (q >= 3 and p0[q] == 0):
-                continue  # (a one-sided neighbourhood, or a width the primal ignores)
-            fd = (loss(pp) - loss(pm)) / (2 * h)
-            assert abs(out[q + 1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, q, fd, out[q + 1])
