@@ -96,8 +96,10 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
     ``lambertian``: ``fx_e[e, s]`` (the BSDF with ``wi = wo``) and ``side_s[e, s]`` (the spot's side), a pair's
     ``f_x`` being ``fx_e`` when its cell lies on the spot's side and 0 otherwise.
 
-    A pair's light is ``geo f_p f_x sw`` times the visible share of its samples, spread by
-    :func:`~._nlos_time_spread.masses`; where the samples disagree, ``max(share, 1 - share)`` of it goes to
+    ``amp [n, 3]`` (per pair) and ``amp_s [n_e, G, 3]`` (per element and spot): the relative amplitudes at the
+    element's vertices whose regression on the knots is the element's slope (:func:`element_slope`; empty arrays:
+    none). A pair's light is ``geo f_p f_x sw`` times the visible share of its samples, spread by
+    :func:`~._nlos_time_spread.masses` with that slope; where the samples disagree, ``max(share, 1 - share)`` of it goes to
     ``bound`` and ``vis_err``.
     """
     n_pix = hist.shape[1]
@@ -255,7 +257,8 @@ def pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, are
 
 def pair_results(n: int) -> tuple:
     """Arrays for :func:`pair_geometry`'s results of ``n`` pairs: ``geo``, ``cos_p``, ``A [n, 3]``, ``w1``, ``w2``,
-    ``tilt [n, 2]`` (float64), ``side_x`` (int8), ``lit`` (bool); uninitialised (the kernel writes every row).
+    ``tilt [n, 2]`` (float64), ``side_x`` (int8), ``lit`` (bool), ``amp [n, 3]`` (float64); uninitialised (the
+    kernel writes every row).
 
     Allocated by numpy, which asks the kernel for huge pages for large arrays (``madvise``), and reused by a level's
     chunks: first touching fresh 4 KiB pages for about 75 bytes a pair (a chunk of 2^20 pairs: 80 MB), chunk after
@@ -293,8 +296,10 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
     varies, its albedo not) and ``side_x`` int8 (the side of the element's shading normal ``n_sh`` the cell
     centre lies on). The cell's shift is the mean deviation of the detector-side path length from its tangent
     plane over the cell: for a quadratic, 1/3 of the corner mean minus the centre (m). ``wall_n``: the wall's
-    unit normal. ``lit`` last. The results are written to the last eight arguments, in that order (``n = C ne``
-    rows, every one written).
+    unit normal. ``lit``, then ``amp[n, 3]``: the detector side's part of the weight at the element's vertices
+    over its value at the centroid (the wall's cosine at the cell times the element's over ``|V - p|^2``; 1 without
+    ``slope`` and for unlit pairs), which :func:`~._nlos_element_slope.slope_of` regresses on the knots. The results
+    are written to the last nine arguments, in that order (``n = C ne`` rows, every one written).
     """
     C = cell_p.shape[0]
     ne = e1 - e0
