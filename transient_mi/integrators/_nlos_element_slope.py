@@ -36,12 +36,10 @@ _TINY = 1e-12
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
-def slope_of(t0, t1, t2, r0, r1, r2, a, b, c1, c2):
-    """The element's amplitude slope per bin: the regression of the relative amplitudes ``r0, r1, r2`` at its
-    vertices (over the centroid's) on their arrival knots ``t0, t1, t2`` (bins; sorted they are ``t_lo``, ``t_lo +
-    a``, ``t_lo + b``), clamped so that the weight ``1 + beta (A - mu)`` (``A`` in ``[0, b]``, ``mu = (a + b) / 3``)
-    stays >= 0 with the cell's slopes ``c1``, ``c2`` at their worst (``1 - (|c1| + |c2|) / 2`` left to it); 0 for
-    an element of no spread."""
+def _regression(t0, t1, t2, r0, r1, r2, a, b, c1, c2):
+    """The regression :func:`slope_of` clamps, and what :func:`slope_adjoint` differentiates: ``(beta, lim, d0, d1,
+    d2, den, rm)`` with ``beta`` unclamped, ``lim`` its clamp (negative for an element of no spread: no slope),
+    ``d_v`` the knots' deviations from their mean, ``den`` their sum of squares and ``rm`` the amplitudes' mean."""
     tm = (t0 + t1 + t2) * (1.0 / 3.0)
     rm = (r0 + r1 + r2) * (1.0 / 3.0)
     d0 = t0 - tm
@@ -51,9 +49,21 @@ def slope_of(t0, t1, t2, r0, r1, r2, a, b, c1, c2):
     mu = (a + b) * (1.0 / 3.0)
     reach = max(mu, b - mu)
     if den <= 0.0 or reach <= 0.0:
-        return 0.0
+        return 0.0, -1.0, d0, d1, d2, den, rm
     beta = ((r0 - rm) * d0 + (r1 - rm) * d1 + (r2 - rm) * d2) / den
-    lim = max(1.0 - 0.5 * (abs(c1) + abs(c2)), 0.0) / reach
+    return beta, max(1.0 - 0.5 * (abs(c1) + abs(c2)), 0.0) / reach, d0, d1, d2, den, rm
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def slope_of(t0, t1, t2, r0, r1, r2, a, b, c1, c2):
+    """The element's amplitude slope per bin: the regression of the relative amplitudes ``r0, r1, r2`` at its
+    vertices (over the centroid's) on their arrival knots ``t0, t1, t2`` (bins; sorted they are ``t_lo``, ``t_lo +
+    a``, ``t_lo + b``), clamped so that the weight ``1 + beta (A - mu)`` (``A`` in ``[0, b]``, ``mu = (a + b) / 3``)
+    stays >= 0 with the cell's slopes ``c1``, ``c2`` at their worst (``1 - (|c1| + |c2|) / 2`` left to it); 0 for
+    an element of no spread."""
+    beta, lim = _regression(t0, t1, t2, r0, r1, r2, a, b, c1, c2)[:2]
+    if lim < 0.0:
+        return 0.0
     return min(max(beta, -lim), lim)
 
 
@@ -95,28 +105,18 @@ def _log_amplitude_grad(acc, x_at, X, o, n_e, wall_n, w):
 
 
 @numba.njit(cache=True, fastmath=False)
-def slope_adjoint(acc, f, s_e, tb, v0, v1, v2, beta, amp, amp_s, i, e, a, b, tilt, tri, X0, nrm, p, S, wall_n):
+def slope_adjoint(acc, f, s_e, tb, v0, v1, v2, amp, amp_s, i, e, a, b, tilt, tri, X0, nrm, p, S, wall_n):
     """Add the derivative of the element's slope (:func:`slope_of`, for pair ``i`` of element ``e`` and this spot:
     knots ``v0, v1, v2`` in vertex order, relative amplitudes ``amp[i, v] amp_s[e, v]``), weighted by the adjoint
     ``s_e`` of ``beta`` (per unit light; the pair's light ``f``), to the knots' adjoints ``tb`` (vertex order, per
     unit light: the caller scales them; these terms sum to 0, so the knots' common shift is unaffected) and to one
     element's accumulators ``acc`` (:func:`~._nlos_quadrature_geom.geometry_adjoint`'s layout: centroid 0:3, unit
     normal 3:6, vertices 7:16). A clamped slope has no derivative."""
-    tm = (v0 + v1 + v2) / 3.0
-    d0 = v0 - tm
-    d1 = v1 - tm
-    d2 = v2 - tm
-    den = d0 * d0 + d1 * d1 + d2 * d2
-    mu = (a + b) / 3.0
-    reach = max(mu, b - mu)
-    if den <= 0.0 or reach <= 0.0:
-        return
     r0 = amp[i, 0] * amp_s[e, 0]
     r1 = amp[i, 1] * amp_s[e, 1]
     r2 = amp[i, 2] * amp_s[e, 2]
-    rm = (r0 + r1 + r2) / 3.0
-    free = ((r0 - rm) * d0 + (r1 - rm) * d1 + (r2 - rm) * d2) / den
-    if abs(free) >= max(1.0 - 0.5 * (abs(tilt[i, 0]) + abs(tilt[i, 1])), 0.0) / reach:  # (clamped)
+    beta, lim, d0, d1, d2, den, rm = _regression(v0, v1, v2, r0, r1, r2, a, b, tilt[i, 0], tilt[i, 1])
+    if lim < 0.0 or abs(beta) >= lim:  # (no spread, or clamped: no derivative)
         return
     tb[0] += s_e * ((r0 - rm) - 2.0 * beta * d0) / den
     tb[1] += s_e * ((r1 - rm) - 2.0 * beta * d1) / den

@@ -69,8 +69,8 @@ def _knots(A, B, i, e, s):
 def element_slope(A, B, amp, amp_s, i, e, s, a, b, c1, c2):
     """:func:`slope_of` for pair ``i`` (element ``e``) with spot ``s``: knots ``A[i, v] + B[e, s, v]``, relative
     amplitudes ``amp[i, v] amp_s[e, s, v]`` (detector part per pair, laser part per element and spot); 0 without
-    them (empty arrays: ``element_slope=false``)."""
-    if amp.shape[0] == 0 or amp_s.shape[0] == 0:
+    the laser side's (empty ``amp_s``: ``element_slope=false``)."""
+    if amp_s.shape[0] == 0:
         return 0.0
     return slope_of(A[i, 0] + B[e, s, 0], A[i, 1] + B[e, s, 1], A[i, 2] + B[e, s, 2],
                     amp[i, 0] * amp_s[e, s, 0], amp[i, 1] * amp_s[e, s, 1], amp[i, 2] * amp_s[e, s, 2], a, b, c1, c2)
@@ -97,8 +97,8 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
     ``f_x`` being ``fx_e`` when its cell lies on the spot's side and 0 otherwise.
 
     ``amp [n, 3]`` (per pair) and ``amp_s [n_e, G, 3]`` (per element and spot): the relative amplitudes at the
-    element's vertices whose regression on the knots is the element's slope (:func:`element_slope`; empty arrays:
-    none). A pair's light is ``geo f_p f_x sw`` times the visible share of its samples, spread by
+    element's vertices whose regression on the knots is the element's slope (:func:`element_slope`; an empty
+    ``amp_s``: none). A pair's light is ``geo f_p f_x sw`` times the visible share of its samples, spread by
     :func:`~._nlos_time_spread.masses` with that slope; where the samples disagree, ``max(share, 1 - share)`` of it goes to
     ``bound`` and ``vis_err``.
     """
@@ -354,8 +354,9 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
         w1[i] = abs(s1)
         w2[i] = abs(s2)
         cell_shift = 0.0
+        # the detector side's amplitude parts at the centroid, which the cell's tilt and the element's slope share
+        n0, q0 = _amplitude_parts(X0[e], px, py, pz, nrm[e], wall_n) if has_cells or slope else (0.0, 1.0)
         if has_cells:
-            n0, q0 = _amplitude_parts(X0[e], px, py, pz, nrm[e], wall_n)
             a0 = w0_c[c, 0] * n0
             if a0 > 0.0:
                 for j in range(2):
@@ -384,11 +385,10 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
                     sz = pz + cu * ax[2] + cv * ay[2]
                     acc += np.sqrt((X0[e, 0] - sx) ** 2 + (X0[e, 1] - sy) ** 2 + (X0[e, 2] - sz) ** 2)
             cell_shift = (acc * 0.25 - (fl * rd_c[c] + r)) * (1.0 / 3.0)
-        nx0, qx0 = _amplitude_parts(X0[e], px, py, pz, nrm[e], wall_n) if slope else (0.0, 1.0)
-        if nx0 > 0.0:
+        if slope and n0 > 0.0:
             for v in range(3):
                 nv, qv = _amplitude_parts(tri[e, v], px, py, pz, nrm[e], wall_n)
-                amp[i, v] = nv * qx0 / (qv * nx0)
+                amp[i, v] = nv * q0 / (qv * n0)
         base = fl * rd_c[c] + 0.75 * (r - (r_pv0 + r_pv1 + r_pv2) * (1.0 / 3.0)) + cell_shift
         A[i, 0] = (base + r_pv0) * inv_bin
         A[i, 1] = (base + r_pv1) * inv_bin

@@ -133,6 +133,7 @@ class SpotSide:
         self.B, self.r_sv, self.r_sx = spot_knots(lv.tri, lv.X0, self.S, g.fl * self.laser_leg, g.bin_m,
                                        g.t0_m / g.bin_m - g.pad)
         self.sw = np.ascontiguousarray(self.intensity / self.r_sx ** 2)
+        # (empty without the element's slope: the kernels then give every pair the midpoint weight of before)
         self.amp_s = (laser_amplitudes(lv.tri, lv.X0, lv.nrm, self.S, np.asarray(setup.frame.normal, dtype=np.float64))
                       if g.element_slope else np.empty((0, 0, 3)))
         if lv.surf.lambertian:
@@ -167,8 +168,6 @@ class Chunk:
                               wall.n_sh, wall.side, e0, e1, g.cell_ax, g.cell_ay, g.fl, g.bin_m, g.N,
                               g.cell_half_diag > 0, g.normal, self.per_pixel, side.vis, side.side_s, wall.lambertian,
                               lv.surf.lambertian, confocal, out, g.element_slope)
-        if not g.element_slope:  # (no amplitudes: every pair's slope is 0, the midpoint weight of before)
-            self.amp = np.empty((0, 3))
         if wall.lambertian:
             self.f_p = (wall.value[:, None] * self.cos_p.reshape(C, self.ne)).reshape(-1)
         else:

@@ -177,8 +177,8 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
     ``r_pv``, ``r_px``, ``opl_d``, ``cell_shift`` (:func:`pair_lengths`), ``w1``, ``w2``. Per element (this spot): ``vis_s``, ``spot_weight``,
     ``r_sv``, ``r_sx``; ``tri``, ``X0``, ``nrm``, ``area`` of :func:`~._nlos_pairs.element_terms`. ``ax``,
     ``ay``: the cell's edge vectors (m); ``amp [n_pairs, 3]`` and ``amp_s [n, 3]`` (this spot): the relative
-    amplitudes at the vertices that give the element's slope (:func:`~._nlos_element_slope.slope_of`; empty
-    arrays: no slope); ``wall_n``: the relay wall's unit normal; ``D``: the detector; ``fl``: 1 when the detector
+    amplitudes at the vertices that give the element's slope (:func:`~._nlos_element_slope.slope_of`; an empty
+    ``amp_s``: no slope); ``wall_n``: the relay wall's unit normal; ``D``: the detector; ``fl``: 1 when the detector
     leg is in the path length. Lengths in metres, ``spot_opl`` the laser leg,
     ``t_origin_bins`` the padded axis's origin in path-length bins.
 
@@ -214,7 +214,7 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
         cx_e[j] = nrm[e, 0] * u0 + nrm[e, 1] * u1 + nrm[e, 2] * u2
         cs_e[j] = -(wall_n[0] * u0 + wall_n[1] * u1 + wall_n[2] * u2)
     n_ext = grad_ext.shape[1]
-    slope = amp.shape[0] > 0 and amp_s.shape[0] > 0  # (element_slope=false: no amplitudes, every slope 0)
+    slope = amp_s.shape[0] > 0  # (element_slope=false: no laser-side amplitudes, every slope 0)
     for tile in numba.prange(n_cb * n_eb):
         cb = tile // n_eb
         eb = tile - cb * n_eb
@@ -299,8 +299,8 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
                 tb[perm[1]] = s_a
                 tb[perm[2]] = s_b
                 if slope and s_e != 0.0:  # the element's slope through its knots and its vertices' amplitudes
-                    slope_adjoint(acc[cb, j], f, s_e, tb, v0, v1, v2, beta, amp, amp_s, i, e, a, b, tilt, tri, X0,
-                                  nrm, p, S, wall_n)
+                    slope_adjoint(acc[cb, j], f, s_e, tb, v0, v1, v2, amp, amp_s, i, e, a, b, tilt, tri, X0, nrm,
+                                  p, S, wall_n)
                 fb = f / bin_m
                 for v in range(3):
                     lb = fb * (tb[v] - 0.25 * s_t)  # knot v = (l_v + 0.75 (l_c - mean l) + shift) / bin_m - origin
