@@ -729,7 +729,8 @@ def test_noise_target_refines_the_part_of_the_error_that_sets_it():
     """The refinement plan (:func:`~transient_mi.noise_target_quadrature.plan_quadrature_level`) refines the part of the error
     that sets the ratio: a visibility refinement level where the mixed-visibility bound dominates (elements and
     cells kept), more cells per side (an even count) where the one-cell estimate dominates, smaller elements where theirs does
-    (cells kept with one per side); the planned shares meet ``PLAN_MARGIN`` x the target."""
+    (cells kept with one per side, the one-cell estimate's share shrinking with them); the planned shares meet
+    ``PLAN_MARGIN`` x the target."""
     from transient_mi.integrators._nlos_elements import element_scale_m
     from transient_mi.noise_target import PLAN_MARGIN
     from transient_mi.noise_target_quadrature import (ELEMENTS_ORDER, QUADRATURE_ELEMENT_STEP,
@@ -755,6 +756,13 @@ def test_noise_target_refines_the_part_of_the_error_that_sets_it():
     assert (m, rl) == (1, 1)
     assert element_scale_m(sq, h) <= QUADRATURE_ELEMENT_STEP ** steps * element_scale_m(sq, 0.01) * (1 + 1e-9)
     assert element_scale_m(sq, h / 0.95) > QUADRATURE_ELEMENT_STEP ** steps * element_scale_m(sq, 0.01)  # no finer
+    # the elements dominate and the one-cell estimate is the smallest part (the demo's 4 x 4 array at 1 s per spot,
+    # target 0.01): the elements' steps shrink its share as well (it is estimated on the coarse elements,
+    # CELLS_ELEMENTS_ORDER), so one cell per side is kept; without that the plan took a second cell per side
+    # (four times the pairs) for a part that the elements' steps left at a tenth of the target
+    h, m, rl = plan_quadrature_level(sq, 0.03, 0.04, 1, 1, 0.76, {"visibility": 0.189, "elements": 0.361,
+                                                                  "cells": 0.011}, 0.01)
+    assert (m, rl) == (1, 3) and h < 0.04
     # visibility beyond its cap goes to the elements
     h, m, rl = plan_quadrature_level(sq, 0.03, 0.01, 1, QUADRATURE_MAX_REFINE_LEVELS, 0.2, {"visibility": 0.2},
                                      0.1)

@@ -26,13 +26,22 @@ QUADRATURE_ELEMENT_STEP = 0.9
 #: the demo's 8 x 8 capture at 1 s per spot it fell as the size to the 2.6-3.0 (13.6-24.3 mm against 40 mm,
 #: ``bench/results/quadrature_parts_a8_e1000ms.json``), so 2.5 plans a little finer than the measured fall.
 ELEMENTS_ORDER = 2.5
+#: The order at which the plan takes the cells' part (one cell per side; a share, the square root of its ratio) to
+#: fall with the elements' size: it is estimated on the coarse elements (:func:`~transient_mi.integrators.
+#: _nlos_quadrature.cell_estimate_level`), and on the demo's 8 x 8 capture at 1 s per spot its ratio fell from
+#: 0.0087 to 0.0010 as the elements went from 40 to 13.6 mm at one cell, as the size to the 1.97th power
+#: (``bench/results/quadrature_parts_a8_e1000ms.json``): its share as the size to the first.
+CELLS_ELEMENTS_ORDER = 1.0
 
 
 #: Half the largest power of the element size that a whole ratio was seen to grow as when a series' next capture
-#: started coarser (:func:`coarser_start`): on the demo at 1 s per spot the 32 x 32 array started 1.12 times
-#: coarser than the 16 x 16 one's settings gave 0.124 against 0.053, the size to the 7.5th power (the elements'
-#: part, a bound, falls as the size to 2.6-3.0 within one capture: ``bench/results/quadrature_parts_a8_e1000ms.json``).
-COARSEN_ORDER = 3.75
+#: started coarser (:func:`coarser_start`): on the demo at 1 s per spot and the target 0.1 the 32 x 32 array started
+#: 1.11 times coarser than the 16 x 16 one's settings (26.0 mm against 23.4 mm, 2026-12-07) gave 0.103 against
+#: 0.036, the size to the 9.9th power, and needed a second round (56 s each); the 16 x 16 array's own settings give
+#: the 32 x 32 one 0.048, so a part of that growth is the larger array's, not the elements'. Before, 1.12 times
+#: gave 0.124 against 0.053 (the size to the 7.5th; 3.75 until 2026-12-07). The elements' part, a bound, falls as the
+#: size to 2.6-3.0 within one capture (``bench/results/quadrature_parts_a8_e1000ms.json``).
+COARSEN_ORDER = 5.0
 #: The most :func:`coarser_start` enlarges the elements by.
 MAX_COARSEN = 1.5
 
@@ -180,6 +189,8 @@ def plan_quadrature_level(tri, footprint_m: float, h: float, m: int, refine_leve
             b["elements"] = b.get("elements", 0.0) * QUADRATURE_ELEMENT_STEP ** ELEMENTS_ORDER
             if "visibility" in b:
                 b["visibility"] *= QUADRATURE_ELEMENT_STEP
+            if "cells" in b:
+                b["cells"] *= QUADRATURE_ELEMENT_STEP ** CELLS_ELEMENTS_ORDER
         else:
             break  # (this round's refinement is as large as one round may take; the next round measures again)
     if f < 1.0:
