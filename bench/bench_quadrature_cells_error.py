@@ -30,7 +30,6 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _record  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
 #: The letter's spots rendered (of its 4 x 4, row-major): the four on a diagonal, corners to centre.
 SPOTS = (0, 5, 10, 15)
 
@@ -48,16 +47,12 @@ def main(argv=None) -> int:
     import numpy as np
 
     import transient_mi  # noqa: F401
-    from spad_detector import DetectorParams
-    from transient_mi.noise_target import NoiseTargetSpec, TargetRun
+    from _quadrature_jobs import letter_job
+    from transient_mi.noise_target import TargetRun
     from transient_mi.noise_target_quadrature import quadrature_ratio
-    from transient_mi.render_capture import prepare_render
 
-    spec = NoiseTargetSpec(target=0.1, params=DetectorParams(auto_gate=True), exposure_s=a.exposure_ms * 1e-3)
     with tempfile.TemporaryDirectory() as tmp:  # (nothing is written: the job gives the scene and its manifest)
-        job = prepare_render(ROOT / "scenes" / "nlos_letter.xml", Path(tmp) / "q",
-                             defines={"estimator": "quadrature", "width": a.array, "height": a.array}, spp=1, seed=0,
-                             noise_target=spec)
+        job, spec = letter_job(tmp, a.array, a.exposure_ms)
     scene, integ, sensor = job.scene, job.integrator, job.sensor
     run = TargetRun(spec, job.manifest)
 

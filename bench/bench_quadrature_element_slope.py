@@ -38,7 +38,6 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _record  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
 #: (element_size_m, patch_cells, refine_levels) per row, and the reference's, per capture.
 CAPTURES = {
     "letter": {"rows": ((0.02, 6, 1), (0.014, 6, 1), (0.01, 6, 1), (0.02, 8, 1)), "reference": (0.004, 6, 1),
@@ -50,22 +49,12 @@ LETTER_SPOTS = (0, 5, 10, 15)
 
 
 def _job(capture: str, exposure_ms: float, tmp: str):
-    from spad_detector import DetectorParams
-    from transient_mi.noise_target import NoiseTargetSpec
-    from transient_mi.paper import DemoSettings, paper_detector, scene_file
-    from transient_mi.render_capture import prepare_render
+    from _quadrature_jobs import letter_job, paper_demo_job
 
     if capture == "letter":
-        spec = NoiseTargetSpec(target=0.1, params=DetectorParams(auto_gate=True), exposure_s=exposure_ms * 1e-3)
-        job = prepare_render(ROOT / "scenes" / "nlos_letter.xml", Path(tmp) / "q",
-                             defines={"estimator": "quadrature", "width": 8, "height": 8}, spp=1, seed=0,
-                             noise_target=spec)
+        job, spec = letter_job(tmp, 8, exposure_ms)
         return job, spec, list(LETTER_SPOTS)
-    ds = DemoSettings()
-    cfg = ds.config(8)
-    spec = NoiseTargetSpec(target=ds.noise_target, params=paper_detector(), exposure_s=exposure_ms * 1e-3)
-    job = prepare_render(scene_file(), Path(tmp) / "q", defines=cfg.defines(), spp=cfg.spp, seed=0,
-                         noise_target=spec)
+    job, spec = paper_demo_job(tmp, 8, exposure_ms * 1e-3)
     return job, spec, list(range(job.manifest["n_files"]))
 
 

@@ -31,18 +31,13 @@ DEFAULT_SETTINGS = ("0.04,1,1", "0.04,2,1", "0.04,1,2", "0.04,1,3", "0.028,1,1",
 
 def measure(array: int, exposure_s: float, settings: list[tuple[float, int, int]]) -> dict:
     import transient_mi  # noqa: F401
-    from transient_mi.noise_target import NoiseTargetSpec, TargetRun
+    from _quadrature_jobs import paper_demo_job
+    from transient_mi.noise_target import TargetRun
     from transient_mi.noise_target_quadrature import quadrature_part_ratios, quadrature_ratio
-    from transient_mi.paper import DemoSettings, paper_detector, scene_file
-    from transient_mi.render_capture import prepare_render
 
-    ds = DemoSettings()
-    cfg = ds.config(array)
-    spec = NoiseTargetSpec(target=ds.noise_target, params=paper_detector(), exposure_s=exposure_s)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        job = prepare_render(scene_file(), Path(tmp) / "ideal", defines=cfg.defines(), spp=cfg.spp, seed=0,
-                             noise_target=spec)
+        job, spec = paper_demo_job(tmp, array, exposure_s)
         run = TargetRun(spec, dict(job.manifest))
         opts = job.integrator.nlos_options
         spots = list(range(job.manifest["n_files"]))
