@@ -153,8 +153,9 @@ def plan_quadrature_level(tri, footprint_m: float, h: float, m: int, refine_leve
     * ``visibility`` (the light of elements whose visibility samples disagree): one more visibility refinement
       level halves the mixed area (at most :data:`QUADRATURE_MAX_REFINE_LEVELS`; beyond, the elements shrink);
     * ``elements`` (second order): their size (:func:`~transient_mi.integrators._nlos_elements.element_scale_m`)
-      shrinks by :data:`QUADRATURE_ELEMENT_STEP`, its part by the step's square and the visibility part by the
-      step (the mixed area is a band one element wide), down to
+      shrinks by :data:`QUADRATURE_ELEMENT_STEP`, its part by the step to :data:`ELEMENTS_ORDER`, the visibility
+      part by the step (the mixed area is a band one element wide) and the cells' part by the step to
+      :data:`CELLS_ELEMENTS_ORDER` (it is estimated on the coarse elements), down to
       :data:`QUADRATURE_MIN_FACTOR` in one round (:func:`_next_quadrature_level`, which refines the cells as well
       where they are larger than the elements and several per side: their part is then in this one);
     * ``cells`` (one cell per patch side, second order): the next even count per side (:func:`_even_cells`: an odd
