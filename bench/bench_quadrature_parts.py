@@ -34,7 +34,9 @@ def measure(array: int, exposure_s: float, settings: list[tuple[float, int, int]
     from _quadrature_jobs import paper_demo_job
     from transient_mi.noise_target import TargetRun
     from transient_mi.noise_target_quadrature import quadrature_part_ratios, quadrature_ratio
+    from transient_mi.paper import DemoSettings
 
+    ds = DemoSettings()  # (the settings paper_demo_job renders: named in the record)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         job, spec = paper_demo_job(tmp, array, exposure_s)

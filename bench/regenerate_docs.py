@@ -52,6 +52,7 @@ from docgen.recon import (  # noqa: E402
 from docgen.quadrature import (  # noqa: E402
     PAPER_ESTIMATORS, PROFILE_COMPARE, QUADRATURE_PARTS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, REFINEMENT_RULE,
     CELLS_ERROR, ELEMENT_SLOPE, SCENE_SETTINGS, cells_error_table, element_slope_inline, element_slope_table, paper_estimators_table, profile_compare_inline, quadrature_parts_table, quadrature_settings_table,
+    QUADRATURE_PARTS_A4, cells_plan_para,
     quadrature_cost_inline,
     quadrature_inline, quadrature_profile_inline, quadrature_table, refinement_rule_inline, scene_settings_table,
 )
@@ -121,6 +122,7 @@ GENERATORS = {
     "paper_estimators": (paper_estimators_table, list(PAPER_ESTIMATORS), False),
     "quadrature_settings": (quadrature_settings_table, [QUADRATURE_SETTINGS], False),
     "quadrature_parts": (quadrature_parts_table, [QUADRATURE_PARTS], False),
+    "cells_plan": (cells_plan_para, [QUADRATURE_PARTS_A4], False),
     "quadrature_scene_settings": (scene_settings_table, list(SCENE_SETTINGS), False),
     "quadrature_cells_error": (cells_error_table, [CELLS_ERROR], False),
     "element_slope": (element_slope_table, [ELEMENT_SLOPE], False),

@@ -221,6 +221,30 @@ def quadrature_parts_table(R) -> str:
             f"{res['ratio']}. {provenance(rec)})\n")
 
 
+#: The demo's 4 x 4 array at 1 s per spot: its first round and where the plan ended with two cells and with one.
+QUADRATURE_PARTS_A4 = "quadrature_parts_a4_e1000ms"
+
+
+def cells_plan_para(R) -> str:
+    """The demo's 4 x 4 array at 1 s per spot: the first round's parts, and the two cells per side the plan took
+    before it counted the cells' part falling with the elements against the one it keeps now (ratios and pairs;
+    rows 0, 2 and 4 of the record, as its command lists them)."""
+    rec = R(QUADRATURE_PARTS_A4)
+    first, two, one = (rec["result"]["rows"][i] for i in (0, 2, 4))
+    p = first["parts"]
+
+    def setting(r):
+        return (f"{1000 * r['element_size_m']:.1f} mm, {r['patch_cells']} cell{'s' if r['patch_cells'] > 1 else ''} "
+                f"per side and {r['refine_levels']} visibility levels")
+
+    return (f"On the demo's 4 x 4 array at 1 s per spot the first round (the scene's "
+            f"{1000 * first['element_size_m']:g} mm, one cell, one level) states {_r(first['ratio'])}: visibility "
+            f"{_r(p['visibility'])}, elements {_r(p['elements'])}, cells {_r(p['cells'])}. Holding the cells' part "
+            f"fixed, the plan took a second cell per side and the array ended at {setting(two)} ({_r(two['ratio'])}, "
+            f"{two['pairs']:,} pairs); counting its fall, it ends at {setting(one)} ({_r(one['ratio'])}, "
+            f"{one['pairs']:,} pairs, {two['pairs'] / one['pairs']:.1f} times fewer). {provenance(rec)}\n")
+
+
 #: The paper scene's render-call profile and the same with the code before the latest change to the quadrature (run
 #: right after it on the same machine; its note names the commit).
 PROFILE_COMPARE = ("quadrature_profile_paper", "quadrature_profile_paper_before_pages")
