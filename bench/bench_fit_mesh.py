@@ -156,6 +156,9 @@ def main() -> None:
                     help="weight of the carving's total-variation prior (default: the fit's, mesh_carve.TV_WEIGHT)")
     ap.add_argument("--reflectance", default="global", choices=("global", "face"),
                     help="one reflectance for the mesh, or one per face (the record's name gets '_face')")
+    ap.add_argument("--start", default="front", choices=("front", "closed"),
+                    help="the backprojection's front surface (the fit's default) or a closed surface around its "
+                         "occupied voxels (--start closed; such a start is not carved by default)")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "bench_fit_mesh")
     ap.add_argument("--figure", type=Path, default=None, help="also copy the fit's views.png here")
     ap.add_argument("--pixel-step", type=int, default=None,
@@ -175,7 +178,7 @@ def main() -> None:
     res = fit_capture(counts, a.work / f"fit_{a.scene}", model="mesh", bin_width_ps=16.0, overwrite=True,
                       settings=FitSettings(iterations=a.iterations, sigma_start_ps=150.0,
                                            element_size_m=a.element_size_m),
-                      mesh=MeshSettings(cell_m=a.cell_m, stages=a.stages, moments=a.moments, step_m=a.step_m,
+                      mesh=MeshSettings(start=a.start, cell_m=a.cell_m, stages=a.stages, moments=a.moments, step_m=a.step_m,
                                         align=a.align, reflectance=a.reflectance, grow=a.grow,
                                         pixel_step=a.pixel_step,
                                         **({} if a.carve is None else {"carve": a.carve}),
@@ -186,7 +189,7 @@ def main() -> None:
     keys = ("chamfer_mesh_m", "chamfer_m", "iou", "silhouette_iou", "depth_mae_m")
     rows = {k: {c: m[k].get(c) for c in keys} for k in ("fit", "carved", "aligned", "start", "backprojection")
             if k in m}
-    result = {"scene": a.scene, "width": a.width, "spots": a.spots, "exposure_ms": a.exposure_ms,
+    result = {"scene": a.scene, "width": a.width, "spots": a.spots, "exposure_ms": a.exposure_ms, "start": a.start,
               "iterations": a.iterations, "stages": a.stages, "cell_m": a.cell_m, "element_size_m": a.element_size_m,
               "moments": a.moments, "step_m": a.step_m, "align": a.align, "align_albedo": res["align"]["albedo"],
               "carve": carve_iterations(MeshSettings(**res["config"]["mesh"])) if res.get("carve") else 0,

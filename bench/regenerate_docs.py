@@ -60,6 +60,7 @@ from docgen.nlos_quadrature import array_speedup_inline, nlos_quadrature_table, 
 from docgen.fit_mesh import (GROWTH_PAIRS, fit_mesh_full_table, fit_mesh_growth_table,  # noqa: E402
                               fit_mesh_mannequin_para, fit_mesh_pixel_step_inline, fit_mesh_plane_table,
                               fit_mesh_table, fit_mesh_topology_table, fit_mesh_topology_16_table, TOPOLOGY_16,
+                              TOPOLOGY_CLOSED, fit_mesh_topology_closed_table,
                               visibility_memo_para)
 from docgen.studies import (  # noqa: E402
     studies_para, _study_inline, dataset_para, dataset_docs_table, dataset_nlos_inline, view_para, view_docs_table,
@@ -135,6 +136,7 @@ GENERATORS = {
     "fit_mesh_plane": (fit_mesh_plane_table, ["fit_mesh_tilted_plane"], False),
     "fit_mesh_topology": (fit_mesh_topology_table, ["fit_mesh_chair", "fit_mesh_holed_plate"], False),
     "fit_mesh_topology_16": (fit_mesh_topology_16_table, list(TOPOLOGY_16), False),
+    "fit_mesh_topology_closed": (fit_mesh_topology_closed_table, list(TOPOLOGY_CLOSED), False),
     "fit_mesh_full": (fit_mesh_full_table, ["fit_mesh_letter_16", "fit_mesh_tilted_plane_16"], False),
     "fit_mesh_mannequin": (fit_mesh_mannequin_para, ["fit_mesh_mannequin", "fit_mesh_mannequin_step2",
                                                      "fit_mesh_mannequin_step4"], False),

@@ -210,6 +210,18 @@ def fit_mesh_topology_16_table(R) -> str:
     return _topology_table([R(n) for n in TOPOLOGY_16], "on 16 x 16 pixels, at the same defaults")
 
 
+#: The shapes of other topology from a closed start (:func:`fit_mesh_topology_closed_table`).
+TOPOLOGY_CLOSED = ["fit_mesh_chair_closed", "fit_mesh_holed_plate_closed"]
+
+
+def fit_mesh_topology_closed_table(R) -> str:
+    """The shapes of other topology from a closed start (``--start closed``, not carved), as
+    :func:`fit_mesh_topology_table`."""
+    return _topology_table([R(n) for n in TOPOLOGY_CLOSED],
+                           "from a closed surface around the backprojection's occupied voxels (`--start closed`), "
+                           "otherwise at the same configuration and defaults")
+
+
 def _topology_table(recs: list, where: str) -> str:
     """The table of the records ``recs`` (of one configuration, ``where`` it ran), their captures and provenance."""
     names = {"chair": "chair (six boxes)", "holed_plate": "plate with a hole"}
