@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import tempfile
@@ -34,15 +35,16 @@ def measure(array: int, exposure_s: float, settings: list[tuple[float, int, int]
     from _quadrature_jobs import paper_demo_job
     from transient_mi.noise_target import TargetRun
     from transient_mi.noise_target_quadrature import quadrature_part_ratios, quadrature_ratio
-    from transient_mi.paper import DemoSettings
 
-    ds = DemoSettings()  # (the settings paper_demo_job renders: named in the record)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         job, spec = paper_demo_job(tmp, array, exposure_s)
         run = TargetRun(spec, dict(job.manifest))
         opts = job.integrator.nlos_options
         spots = list(range(job.manifest["n_files"]))
+        side = math.isqrt(len(spots))  # (the demo's square scan grid)
+        config = (f"the demo's capture: {array} x {array} pixels, {side} x {side} spots, "
+                  f"{job.manifest['time']['bin_width_ps']:g} ps bins, the paper's detector")
         for h, m, rl in settings:
             opts.update(element_size_m=h, patch_cells=m, refine_levels=rl, error_parts=True)
             t0 = time.perf_counter()
@@ -58,9 +60,7 @@ def measure(array: int, exposure_s: float, settings: list[tuple[float, int, int]
             print(rows[-1], file=sys.stderr, flush=True)
             del res
     return {"scene": "transient_mi/scenes/paper_mannequin.xml", "array": array,
-            "config": f"the demo's capture: {array} x {array} pixels, {ds.spots} x {ds.spots} spots, "
-                      f"{ds.bin_width_ps:g} ps bins, the paper's detector",
-            "exposure_ms": exposure_s * 1e3, "target": ds.noise_target,
+            "config": config, "exposure_ms": exposure_s * 1e3, "target": spec.target,
             "ratio": "rendering-error over photon noise, squared, as detect states it (headline over bin classes), "
                      "worst spot; parts: the ratio each part of the error gives alone",
             "rows": rows}

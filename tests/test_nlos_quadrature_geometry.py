@@ -382,8 +382,8 @@ def test_element_slope_mass_sum_and_shift_derivative_equal_the_primal():
     """With the element's amplitude slope ``beta`` (and the cell's tilts), ``mass_adjoint``'s ``sum_j r_j m_j``
     equals the primal's, its ``t_lo`` derivative equals central differences of the primal and its ``beta``
     derivative the primal's difference over ``beta`` (the masses are linear in it), with both widths finite, one or
-    none infinitesimal (the knot and width derivatives with a slope: ``test_mass_derivatives_equal_central_differences``;
-    the cell tilts' own are not taken)."""
+    none infinitesimal (the knot and width derivatives with a slope:
+    ``test_mass_derivatives_equal_central_differences``; the cell tilts' own are not taken)."""
     from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
     from transient_mi.integrators._nlos_time_spread import _masses
 

@@ -227,10 +227,12 @@ QUADRATURE_PARTS_A4 = "quadrature_parts_a4_e1000ms"
 
 def cells_plan_para(R) -> str:
     """The demo's 4 x 4 array at 1 s per spot: the first round's parts, and the two cells per side the plan took
-    before it counted the cells' part falling with the elements against the one it keeps now (ratios and pairs;
-    rows 0, 2 and 4 of the record, as its command lists them)."""
+    before it counted the cells' part falling with the elements against the one it keeps now (ratios and pairs:
+    the record's first row, and its last rows with two cells and with one, the finest of each)."""
     rec = R(QUADRATURE_PARTS_A4)
-    first, two, one = (rec["result"]["rows"][i] for i in (0, 2, 4))
+    rows = rec["result"]["rows"]
+    first = rows[0]
+    two, one = ([r for r in rows[1:] if r["patch_cells"] == m][-1] for m in (2, 1))
     p = first["parts"]
 
     def setting(r):

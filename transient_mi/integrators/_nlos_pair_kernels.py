@@ -99,8 +99,8 @@ def spread_group(hist, bound, steady, vis_err, outside, per_pixel, e0, ne, geo, 
     ``amp [n, 3]`` (per pair) and ``amp_s [n_e, G, 3]`` (per element and spot): the relative amplitudes at the
     element's vertices whose regression on the knots is the element's slope (:func:`element_slope`; an empty
     ``amp_s``: none). A pair's light is ``geo f_p f_x sw`` times the visible share of its samples, spread by
-    :func:`~._nlos_time_spread.masses` with that slope; where the samples disagree, ``max(share, 1 - share)`` of it goes to
-    ``bound`` and ``vis_err``.
+    :func:`~._nlos_time_spread.masses` with that slope; where the samples disagree, ``max(share, 1 - share)`` of it
+    goes to ``bound`` and ``vis_err``.
     """
     n_pix = hist.shape[1]
     n_ext = hist.shape[2]
