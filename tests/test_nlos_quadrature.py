@@ -403,6 +403,54 @@ def test_shared_pairs_agree_with_children_in_every_pair():
     assert np.abs(a - b).max() <= float(shared.error_bound.max()) + float(children.error_bound.max())
 
 
+def test_refinement_tests_children_with_the_pairs_their_ancestors_give_them(monkeypatch):
+    """With shared pairs a child's visibility is tested from the pairs its ancestors give it only
+    (``owned_only`` of :func:`~transient_mi.integrators._nlos_refinement.refine_visibility`): the others are
+    integrated by an ancestor, so splitting a child for them adds elements that integrate nothing. On the target
+    half hidden behind a smaller occluder (three refinement levels) the restricted test traces fewer pairs, splits
+    no more elements than the test of every pair, and the two captures agree: every pixel's total within the sum of
+    their stated total errors, the largest bin difference within the sum of the largest per-bin errors.
+    Deterministic."""
+    import transient_mi.integrators._nlos_quadrature as quad
+    import transient_mi.integrators._nlos_refinement as refinement
+
+    traced = []
+    trace = refinement.visibility_masks
+
+    def counted(scene, cell_p, normal, pts, e0, e1, idx=None):
+        traced[-1] += len(cell_p) * (e1 - e0) if idx is None else len(idx)
+        return trace(scene, cell_p, normal, pts, e0, e1, idx)
+
+    monkeypatch.setattr(refinement, "visibility_masks", counted)
+
+    def scene():
+        return nlos_scene(width=3, height=3, footprint=0.05, include_wall_return=False, n_bins=256,
+                          bin_width_ps=16.0, t0_ps=8000.0,
+                          hidden=[square((0.0, 0.0, 0.5), 0.2, 0.7, id_="far"),
+                                  square((0.05, 0.05, 0.3), 0.08, 0.5, id_="near")])
+
+    opts = dict(element_size_m=0.02, patch_cells=2, refine_levels=3)
+    traced.append(0)
+    owned = _render(scene(), **opts)
+    every_pair = quad.refine_visibility
+
+    def test_every_pair(*a, **k):
+        return every_pair(*a, **{**k, "owned_only": False})
+
+    monkeypatch.setattr(quad, "refine_visibility", test_every_pair)
+    traced.append(0)
+    full = _render(scene(), **opts)
+    assert owned.estimator_info["refine_levels"] >= 2  # (children were tested)
+    assert 0 < traced[0] < traced[1]
+    assert owned.estimator_info["elements"] <= full.estimator_info["elements"]
+    a, b = (r.histogram.astype(np.float64) for r in (owned, full))
+    ta, tb = a.sum(-1), b.sum(-1)
+    assert tb.min() > 0
+    err = owned.total_error_bound.astype(np.float64) + full.total_error_bound.astype(np.float64)
+    assert (np.abs(ta - tb) <= err + 1e-6 * tb).all()
+    assert np.abs(a - b).max() <= float(owned.error_bound.max()) + float(full.error_bound.max())
+
+
 @pytest.mark.parametrize("capture", ["array", "confocal"])
 def test_general_bsdf_path_equals_the_lambertian_one(capture, monkeypatch):
     """Lambertian BSDFs are evaluated once per (element, spot) and per wall cell, each pair applying the hemisphere
@@ -926,3 +974,13 @@ def test_pair_geometry_lit_is_the_stated_rule_and_reused_buffers_change_nothing(
             if not want:
                 assert not A[i].any() and w1[i] == 0.0 and w2[i] == 0.0 and not tilt[i].any() and (amp[i] == 1.0).all()
         assert 0 < int(lit.sum()) < C * n_e  # (both kinds of pairs were met)
+        # the pairs a refined level gives to other elements: no light and no geometry; the owned ones unchanged
+        owned = rng.random(C * n_e) < 0.5
+        part = pair_geometry(*args, owned=owned)
+        for a, b in zip(fresh, part):
+            assert a[owned].tobytes() == b[owned].tobytes()
+        g2, c2, A2, w12, w22, t2, s2, lit2, amp2 = part
+        off = ~owned
+        assert not lit2[off].any() and not g2[off].any() and not c2[off].any() and not s2[off].any()
+        assert not A2[off].any() and not w12[off].any() and not w22[off].any() and not t2[off].any()
+        assert (amp2[off] == 1.0).all()

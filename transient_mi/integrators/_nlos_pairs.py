@@ -163,17 +163,17 @@ class Chunk:
         self.e0, self.e1, self.ne = e0, e1, e1 - e0
         self.n = C * self.ne
         self.per_pixel = g.m * g.m * self.ne
+        # (each pair once: with a split element or with its children)
+        owned = None if lv.refinement is None else lv.refinement.owned(C, e0, self.ne)
         (self.geo, self.cos_p, self.A, self.w1, self.w2, self.tilt, self.side_x,
          lit, self.amp) = pair_geometry(g.cell_p, g.cell_w0, *g.cell_terms, lv.X0, lv.tri, lv.nrm, lv.area, lv.surf.n_sh,
                               wall.n_sh, wall.side, e0, e1, g.cell_ax, g.cell_ay, g.fl, g.bin_m, g.N,
                               g.cell_half_diag > 0, g.normal, self.per_pixel, side.vis, side.side_s, wall.lambertian,
-                              lv.surf.lambertian, confocal, out, g.element_slope)
+                              lv.surf.lambertian, confocal, out, g.element_slope, owned)
         if wall.lambertian:
             self.f_p = (wall.value[:, None] * self.cos_p.reshape(C, self.ne)).reshape(-1)
         else:
             self.f_p = np.asarray(wall.pair_values(g.cell_p, lv.X0, e0, e1), dtype=np.float64)
-        if lv.refinement is not None:  # (each pair once: with a split element or with its children)
-            lv.refinement.restrict(lit, e0, self.ne)
         known = lv.traced_cells(g.cell_p, e0, e1)  # [C, k]: the first k elements' masks, traced already
         k = 0 if known is None else known.shape[1]
         if k == self.ne:

@@ -271,7 +271,7 @@ def level_elements(scene, setup, g: _Geometry, options: dict, spot_ids, hidden_p
     tri_f, src_f, levels, prov, traced, split = refine_visibility(
         scene, setup, g if m_test == g.m else g.with_cells(m_test), spot_ids, tri_f, src_f,
         int(options.get("refine_levels", DEFAULT_REFINE_LEVELS)), prov, keep_cells=m_test == g.m, faces=faces,
-        hidden_ptrs=hidden_ptrs, confocal=confocal)
+        hidden_ptrs=hidden_ptrs, confocal=confocal, owned_only=pair_refinement(options))
     refinement = None
     if split is not None and pair_refinement(options):
         refinement = Refinement(*split, refinement_cells_of(g, m_test), cell_spots(g, confocal))
