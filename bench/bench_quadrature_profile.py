@@ -16,10 +16,13 @@ and CPU time (every thread of the process) of each stage, taken by wrapping the 
 
 Scenes: ``--scene letter`` (``scenes/nlos_letter.xml`` at its defaults: the README capture) or ``paper`` (the
 paper scene at ``--array`` pixels, 2 x 2 spots, ``--bin-width-ps`` bins (default 1 ps) over the demo's 11.5 ns, its
-quadrature defaults).
+quadrature defaults, or the settings ``--element-size-m``, ``--patch-cells`` and ``--refine-levels`` give; the
+compiling render then has ``--warm-array`` pixels per side, default ``--array``).
 
     python bench/bench_quadrature_profile.py --scene letter --save
     python bench/bench_quadrature_profile.py --scene paper --save
+    python bench/bench_quadrature_profile.py --scene paper --element-size-m 0.010346866916648621 --patch-cells 1 \
+        --refine-levels 3 --warm-array 4 --save      # the demo's 32 x 32 capture at 1 s per spot
 """
 
 from __future__ import annotations
@@ -84,13 +87,19 @@ def _n_bins(bin_width_ps: float) -> int:
     return int(round(demo.n_bins * demo.bin_width_ps / bin_width_ps))
 
 
-def _defines(a) -> tuple[Path, dict]:
+def _settings(a) -> dict:
+    """The quadrature settings the command line gives (``PaperConfig``'s names; empty: the scene's defaults)."""
+    given = {"element_size_m": a.element_size_m, "patch_cells": a.patch_cells, "refine_levels": a.refine_levels}
+    return {k: v for k, v in given.items() if v is not None}
+
+
+def _defines(a, array: int | None = None) -> tuple[Path, dict]:
     if a.scene == "letter":
         return ROOT / "scenes" / "nlos_letter.xml", {}
     from transient_mi.paper import PaperConfig, scene_file
 
-    cfg = PaperConfig(array=a.array, spots=2, spp=1024, bin_width_ps=a.bin_width_ps,
-                      n_bins=_n_bins(a.bin_width_ps), estimator="quadrature")
+    cfg = PaperConfig(array=a.array if array is None else array, spots=2, spp=1024, bin_width_ps=a.bin_width_ps,
+                      n_bins=_n_bins(a.bin_width_ps), estimator="quadrature").replace(**_settings(a))
     return Path(scene_file()), {k: str(v) for k, v in cfg.defines().items()}
 
 
@@ -100,8 +109,15 @@ def main(argv=None) -> int:
     ap.add_argument("--array", type=int, default=32, help="paper scene only: pixels per side (default 32)")
     ap.add_argument("--bin-width-ps", type=float, default=1.0,
                     help="paper scene only: bin width over the demo's 11.5 ns (default 1; the dataset example's 8)")
+    ap.add_argument("--element-size-m", type=float, help="paper scene only: quadrature element size (m)")
+    ap.add_argument("--patch-cells", type=int, help="paper scene only: quadrature cells per patch side")
+    ap.add_argument("--refine-levels", type=int, help="paper scene only: visibility refinement levels")
+    ap.add_argument("--warm-array", type=int, help="paper scene only: pixels per side of the compiling render "
+                                                   "(default --array)")
     _record.add_arguments(ap)
     a = ap.parse_args(argv)
+    if a.scene == "letter" and (_settings(a) or a.warm_array is not None):
+        ap.error("--element-size-m, --patch-cells, --refine-levels and --warm-array are for --scene paper")
     load_start = list(os.getloadavg())
     os.environ.setdefault("TRANSIENT_MI_PROGRESS", "0")
     import transient_mi  # noqa: F401
@@ -115,7 +131,8 @@ def main(argv=None) -> int:
     timer.wrap(_nlos_quadrature, "_level", None)
     scene, defines = _defines(a)
     with tempfile.TemporaryDirectory(prefix="bench-qprofile-") as td:
-        render(scene, Path(td) / "warm", defines=defines, spp=1, seed=0, progress=False)  # JIT compilation
+        render(scene, Path(td) / "warm", defines=_defines(a, a.warm_array)[1], spp=1, seed=0,
+               progress=False)  # JIT compilation
         timer.on = True
         w, c = time.perf_counter(), time.process_time()
         out = render(scene, Path(td) / "timed", defines=defines, spp=1, seed=0, progress=False)
@@ -129,13 +146,16 @@ def main(argv=None) -> int:
     result = {"scene": str(scene.relative_to(ROOT)) if scene.is_relative_to(ROOT) else scene.name,
               "config": "the README capture (the scene's defaults)" if a.scene == "letter" else
               f"{a.array} x {a.array} pixels, 2 x 2 spots, {_n_bins(a.bin_width_ps):,} bins of {a.bin_width_ps:g} ps, "
-              "the scene's quadrature defaults",
+              + (", ".join(f"{k} {v:g}" for k, v in _settings(a).items()) if _settings(a)
+                 else "the scene's quadrature defaults"),
               "settings": info, "render_call": {"wall_s": round(total[0], 2), "cpu_s": round(total[1], 2)},
               "stages": stages,
               "note": "stages nest: the levels hold the bin masses, pair geometry (with the lit pairs' test), "
                       "visibility from the cells and knots; CPU is every thread of the process (numba's two)"}
     print(json.dumps(result, indent=1))
-    name = f"quadrature_profile_{a.scene}" + ("" if a.bin_width_ps == 1.0 else f"_{a.bin_width_ps:g}ps")
+    name = (f"quadrature_profile_{a.scene}" + ("" if a.bin_width_ps == 1.0 else f"_{a.bin_width_ps:g}ps")
+            + ("" if not _settings(a) else "_" + "_".join(f"{k.split('_')[0][0]}{k.split('_')[1][0]}{v:g}"
+                                                            for k, v in _settings(a).items())))
     _record.maybe_save(a, name, result, load_start=load_start)
     return 0
 

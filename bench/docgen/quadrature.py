@@ -260,6 +260,30 @@ def profile_compare_inline(R) -> str:
             f"{provenance(before, short=True)}")
 
 
+#: bench_quadrature_profile.py's records of the demo's 32 x 32 capture at 1 s (10.3 mm, one cell, three levels):
+#: the children's pairs skipped before their geometry and tested with their ancestors' pairs only, against before.
+PROFILE_OWNED = ("quadrature_profile_paper_es0.0103469_pc1_rl3",
+                 "quadrature_profile_paper_es0.0103469_pc1_rl3_before_owned")
+
+
+def profile_owned_inline(R) -> str:
+    """The demo's 32 x 32 capture at 1 s, this code against the code before the owned pairs: render call and the
+    stages that changed (bench_quadrature_profile.py)."""
+    now, before = R(PROFILE_OWNED[0]), R(PROFILE_OWNED[1])
+    a, b = now["result"], before["result"]
+
+    def stage(r, k):
+        return r["stages"][k]["wall_s"]
+
+    return (f"the demo's 32 x 32 capture at 1 s per spot ({a['config'].split('ps, ')[1]}) rendered in "
+            f"{a['render_call']['wall_s']:.0f} s ({a['render_call']['cpu_s']:.0f} s CPU) against "
+            f"{b['render_call']['wall_s']:.0f} s ({b['render_call']['cpu_s']:.0f} s CPU) before, one run after the "
+            f"other: the pair geometry {stage(a, 'pair geometry'):.0f} s against {stage(b, 'pair geometry'):.0f} s, "
+            f"the elements and their refinement {stage(a, 'elements and visibility refinement'):.0f} s against "
+            f"{stage(b, 'elements and visibility refinement'):.0f} s ({provenance(now, short=True)}; "
+            f"{provenance(before, short=True)})")
+
+
 REFINEMENT_RULE = "refinement_rule"
 
 
