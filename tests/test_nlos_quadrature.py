@@ -451,6 +451,56 @@ def test_refinement_tests_children_with_the_pairs_their_ancestors_give_them(monk
     assert np.abs(a - b).max() <= float(owned.error_bound.max()) + float(full.error_bound.max())
 
 
+def test_side_blocks_group_whole_chunks_up_to_the_combinations():
+    """:func:`~transient_mi.integrators._nlos_pairs.side_blocks` groups consecutive chunks while their elements
+    times the spots stay within ``SIDE_COMBINATIONS`` (one chunk at least), in order and covering every chunk once."""
+    from transient_mi.integrators import _nlos_pairs as pairs
+
+    starts = [(0, 3), (3, 6), (6, 9), (9, 10)]
+    per = pairs.SIDE_COMBINATIONS
+    assert pairs.side_blocks(starts, 1) == [(0, 10, starts)]
+    assert pairs.side_blocks(starts, per // 6) == [(0, 6, starts[:2]), (6, 10, starts[2:])]
+    assert pairs.side_blocks(starts, per // 2) == [(b0, b1, [(b0, b1)]) for b0, b1 in starts]  # (a chunk of 3)
+    assert pairs.side_blocks([], 4) == []
+
+
+@pytest.mark.parametrize("capture", ["array", "confocal"])
+def test_level_takes_the_laser_side_a_block_of_elements_at_a_time(capture, monkeypatch):
+    """A level builds the laser side (:class:`~transient_mi.integrators._nlos_pairs.SpotSide`: per element and
+    spot) for a block of elements at a time, so a confocal capture (every element with every pixel's spot) holds a
+    block's, not the level's. With small chunks, blocks of one chunk each give the same capture, the error and the
+    pair count, byte for byte, as one block of every element (the occluder scene: mixed visibility, refined).
+    Deterministic."""
+    from transient_mi.integrators import _nlos_pairs as pairs
+
+    def render():
+        s = nlos_scene(width=4, height=4, footprint=0.05, include_wall_return=False, n_bins=256, bin_width_ps=16.0,
+                       t0_ps=8000.0, capture=capture, hidden=[square((0.0, 0.0, 0.5), 0.2, 0.7, id_="far"),
+                                                             square((0.05, 0.05, 0.3), 0.08, 0.5, id_="near")])
+        return _render(s, element_size_m=0.02, patch_cells=2, refine_levels=2)
+
+    monkeypatch.setattr(pairs, "PAIRS_PER_CHUNK", 64 * 16)  # (16 elements a chunk with 64 cells)
+    one = render()
+    made = []
+    side = pairs.SpotSide
+
+    class Counted(side):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            made.append((self.e0, self.e1))
+
+    import transient_mi.integrators._nlos_quadrature as quad
+
+    monkeypatch.setattr(quad, "SpotSide", Counted)
+    monkeypatch.setattr(pairs, "SIDE_COMBINATIONS", 1)
+    blocks = render()
+    assert len(made) > 3 and all(e1 - e0 <= 64 for e0, e1 in made)  # (a block per chunk: 16 or 64 elements)
+    for a, b in ((one.histogram, blocks.histogram), (one.error_bound, blocks.error_bound),
+                 (one.steady, blocks.steady), (one.total_error_bound, blocks.total_error_bound)):
+        assert a.tobytes() == b.tobytes()
+    assert one.estimator_info == blocks.estimator_info
+
+
 @pytest.mark.parametrize("capture", ["array", "confocal"])
 def test_general_bsdf_path_equals_the_lambertian_one(capture, monkeypatch):
     """Lambertian BSDFs are evaluated once per (element, spot) and per wall cell, each pair applying the hemisphere

@@ -94,15 +94,18 @@ class LevelElements:
         self.traced = traced
         self.refinement = refinement
 
-    def spot_vis(self, scene, setup, spots) -> np.ndarray:
-        """:func:`spot_masks` of every element from the spots ``spots``, ``uint8 [n, G]`` (the traced ones taken,
-        the others traced)."""
+    def spot_vis(self, scene, setup, spots, e0: int = 0, e1: int | None = None) -> np.ndarray:
+        """:func:`spot_masks` of the elements ``e0:e1`` (default: every one) from the spots ``spots``, ``uint8 [k,
+        G]`` (the traced ones taken, the others traced)."""
+        e1 = self.n if e1 is None else e1
         t = self.traced
         if t is None or t.spots != list(spots):
-            return spot_masks(scene, setup, spots, self.pts)
-        if t.n == self.n:
-            return t.spot
-        return np.concatenate([t.spot, spot_masks(scene, setup, spots, self.pts[t.n:])])
+            return spot_masks(scene, setup, spots, self.pts[e0:e1])
+        if t.n >= e1:
+            return t.spot[e0:e1]
+        known = t.spot[e0:max(e0, t.n)]
+        rest = spot_masks(scene, setup, spots, self.pts[max(e0, t.n):e1])
+        return rest if len(known) == 0 else np.concatenate([known, rest])
 
     def traced_cells(self, cell_p: np.ndarray, e0: int, e1: int) -> np.ndarray | None:
         """The traced masks of the elements ``e0:e1`` from the cells ``cell_p``, ``uint8 [C, k]`` for the first ``k``
@@ -113,31 +116,59 @@ class LevelElements:
         return t.cell[:, e0:max(e0, min(e1, t.n))]
 
 
-class SpotSide:
-    """Per element and spot of the group ``spots`` (element-major ``[n, G]``): visibility ``vis [n, G]`` (uint8
-    masks of the samples seen from the spot, :func:`~._nlos_surfaces.visibility_masks`), the spot's intensity
-    ``intensity`` (``f_S cos`` towards the centroid), ``r_sv [n, G, 3]`` and ``r_sx`` (m), ``sw`` =
-    intensity / r_sx^2, the knots' laser parts ``B [n, G, 3]`` (bins); for Lambertian elements ``fx_e`` and
-    ``side_s`` (:meth:`~._nlos_surfaces.ElementSurfaces.toward`), zeros otherwise."""
+#: (element, spot) combinations of one :class:`SpotSide` in a level's integration (:func:`side_blocks`): its
+#: arrays take about 110 bytes a combination (about 0.2 GB here), and the laser amplitudes' temporaries about as
+#: much again. A confocal capture pairs every element with every pixel's spot: the 64 x 64 letter's reference
+#: render at 1 cm peaked at 5.5 GB with the whole level's at once, 1.2 GB a block at a time
+#: (``bench/results/nlos_quadrature_confocal64_before_blocks.json`` and ``_blocks.json``).
+SIDE_COMBINATIONS = 1 << 21
 
-    def __init__(self, scene, setup, g, spots, lv: LevelElements):
+
+def side_blocks(starts: list, n_spots: int) -> list:
+    """The chunks ``starts`` (``(e0, e1)`` element ranges, in order) grouped into blocks of consecutive chunks, each
+    with at most :data:`SIDE_COMBINATIONS` (element, spot) combinations for ``n_spots`` spots (one chunk at
+    least): ``[(b0, b1, chunks)]``. A level builds one :class:`SpotSide` per block; an array capture's few spots
+    fit a level of half a million elements in one block, a confocal capture's pixels a few hundred elements."""
+    per = max(1, SIDE_COMBINATIONS // max(n_spots, 1))
+    blocks = []
+    for e0, e1 in starts:
+        if blocks and e1 - blocks[-1][0] <= per:
+            b0, _, chunks = blocks[-1]
+            blocks[-1] = (b0, e1, chunks + [(e0, e1)])
+        else:
+            blocks.append((e0, e1, [(e0, e1)]))
+    return blocks
+
+
+class SpotSide:
+    """Per element ``e0:e1`` of a level (default: every one) and spot of the group ``spots`` (element-major ``[k,
+    G]``, row 0 the element ``e0``): visibility ``vis [k, G]`` (uint8 masks of the samples seen from the spot,
+    :func:`~._nlos_surfaces.visibility_masks`), the spot's intensity ``intensity`` (``f_S cos`` towards the
+    centroid), ``r_sv [k, G, 3]`` and ``r_sx`` (m), ``sw`` = intensity / r_sx^2, the knots' laser parts ``B [k, G,
+    3]`` (bins); for Lambertian elements ``fx_e`` and ``side_s`` (:meth:`~._nlos_surfaces.ElementSurfaces.toward`),
+    zeros otherwise."""
+
+    def __init__(self, scene, setup, g, spots, lv: LevelElements, e0: int = 0, e1: int | None = None):
         self.spots = list(spots)
         self.S = np.asarray(setup.spots, dtype=np.float64)[self.spots]  # [G, 3]
-        G, n = len(self.S), lv.n
+        self.e0, self.e1 = e0, lv.n if e1 is None else e1
+        G, n = len(self.S), self.e1 - self.e0
+        rows = slice(self.e0, self.e1)
         self.Lo = np.asarray(setup.laser_origin, dtype=np.float64)
         beam = np.asarray(setup.spot_targets, dtype=np.float64)[self.spots] - self.Lo
         self.beam = beam / np.linalg.norm(beam, axis=1, keepdims=True)
         self.laser_leg = np.linalg.norm(self.S - self.Lo, axis=1)  # [G]
-        self.vis = lv.spot_vis(scene, setup, self.spots)
-        self.intensity = np.asarray(self.intensity_ad(scene, lv.X0), dtype=np.float64).reshape(n, G)
-        self.B, self.r_sv, self.r_sx = spot_knots(lv.tri, lv.X0, self.S, g.fl * self.laser_leg, g.bin_m,
-                                       g.t0_m / g.bin_m - g.pad)
+        self.vis = lv.spot_vis(scene, setup, self.spots, self.e0, self.e1)
+        self.intensity = np.asarray(self.intensity_ad(scene, lv.X0[rows]), dtype=np.float64).reshape(n, G)
+        self.B, self.r_sv, self.r_sx = spot_knots(lv.tri[rows], lv.X0[rows], self.S, g.fl * self.laser_leg, g.bin_m,
+                                                  g.t0_m / g.bin_m - g.pad)
         self.sw = np.ascontiguousarray(self.intensity / self.r_sx ** 2)
         # (empty without the element's slope: the kernels then give every pair the midpoint weight of before)
-        self.amp_s = (laser_amplitudes(lv.tri, lv.X0, lv.nrm, self.S, np.asarray(setup.frame.normal, dtype=np.float64))
+        self.amp_s = (laser_amplitudes(lv.tri[rows], lv.X0[rows], lv.nrm[rows], self.S,
+                                       np.asarray(setup.frame.normal, dtype=np.float64))
                       if g.element_slope else np.empty((0, 0, 3)))
         if lv.surf.lambertian:
-            self.fx_e, self.side_s = lv.surf.toward(self.S)
+            self.fx_e, self.side_s = lv.surf.toward(self.S, self.e0, self.e1)
         else:
             self.fx_e, self.side_s = np.zeros((n, G)), np.zeros((n, G), dtype=np.int8)
 
@@ -161,13 +192,20 @@ class Chunk:
                  confocal: bool, out: tuple | None = None):
         C = len(g.cell_p)
         self.e0, self.e1, self.ne = e0, e1, e1 - e0
+        # (the kernels index the level's arrays and the side's alike: from the side's first element, ``k0`` the
+        # chunk's first there)
+        if not side.e0 <= e0 <= e1 <= side.e1:
+            raise ValueError(f"chunk elements {e0}:{e1} outside the spot side's {side.e0}:{side.e1}")
+        self.k0 = e0 - side.e0
+        rows = slice(side.e0, side.e1)
         self.n = C * self.ne
         self.per_pixel = g.m * g.m * self.ne
         # (each pair once: with a split element or with its children)
         owned = None if lv.refinement is None else lv.refinement.owned(C, e0, self.ne)
         (self.geo, self.cos_p, self.A, self.w1, self.w2, self.tilt, self.side_x,
-         lit, self.amp) = pair_geometry(g.cell_p, g.cell_w0, *g.cell_terms, lv.X0, lv.tri, lv.nrm, lv.area, lv.surf.n_sh,
-                              wall.n_sh, wall.side, e0, e1, g.cell_ax, g.cell_ay, g.fl, g.bin_m, g.N,
+         lit, self.amp) = pair_geometry(g.cell_p, g.cell_w0, *g.cell_terms, lv.X0[rows], lv.tri[rows], lv.nrm[rows],
+                              lv.area[rows], lv.surf.n_sh[rows], wall.n_sh, wall.side, self.k0, self.k0 + self.ne,
+                              g.cell_ax, g.cell_ay, g.fl, g.bin_m, g.N,
                               g.cell_half_diag > 0, g.normal, self.per_pixel, side.vis, side.side_s, wall.lambertian,
                               lv.surf.lambertian, confocal, out, g.element_slope, owned)
         if wall.lambertian:
@@ -207,6 +245,6 @@ class Chunk:
         """Deposit the chunk's pairs for every spot of the group into ``out`` (``hist``, ``bound``, ``steady``,
         ``vis_err``, ``outside``: :func:`~._nlos_pair_kernels.spread_group`)."""
         spread_group(out["hist"], out["bound"], out["steady"], out["vis_err"], out["outside"], self.per_pixel,
-                     self.e0, self.ne, self.geo, self.f_p, self.vis_p, self.A, self.w1, self.w2, self.tilt,
+                     self.k0, self.ne, self.geo, self.f_p, self.vis_p, self.A, self.w1, self.w2, self.tilt,
                      self.side_x, fx_pair, side.vis, side.B, side.sw, side.fx_e, side.side_s, lv.surf.lambertian,
                      confocal, self.amp, side.amp_s)

@@ -90,7 +90,7 @@ from transient_mi.integrators._nlos_elements import (fine_provenance, mesh_trian
                                                      subdivide_provenance)
 from transient_mi.integrators._nlos_error_estimate import discretisation_error, local_rms
 from transient_mi.integrators._nlos_pair_kernels import cell_terms, pair_results
-from transient_mi.integrators._nlos_pairs import Chunk, LevelElements, SpotSide, chunk_starts
+from transient_mi.integrators._nlos_pairs import Chunk, LevelElements, SpotSide, chunk_starts, side_blocks
 from transient_mi.integrators._nlos_refinement import Refinement, cell_spots, refine_visibility, refinement_cells_of
 from transient_mi.integrators._nlos_surfaces import WallCells
 from transient_mi.integrators._nlos_rounding import finish_rows
@@ -435,16 +435,19 @@ def _level(scene, setup, g: _Geometry, lv: LevelElements, spot_ids, confocal, G_
            "bound": work_zeros(f"{name}.bound", (G_out, P, g.n_ext if with_bound else 0)),
            "steady": np.zeros((G_out, P)), "vis_err": np.zeros((G_out, P)), "outside": np.zeros((G_out, P)),
            "pairs": 0}
-    side = SpotSide(scene, setup, g, spot_ids, lv)
     wall = WallCells(scene, setup, g.cell_p, g.D) if wall is None else wall
     starts = chunk_starts(len(g.cell_p), lv.n)
     # (one set of pair arrays for every chunk: each chunk is gone before the next is made)
     buffers = pair_results(len(g.cell_p) * max((e1 - e0 for e0, e1 in starts), default=0))
-    for e0, e1 in starts:
-        ch = Chunk(scene, g, lv, wall, e0, e1, side, confocal, buffers)
-        ch.spread(out, lv, side, confocal, ch.fx_pairs(g, lv, side, confocal))
-        out["pairs"] += ch.n * (1 if confocal else len(spot_ids))
-        del ch
-        if tick is not None:
-            tick(len(g.cell_p) * e1)
+    # (the laser side of a block of elements at a time: a confocal capture's are every element with every pixel)
+    for b0, b1, chunks in side_blocks(starts, len(spot_ids)):
+        side = SpotSide(scene, setup, g, spot_ids, lv, b0, b1)
+        for e0, e1 in chunks:
+            ch = Chunk(scene, g, lv, wall, e0, e1, side, confocal, buffers)
+            ch.spread(out, lv, side, confocal, ch.fx_pairs(g, lv, side, confocal))
+            out["pairs"] += ch.n * (1 if confocal else len(spot_ids))
+            del ch
+            if tick is not None:
+                tick(len(g.cell_p) * e1)
+        del side
     return out

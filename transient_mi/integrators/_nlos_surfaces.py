@@ -187,28 +187,32 @@ class ElementSurfaces:
         self.n_sh = np.ascontiguousarray(np.asarray(self.si.sh_frame.n, dtype=np.float64).reshape(3, -1).T)
         self.lambertian = all(is_lambertian(s.bsdf()) for s in hidden_shapes)
 
-    def toward(self, S: np.ndarray):
-        """``(value [n, G], side [n, G] int8)``: ``f cos`` with ``wi = wo`` = the direction to each spot ``S``
-        ``[G, 3]`` (the Lambertian value of every pair on that side, module docstring), and the side of the
-        shading normal the spot lies on (+1, -1; 0 in the plane)."""
-        si = self._towards(S)
-        v = np.asarray(_eval_local(si, si.wi), dtype=np.float64).reshape(self.n, len(S))
-        return v, np.sign(np.asarray(si.wi.z)).astype(np.int8).reshape(self.n, len(S))
+    def toward(self, S: np.ndarray, e0: int = 0, e1: int | None = None):
+        """``(value [k, G], side [k, G] int8)`` of the elements ``e0:e1`` (default: every one): ``f cos`` with ``wi
+        = wo`` = the direction to each spot ``S`` ``[G, 3]`` (the Lambertian value of every pair on that side,
+        module docstring), and the side of the shading normal the spot lies on (+1, -1; 0 in the plane)."""
+        e1 = self.n if e1 is None else e1
+        si = self._towards(S, e0, e1)
+        v = np.asarray(_eval_local(si, si.wi), dtype=np.float64).reshape(e1 - e0, len(S))
+        return v, np.sign(np.asarray(si.wi.z)).astype(np.int8).reshape(e1 - e0, len(S))
 
     def toward_ad(self, S: np.ndarray) -> "mi.Float":
         """:meth:`toward`'s values, element-major ``[n * G]``, attached (call inside ``dr.resume_grad``)."""
         si = self._towards(S)
         return _eval_local(si, si.wi)
 
-    def _towards(self, S: np.ndarray):
-        """The centroids' interactions with ``wi`` towards each spot ``S [G, 3]``, element-major ``[n * G]``
-        (gathered in Dr.Jit from one copy of the spots and the centroids)."""
+    def _towards(self, S: np.ndarray, e0: int = 0, e1: int | None = None):
+        """The centroids' interactions with ``wi`` towards each spot ``S [G, 3]``, element-major ``[k * G]`` for
+        the elements ``e0:e1`` (default: every one; gathered in Dr.Jit from one copy of the spots and the
+        centroids)."""
         G = len(S)
-        i = dr.arange(mi.UInt32, self.n * G)
+        e1 = self.n if e1 is None else e1
+        i = dr.arange(mi.UInt32, (e1 - e0) * G)
         g = dr.opaque(mi.UInt32, G)
-        e = i // g
+        k = i // g
+        e = k + dr.opaque(mi.UInt32, e0) if e0 else k
         si = dr.gather(type(self.si), self.si, e)
-        w, _ = _unit32([a - b for a, b in zip(_gather3(_d3(S), i - e * g), _gather3(_d3(self.X0), e))])
+        w, _ = _unit32([a - b for a, b in zip(_gather3(_d3(S), i - k * g), _gather3(_d3(self.X0), e))])
         si.wi = si.to_local(w)
         return si
 
