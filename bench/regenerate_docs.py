@@ -52,7 +52,7 @@ from docgen.recon import (  # noqa: E402
 from docgen.quadrature import (  # noqa: E402
     PAPER_ESTIMATORS, PROFILE_COMPARE, QUADRATURE_PARTS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, REFINEMENT_RULE,
     CELLS_ERROR, ELEMENT_SLOPE, SCENE_SETTINGS, cells_error_table, element_slope_inline, element_slope_table, paper_estimators_table, profile_compare_inline, quadrature_parts_table, quadrature_settings_table,
-    QUADRATURE_PARTS_A4, cells_plan_para, PROFILE_OWNED, profile_owned_inline,
+    QUADRATURE_PARTS_A4, cells_plan_para, PROFILE_OWNED, profile_owned_inline, CONFOCAL_BLOCKS, confocal_blocks_inline,
     quadrature_cost_inline,
     quadrature_inline, quadrature_profile_inline, quadrature_table, refinement_rule_inline, scene_settings_table,
 )
@@ -121,6 +121,7 @@ GENERATORS = {
     "refinement_rule": (refinement_rule_inline, [REFINEMENT_RULE], True),
     "quadrature_profile_compare": (profile_compare_inline, list(PROFILE_COMPARE), True),
     "quadrature_profile_owned": (profile_owned_inline, list(PROFILE_OWNED), True),
+    "confocal_blocks": (confocal_blocks_inline, list(CONFOCAL_BLOCKS), True),
     "paper_estimators": (paper_estimators_table, list(PAPER_ESTIMATORS), False),
     "quadrature_settings": (quadrature_settings_table, [QUADRATURE_SETTINGS], False),
     "quadrature_parts": (quadrature_parts_table, [QUADRATURE_PARTS], False),

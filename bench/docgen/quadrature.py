@@ -284,6 +284,26 @@ def profile_owned_inline(R) -> str:
             f"{provenance(before, short=True)})")
 
 
+#: bench_nlos_quadrature.py's quadrature side of the 64 x 64 confocal letter: the laser side a block of elements at
+#: a time, against the whole level's at once (run back to back).
+CONFOCAL_BLOCKS = ("nlos_quadrature_confocal64_blocks", "nlos_quadrature_confocal64_before_blocks")
+
+
+def confocal_blocks_inline(R) -> str:
+    """The 64 x 64 confocal letter's reference render (the finest): peak memory and time, blocks against before."""
+    now, before = R(CONFOCAL_BLOCKS[0]), R(CONFOCAL_BLOCKS[1])
+    a, b = (r["result"]["configs"][0]["quadrature"]["reference"] for r in (now, before))
+    return (f"its reference render ({1000 * a['element_size_m']:.0f} mm elements, {a['elements']:,} of them, "
+            f"{r_name(now)}) peaked at {a['peak_rss_mb'] / 1024:.1f} GB in {a['first_call_s']:.1f} s, against "
+            f"{b['peak_rss_mb'] / 1024:.1f} GB in {b['first_call_s']:.1f} s with the level's laser side at once, one "
+            f"run after the other ({provenance(now, short=True)}; {provenance(before, short=True)})")
+
+
+def r_name(rec) -> str:
+    """The configuration a bench_nlos_quadrature record measured."""
+    return rec["result"]["configs"][0]["name"].replace("_", " ")
+
+
 REFINEMENT_RULE = "refinement_rule"
 
 
