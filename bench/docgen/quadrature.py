@@ -73,7 +73,8 @@ def quadrature_cost_inline(R) -> str:
 #: scene's cells (one per patch), the same with the code before the latest change to the quadrature's speed (run right
 #: before it, the same load; its note names the commit), and at two per side (an earlier record).
 PAPER_ESTIMATORS = ("paper_estimators_a16_e10ms", "paper_estimators_a4_e1000ms", "paper_estimators_a32_e10ms",
-                    "paper_estimators_a32_e10ms_before_pages", "paper_estimators_a32_e10ms_cells2")
+                    "paper_estimators_a32_e10ms_before_pages", "paper_estimators_a32_e10ms_cells2",
+                    "paper_estimators_a32_e10ms_owned", "paper_estimators_a32_e10ms_before_owned")
 
 
 def paper_estimators_table(R) -> str:
