@@ -134,7 +134,8 @@ def side_blocks(starts: list, n_spots: int) -> list:
     for e0, e1 in starts:
         if blocks and e1 - blocks[-1][0] <= per:
             b0, _, chunks = blocks[-1]
-            blocks[-1] = (b0, e1, chunks + [(e0, e1)])
+            chunks.append((e0, e1))
+            blocks[-1] = (b0, e1, chunks)
         else:
             blocks.append((e0, e1, [(e0, e1)]))
     return blocks
