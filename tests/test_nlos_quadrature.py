@@ -275,19 +275,24 @@ def test_letter_agrees_with_monte_carlo():
     assert abs(tq - tm_) <= 2e-3 * tm_
 
 
+def _occluder_scene(width: int = 3, capture: str = "array"):
+    """A target half hidden behind a smaller occluder (mixed visibility, so the quadrature refines), ``width`` x
+    ``width`` pixels, 256 bins of 16 ps from 8 ns, no wall return."""
+    return nlos_scene(width=width, height=width, footprint=0.05, include_wall_return=False, n_bins=256,
+                      bin_width_ps=16.0, t0_ps=8000.0, capture=capture,
+                      hidden=[square((0.0, 0.0, 0.5), 0.2, 0.7, id_="far"),
+                              square((0.05, 0.05, 0.3), 0.08, 0.5, id_="near")])
+
+
 def test_occluded_target_agrees_with_monte_carlo():
     """A target half hidden behind a smaller occluder (mixed visibility, refined): within Monte Carlo's
     interval plus the stated error, which here includes the mixed-visibility bound."""
-    def scene():
-        return nlos_scene(width=3, height=3, footprint=0.05, include_wall_return=False, n_bins=256,
-                          bin_width_ps=16.0, t0_ps=8000.0,
-                          hidden=[square((0.0, 0.0, 0.5), 0.2, 0.7, id_="far"),
-                                  square((0.05, 0.05, 0.3), 0.08, 0.5, id_="near")])
-    sq = scene()
+    sq = _occluder_scene()
     q = _render(sq, element_size_m=0.02, patch_cells=2, refine_levels=3)
     assert q.estimator_info["refine_levels"] >= 1  # the occluder's shadow was refined
     assert float(q.error_bound.sum()) > 0  # mixed pairs remain and are bounded
-    _mc_vs_quadrature(scene(), scene(), 2048, [0], dict(element_size_m=0.02, patch_cells=2, refine_levels=3))
+    _mc_vs_quadrature(_occluder_scene(), _occluder_scene(), 2048, [0],
+                      dict(element_size_m=0.02, patch_cells=2, refine_levels=3))
 
 
 def test_visibility_refinement_splits_the_elements_whose_lit_pairs_are_mixed():
@@ -385,14 +390,8 @@ def test_shared_pairs_agree_with_children_in_every_pair():
     two refinement levels) both are estimates of the same capture: every pixel's total agrees within the sum of
     their stated total errors (a pair counted twice, or dropped, would move a whole element's light), and so does
     the whole histogram's largest bin difference within the sum of the largest per-bin errors. Deterministic."""
-    def scene():
-        return nlos_scene(width=3, height=3, footprint=0.05, include_wall_return=False, n_bins=256,
-                          bin_width_ps=16.0, t0_ps=8000.0,
-                          hidden=[square((0.0, 0.0, 0.5), 0.2, 0.7, id_="far"),
-                                  square((0.05, 0.05, 0.3), 0.08, 0.5, id_="near")])
-
-    shared = _render(scene(), element_size_m=0.02, patch_cells=2, refine_levels=2)
-    children = _render(scene(), element_size_m=0.02, patch_cells=2, refine_levels=2, pair_refinement=False)
+    shared = _render(_occluder_scene(), element_size_m=0.02, patch_cells=2, refine_levels=2)
+    children = _render(_occluder_scene(), element_size_m=0.02, patch_cells=2, refine_levels=2, pair_refinement=False)
     assert shared.estimator_info["refine_levels"] == children.estimator_info["refine_levels"] >= 1
     assert shared.estimator_info["elements"] > children.estimator_info["elements"]  # the split ones stay
     a, b = (r.histogram.astype(np.float64) for r in (shared, children))
@@ -423,15 +422,9 @@ def test_refinement_tests_children_with_the_pairs_their_ancestors_give_them(monk
 
     monkeypatch.setattr(refinement, "visibility_masks", counted)
 
-    def scene():
-        return nlos_scene(width=3, height=3, footprint=0.05, include_wall_return=False, n_bins=256,
-                          bin_width_ps=16.0, t0_ps=8000.0,
-                          hidden=[square((0.0, 0.0, 0.5), 0.2, 0.7, id_="far"),
-                                  square((0.05, 0.05, 0.3), 0.08, 0.5, id_="near")])
-
     opts = dict(element_size_m=0.02, patch_cells=2, refine_levels=3)
     traced.append(0)
-    owned = _render(scene(), **opts)
+    owned = _render(_occluder_scene(), **opts)
     every_pair = quad.refine_visibility
 
     def test_every_pair(*a, **k):
@@ -439,7 +432,7 @@ def test_refinement_tests_children_with_the_pairs_their_ancestors_give_them(monk
 
     monkeypatch.setattr(quad, "refine_visibility", test_every_pair)
     traced.append(0)
-    full = _render(scene(), **opts)
+    full = _render(_occluder_scene(), **opts)
     assert owned.estimator_info["refine_levels"] >= 2  # (children were tested)
     assert 0 < traced[0] < traced[1]
     assert owned.estimator_info["elements"] <= full.estimator_info["elements"]
@@ -474,10 +467,7 @@ def test_level_takes_the_laser_side_a_block_of_elements_at_a_time(capture, monke
     from transient_mi.integrators import _nlos_pairs as pairs
 
     def render():
-        s = nlos_scene(width=4, height=4, footprint=0.05, include_wall_return=False, n_bins=256, bin_width_ps=16.0,
-                       t0_ps=8000.0, capture=capture, hidden=[square((0.0, 0.0, 0.5), 0.2, 0.7, id_="far"),
-                                                             square((0.05, 0.05, 0.3), 0.08, 0.5, id_="near")])
-        return _render(s, element_size_m=0.02, patch_cells=2, refine_levels=2)
+        return _render(_occluder_scene(4, capture), element_size_m=0.02, patch_cells=2, refine_levels=2)
 
     monkeypatch.setattr(pairs, "PAIRS_PER_CHUNK", 64 * 16)  # (16 elements a chunk with 64 cells)
     one = render()
@@ -511,10 +501,7 @@ def test_general_bsdf_path_equals_the_lambertian_one(capture, monkeypatch):
     import transient_mi.integrators._nlos_surfaces as surfaces
 
     def render():
-        s = nlos_scene(width=3, height=3, footprint=0.05, include_wall_return=False, n_bins=256, bin_width_ps=16.0,
-                       t0_ps=8000.0, capture=capture, hidden=[square((0.0, 0.0, 0.5), 0.2, 0.7, id_="far"),
-                                                             square((0.05, 0.05, 0.3), 0.08, 0.5, id_="near")])
-        return _render(s, element_size_m=0.02, patch_cells=2, refine_levels=1)
+        return _render(_occluder_scene(3, capture), element_size_m=0.02, patch_cells=2, refine_levels=1)
 
     fast = render()
     monkeypatch.setattr(surfaces, "is_lambertian", lambda bsdf: False)

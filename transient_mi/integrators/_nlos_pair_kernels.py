@@ -271,6 +271,18 @@ def pair_results(n: int) -> tuple:
             np.empty(n, dtype=np.int8), np.empty(n, dtype=np.bool_), np.empty((n, 3)))
 
 
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _no_light(i, A, w1, w2, tilt, amp):
+    """Pair ``i`` of :func:`_pair_geometry` without light: knots, widths and slopes 0, amplitude ratios 1."""
+    for j in range(3):
+        A[i, j] = 0.0
+        amp[i, j] = 1.0
+    w1[i] = 0.0
+    w2[i] = 0.0
+    tilt[i, 0] = 0.0
+    tilt[i, 1] = 0.0
+
+
 @numba.njit(cache=True, parallel=True, fastmath=False)
 def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, area, n_sh, wall_n_sh, wall_side, e0,
                    e1, ax, ay, fl, bin_m, photons, has_cells, wall_n, per_pixel, vis_s, side_s, wall_lambertian,
@@ -317,18 +329,12 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
     for i in numba.prange(n):
         c = i // ne
         e = e0 + i - c * ne
-        if restricted and not owned[i]:
+        if restricted and not owned[i]:  # (another element of the level integrates the pair)
             geo[i] = 0.0
             cos_p[i] = 0.0
             side_x[i] = 0
             lit[i] = False
-            for j in range(3):
-                A[i, j] = 0.0
-                amp[i, j] = 1.0
-            w1[i] = 0.0
-            w2[i] = 0.0
-            tilt[i, 0] = 0.0
-            tilt[i, 1] = 0.0
+            _no_light(i, A, w1, w2, tilt, amp)
             continue
         px, py, pz = cell_p[c, 0], cell_p[c, 1], cell_p[c, 2]
         dx, dy, dz = X0[e, 0] - px, X0[e, 1] - py, X0[e, 2] - pz
@@ -352,18 +358,14 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
                     on = True
                     break
         lit[i] = on
+        if not on:
+            _no_light(i, A, w1, w2, tilt, amp)
+            continue
         tilt[i, 0] = 0.0
         tilt[i, 1] = 0.0
         amp[i, 0] = 1.0
         amp[i, 1] = 1.0
         amp[i, 2] = 1.0
-        if not on:
-            A[i, 0] = 0.0
-            A[i, 1] = 0.0
-            A[i, 2] = 0.0
-            w1[i] = 0.0
-            w2[i] = 0.0
-            continue
         r_pv0 = np.sqrt((tri[e, 0, 0] - px) ** 2 + (tri[e, 0, 1] - py) ** 2 + (tri[e, 0, 2] - pz) ** 2)
         r_pv1 = np.sqrt((tri[e, 1, 0] - px) ** 2 + (tri[e, 1, 1] - py) ** 2 + (tri[e, 1, 2] - pz) ** 2)
         r_pv2 = np.sqrt((tri[e, 2, 0] - px) ** 2 + (tri[e, 2, 1] - py) ** 2 + (tri[e, 2, 2] - pz) ** 2)

@@ -180,18 +180,13 @@ class Refinement:
         self.cell_masks, self.spot_masks = cell_masks, spot_masks_
         self.cell_of, self.cell_spot = np.ascontiguousarray(cell_of), np.ascontiguousarray(cell_spot)
 
-    def restrict(self, lit: np.ndarray, e0: int, ne: int) -> None:
-        """Clear, in place, the pairs of ``lit`` (bool ``[C ne]``, cells with the elements ``e0:e0 + ne``) that other
-        elements of the level integrate."""
-        refined_pairs(lit, e0, ne, self.parent, self.split_idx, self.cell_masks, self.spot_masks, self.cell_of,
-                      self.cell_spot)
-
     def owned(self, n_cells: int, e0: int, ne: int) -> np.ndarray:
         """The pairs (bool ``[n_cells ne]``, cells with the elements ``e0:e0 + ne``, cell-major) that the elements
-        themselves integrate: :meth:`restrict` of every pair. Known before the pairs' geometry, which then skips the
-        others (:func:`~._nlos_pair_kernels.pair_geometry`)."""
+        themselves integrate, not other elements of the level (:func:`refined_pairs` of every pair). Known before
+        the pairs' geometry, which then skips the others (:func:`~._nlos_pair_kernels.pair_geometry`)."""
         mask = np.ones(n_cells * ne, dtype=np.bool_)
-        self.restrict(mask, e0, ne)
+        refined_pairs(mask, e0, ne, self.parent, self.split_idx, self.cell_masks, self.spot_masks, self.cell_of,
+                      self.cell_spot)
         return mask
 
 
