@@ -284,6 +284,18 @@ def _occluder_scene(width: int = 3, capture: str = "array"):
                               square((0.05, 0.05, 0.3), 0.08, 0.5, id_="near")])
 
 
+def _assert_agree_within_errors(p, q):
+    """Two quadrature captures of one scene agree within their stated errors: every pixel's total within the sum
+    of their total errors (relative 1e-6 for rounding), the largest bin difference within the sum of their largest
+    per-bin errors; ``q`` has light in every pixel."""
+    a, b = (r.histogram.astype(np.float64) for r in (p, q))
+    ta, tb = a.sum(-1), b.sum(-1)
+    assert tb.min() > 0
+    err = p.total_error_bound.astype(np.float64) + q.total_error_bound.astype(np.float64)
+    assert (np.abs(ta - tb) <= err + 1e-6 * tb).all()
+    assert np.abs(a - b).max() <= float(p.error_bound.max()) + float(q.error_bound.max())
+
+
 def test_occluded_target_agrees_with_monte_carlo():
     """A target half hidden behind a smaller occluder (mixed visibility, refined): within Monte Carlo's
     interval plus the stated error, which here includes the mixed-visibility bound."""
@@ -394,12 +406,7 @@ def test_shared_pairs_agree_with_children_in_every_pair():
     children = _render(_occluder_scene(), element_size_m=0.02, patch_cells=2, refine_levels=2, pair_refinement=False)
     assert shared.estimator_info["refine_levels"] == children.estimator_info["refine_levels"] >= 1
     assert shared.estimator_info["elements"] > children.estimator_info["elements"]  # the split ones stay
-    a, b = (r.histogram.astype(np.float64) for r in (shared, children))
-    ta, tb = a.sum(-1), b.sum(-1)
-    assert tb.min() > 0
-    err = shared.total_error_bound.astype(np.float64) + children.total_error_bound.astype(np.float64)
-    assert (np.abs(ta - tb) <= err + 1e-6 * tb).all()
-    assert np.abs(a - b).max() <= float(shared.error_bound.max()) + float(children.error_bound.max())
+    _assert_agree_within_errors(shared, children)
 
 
 def test_refinement_tests_children_with_the_pairs_their_ancestors_give_them(monkeypatch):
@@ -436,12 +443,7 @@ def test_refinement_tests_children_with_the_pairs_their_ancestors_give_them(monk
     assert owned.estimator_info["refine_levels"] >= 2  # (children were tested)
     assert 0 < traced[0] < traced[1]
     assert owned.estimator_info["elements"] <= full.estimator_info["elements"]
-    a, b = (r.histogram.astype(np.float64) for r in (owned, full))
-    ta, tb = a.sum(-1), b.sum(-1)
-    assert tb.min() > 0
-    err = owned.total_error_bound.astype(np.float64) + full.total_error_bound.astype(np.float64)
-    assert (np.abs(ta - tb) <= err + 1e-6 * tb).all()
-    assert np.abs(a - b).max() <= float(owned.error_bound.max()) + float(full.error_bound.max())
+    _assert_agree_within_errors(owned, full)
 
 
 def test_side_blocks_group_whole_chunks_up_to_the_combinations():
