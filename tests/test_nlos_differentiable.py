@@ -345,21 +345,35 @@ def test_forward_mode_equals_reverse_mode(capture):
 
 
 def test_transient_path_under_a_spad_array_gives_the_same_gradient():
-    """transient_path delegates NLOS captures to the same estimator: same gradient bytes."""
+    """transient_path delegates NLOS captures to the same estimator: same gradient bytes on one Dr.Jit thread
+    (``llvm_*`` variants). With several threads the gradient is a sum of atomic adds in a thread-dependent order
+    (see test_same_seed_same_bytes; this test failed that way once in a loaded CI run while it compared bytes
+    with the default threads), so on a GPU, whose atomics have no thread count to pin, the two agree to float32
+    rounding of a reordered sum (relative 1e-4)."""
     out = []
-    for integrator in ("transient_nlos_path", "transient_path"):
-        scene = nh.nlos_scene(hidden=[nh.square(TARGET, 0.2, 0.6, id_="target")], n_bins=128, width=4, height=4,
-                              bin_width_ps=50.0, t0_ps=9000.0, integrator=integrator)
-        params = mi.traverse(scene)
-        key = "target.bsdf.reflectance.value"
-        dr.enable_grad(params[key])
-        params.update()
-        try:
-            _reverse(scene, params, _weights((4, 4, 128)), 5)
-            out.append(dr.grad(params[key]).numpy().tobytes())
-        finally:
-            detach_all(params)
-    assert out[0] == out[1] and np.frombuffer(out[0], np.float32)[0] != 0
+    before = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        for integrator in ("transient_nlos_path", "transient_path"):
+            scene = nh.nlos_scene(hidden=[nh.square(TARGET, 0.2, 0.6, id_="target")], n_bins=128, width=4,
+                                  height=4, bin_width_ps=50.0, t0_ps=9000.0, integrator=integrator)
+            params = mi.traverse(scene)
+            key = "target.bsdf.reflectance.value"
+            dr.enable_grad(params[key])
+            params.update()
+            try:
+                _reverse(scene, params, _weights((4, 4, 128)), 5)
+                out.append(dr.grad(params[key]).numpy().tobytes())
+            finally:
+                detach_all(params)
+    finally:
+        dr.set_thread_count(before)
+    a, b = (np.frombuffer(o, np.float32) for o in out)
+    assert a[0] != 0
+    if mi.variant().startswith("cuda_"):
+        np.testing.assert_allclose(b, a, rtol=1e-4)
+    else:
+        assert out[0] == out[1]
 
 
 def _two_gradients(threads: int):
