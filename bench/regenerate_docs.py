@@ -52,11 +52,12 @@ from docgen.recon import (  # noqa: E402
 from docgen.quadrature import (  # noqa: E402
     PAPER_ESTIMATORS, PROFILE_COMPARE, QUADRATURE_PARTS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, REFINEMENT_RULE,
     CELLS_ERROR, ELEMENT_SLOPE, SCENE_SETTINGS, cells_error_table, element_slope_inline, element_slope_table, paper_estimators_table, profile_compare_inline, quadrature_parts_table, quadrature_settings_table,
-    QUADRATURE_PARTS_A4, cells_plan_para, PROFILE_OWNED, profile_owned_inline, CONFOCAL_BLOCKS, confocal_blocks_inline,
+    QUADRATURE_PARTS_A4, cells_plan_para, PROFILE_OWNED, profile_owned_inline, CONFOCAL_BLOCKS, confocal_blocks_inline, MASSES, masses_inline,
     quadrature_cost_inline,
     quadrature_inline, quadrature_profile_inline, quadrature_table, refinement_rule_inline, scene_settings_table,
 )
-from docgen.nlos_quadrature import array_speedup_inline, nlos_quadrature_table, work_arrays_inline  # noqa: E402
+from docgen.nlos_quadrature import (array_speedup_inline, confocal_speedup_inline, nlos_quadrature_table,  # noqa: E402
+                                    work_arrays_inline)
 from docgen.fit_mesh import (GROWTH_PAIRS, fit_mesh_full_table, fit_mesh_growth_table,  # noqa: E402
                               fit_mesh_mannequin_para, fit_mesh_pixel_step_inline, fit_mesh_plane_table,
                               fit_mesh_table, fit_mesh_topology_table, fit_mesh_topology_16_table, TOPOLOGY_16,
@@ -122,6 +123,7 @@ GENERATORS = {
     "quadrature_profile_compare": (profile_compare_inline, list(PROFILE_COMPARE), True),
     "quadrature_profile_owned": (profile_owned_inline, list(PROFILE_OWNED), True),
     "confocal_blocks": (confocal_blocks_inline, list(CONFOCAL_BLOCKS), True),
+    "quadrature_masses": (masses_inline, list(MASSES), True),
     "paper_estimators": (paper_estimators_table, list(PAPER_ESTIMATORS), False),
     "quadrature_settings": (quadrature_settings_table, [QUADRATURE_SETTINGS], False),
     "quadrature_parts": (quadrature_parts_table, [QUADRATURE_PARTS], False),
@@ -133,6 +135,7 @@ GENERATORS = {
     "nlos_quadrature_table": (nlos_quadrature_table, ["nlos_quadrature", "nlos_quadrature_64x64",
                                                       "nlos_quadrature_confocal"], False),
     "nlos_quadrature_array": (array_speedup_inline, ["nlos_quadrature_array"], True),
+    "nlos_quadrature_confocal": (confocal_speedup_inline, ["nlos_quadrature_confocal"], True),
     "work_arrays": (work_arrays_inline, ["work_arrays"], True),
     "fit_mesh": (fit_mesh_table, ["fit_mesh_letter"], False),
     "fit_mesh_plane": (fit_mesh_plane_table, ["fit_mesh_tilted_plane"], False),

@@ -132,6 +132,21 @@ def array_speedup_inline(R) -> str:
             f"{provenance(rec, short=True)}, {rec['machine']['cpu_model']})")
 
 
+def confocal_speedup_inline(R) -> str:
+    """The two confocal captures against mitransient at equal error, in a sentence (bench_nlos_quadrature's
+    confocal record: both renderers side by side)."""
+    rec = R("nlos_quadrature_confocal")
+    by = {c["name"]: c for c in rec["result"]["configs"]}
+    parts = []
+    for name, what in (("confocal_32x32_400bins", "the confocal 32 x 32 capture"),
+                       ("confocal_64x64_2048bins", "the 64 x 64 one")):
+        c = by[name]
+        q, m = c["quadrature"]["selected"], c["mitransient"]
+        parts.append(f"{c['speedup_at_target']:.0f}x on {what} (the quadrature {q['time_s']:.2f} s, mitransient "
+                     f"{m['time_to_target_s']:.1f} s to 0.05)")
+    return f"{parts[0]} and {parts[1]} ({provenance(rec, short=True)}, {rec['machine']['cpu_model']})"
+
+
 def work_arrays_inline(R) -> str:
     """The array capture with the quadrature's work arrays kept between groups and allocated afresh."""
     rec = R("work_arrays")

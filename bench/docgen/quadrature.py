@@ -74,7 +74,8 @@ def quadrature_cost_inline(R) -> str:
 #: before it, the same load; its note names the commit), and at two per side (an earlier record).
 PAPER_ESTIMATORS = ("paper_estimators_a16_e10ms", "paper_estimators_a4_e1000ms", "paper_estimators_a32_e10ms",
                     "paper_estimators_a32_e10ms_before_pages", "paper_estimators_a32_e10ms_cells2",
-                    "paper_estimators_a32_e10ms_owned", "paper_estimators_a32_e10ms_before_owned")
+                    "paper_estimators_a32_e10ms_owned", "paper_estimators_a32_e10ms_before_owned",
+                    "paper_estimators_a32_e10ms_masses", "paper_estimators_a32_e10ms_before_masses")
 
 
 def paper_estimators_table(R) -> str:
@@ -283,6 +284,28 @@ def profile_owned_inline(R) -> str:
             f"the elements and their refinement {stage(a, 'elements and visibility refinement'):.0f} s against "
             f"{stage(b, 'elements and visibility refinement'):.0f} s ({provenance(now, short=True)}; "
             f"{provenance(before, short=True)})")
+
+
+#: The bin masses' two runs (every piece, then the tails' closed form) and their one-pass differences, against the
+#: code before (570d32d), one run after the other: the paper's 32 x 32 array at a target (bench_paper_estimators.py),
+#: then its render call alone (bench_quadrature_profile.py).
+MASSES = ("paper_estimators_a32_e10ms_masses", "paper_estimators_a32_e10ms_before_masses",
+          "quadrature_profile_paper_masses", "quadrature_profile_paper_before_masses")
+
+
+def masses_inline(R) -> str:
+    """The paper's 32 x 32 array at 10 ms, the bin masses' two runs against the code before: the whole command's
+    render, then the render call and its bin masses (one run after the other each)."""
+    now, before, pnow, pbefore = (R(n) for n in MASSES)
+    a, b = now["result"]["runs"][0], before["result"]["runs"][0]
+    pa, pb = pnow["result"], pbefore["result"]
+    m = "bin masses and deposits"
+    return (f"{a['render_wall_s']:.1f} s ({a['render_cpu_s']:.0f} s CPU) against {b['render_wall_s']:.1f} s "
+            f"({b['render_cpu_s']:.0f} s CPU) for the code before, one run after the other, the same stated ratio "
+            f"({a['render_noise_ratio_detect']:.3g}); the render call alone {pa['render_call']['wall_s']:.1f} s against "
+            f"{pb['render_call']['wall_s']:.1f} s, its bin masses and deposits {pa['stages'][m]['wall_s']:.1f} s "
+            f"against {pb['stages'][m]['wall_s']:.1f} s ({provenance(now, short=True)}; "
+            f"{provenance(before, short=True)}; {provenance(pnow, short=True)}; {provenance(pbefore, short=True)})")
 
 
 #: bench_nlos_quadrature.py's quadrature side of the 64 x 64 confocal letter: the laser side a block of elements at

@@ -36,8 +36,8 @@ bins per instruction). The edges split in two runs: where the four points ``x +-
 ``a`` the polynomial parts of ``G_2`` and ``G_3`` cancel in closed form over the two widths and only the tails
 ``(b - y)_+`` are summed (:func:`_cdf_far`, a third of the work of evaluating every point's piece); the edges
 before take every piece (:func:`_cdf_widths`). On the paper scene's 32 x 32 capture at 1 ps bins the two runs and
-the pass from the first bin up took the bin masses and deposits from 17.2 to 14.5-14.9 s (two pairs of runs, one
-after the other on one machine, 2 cores; ``bench/results/quadrature_profile_paper_masses*.json``).
+the pass from the first bin up took about a tenth off the bin masses and deposits (one run after the other on one
+machine: ``bench/results/quadrature_profile_paper_masses.json`` against ``..._before_masses.json``).
 
 Units: everything here is in *bins* (time divided by the bin width, origin at the start of the padded
 axis). Numba, float64, one thread: the deposit order is fixed (same inputs, same bytes).
