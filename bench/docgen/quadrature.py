@@ -249,6 +249,11 @@ def cells_plan_para(R) -> str:
             f"{one['pairs']:,} pairs, {two['pairs'] / one['pairs']:.1f} times fewer). {provenance(rec)}\n")
 
 
+def _sources(*recs) -> str:
+    """The short provenance of each record compared in one sentence, in order, separated by semicolons."""
+    return "; ".join(provenance(r, short=True) for r in recs)
+
+
 #: The paper scene's render-call profile and the same with the code before the latest change to the quadrature (run
 #: right after it on the same machine; its note names the commit).
 PROFILE_COMPARE = ("quadrature_profile_paper", "quadrature_profile_paper_before_pages")
@@ -258,8 +263,7 @@ def profile_compare_inline(R) -> str:
     """The paper scene's render call alone, this code against the code before (bench_quadrature_profile.py)."""
     now, before = R(PROFILE_COMPARE[0]), R(PROFILE_COMPARE[1])
     return (f"{now['result']['render_call']['wall_s']:.1f} s, {before['result']['render_call']['wall_s']:.1f} s for "
-            f"the code before, one run after the other: {provenance(now, short=True)}; "
-            f"{provenance(before, short=True)}")
+            f"the code before, one run after the other: {_sources(now, before)}")
 
 
 #: bench_quadrature_profile.py's records of the demo's 32 x 32 capture at 1 s (10.3 mm, one cell, three levels):
@@ -282,8 +286,7 @@ def profile_owned_inline(R) -> str:
             f"{b['render_call']['wall_s']:.0f} s ({b['render_call']['cpu_s']:.0f} s CPU) before, one run after the "
             f"other: the pair geometry {stage(a, 'pair geometry'):.0f} s against {stage(b, 'pair geometry'):.0f} s, "
             f"the elements and their refinement {stage(a, 'elements and visibility refinement'):.0f} s against "
-            f"{stage(b, 'elements and visibility refinement'):.0f} s ({provenance(now, short=True)}; "
-            f"{provenance(before, short=True)})")
+            f"{stage(b, 'elements and visibility refinement'):.0f} s ({_sources(now, before)})")
 
 
 #: The bin masses' two runs (every piece, then the tails' closed form) and their one-pass differences, against the
@@ -304,8 +307,7 @@ def masses_inline(R) -> str:
             f"({b['render_cpu_s']:.0f} s CPU) for the code before, one run after the other, the same stated ratio "
             f"({a['render_noise_ratio_detect']:.3g}); the render call alone {pa['render_call']['wall_s']:.1f} s against "
             f"{pb['render_call']['wall_s']:.1f} s, its bin masses and deposits {pa['stages'][m]['wall_s']:.1f} s "
-            f"against {pb['stages'][m]['wall_s']:.1f} s ({provenance(now, short=True)}; "
-            f"{provenance(before, short=True)}; {provenance(pnow, short=True)}; {provenance(pbefore, short=True)})")
+            f"against {pb['stages'][m]['wall_s']:.1f} s ({_sources(now, before, pnow, pbefore)})")
 
 
 #: bench_nlos_quadrature.py's quadrature side of the 64 x 64 confocal letter: the laser side a block of elements at
@@ -320,7 +322,7 @@ def confocal_blocks_inline(R) -> str:
     return (f"its reference render ({1000 * a['element_size_m']:.0f} mm elements, {a['elements']:,} of them, "
             f"{r_name(now)}) peaked at {a['peak_rss_mb'] / 1024:.1f} GB in {a['first_call_s']:.1f} s, against "
             f"{b['peak_rss_mb'] / 1024:.1f} GB in {b['first_call_s']:.1f} s with the level's laser side at once, one "
-            f"run after the other ({provenance(now, short=True)}; {provenance(before, short=True)})")
+            f"run after the other ({_sources(now, before)})")
 
 
 def r_name(rec) -> str:

@@ -117,8 +117,8 @@ class LevelElements:
 
 
 #: (element, spot) combinations of one :class:`SpotSide` in a level's integration (:func:`side_blocks`): its
-#: arrays take about 110 bytes a combination (about 0.2 GB here), and the laser amplitudes' temporaries about as
-#: much again. A confocal capture pairs every element with every pixel's spot: the 64 x 64 letter's reference
+#: arrays take about 110 bytes a combination (about 0.2 GB here; the laser amplitudes, vectorised in numpy when
+#: this bound was set, took about as much again in temporaries and now take none). A confocal capture pairs every element with every pixel's spot: the 64 x 64 letter's reference
 #: render at 1 cm peaked at 5.4 GB with the whole level's at once, 1.2 GB a block at a time
 #: (``bench/results/nlos_quadrature_confocal64_before_blocks.json`` and ``_blocks.json``).
 SIDE_COMBINATIONS = 1 << 21
