@@ -366,6 +366,23 @@ def cells_error_table(R) -> str:
     return "\n" + "\n".join(lines) + "\n"
 
 
+#: The same benchmark with the cell's curvature in the spread (``cell_curvature``, 2026-12-08): its rows against
+#: :data:`CELLS_ERROR`'s, the code before it.
+CELLS_CURVATURE = "quadrature_cells_error_letter_a8_curvature"
+
+
+def cells_curvature_inline(R) -> str:
+    """Per cells per patch side on the letter: the actual and the stated ratio before the cell's curvature and with
+    it (bench_quadrature_cells_error.py, the same settings)."""
+    before, now = R(CELLS_ERROR), R(CELLS_CURVATURE)
+    old = {x["patch_cells"]: x for x in before["result"]["rows"]}
+    parts = [f"{x['patch_cells']} cell{'s' if x['patch_cells'] > 1 else ''} {old[x['patch_cells']]['actual_ratio']:.2g} "
+             f"-> {x['actual_ratio']:.2g} (stated {old[x['patch_cells']]['stated_ratio']:.2g} -> "
+             f"{x['stated_ratio']:.2g})" for x in now["result"]["rows"] if x["patch_cells"] in old]
+    return ("the actual error ratio at 10 ms against 12 cells, per cells per patch side: " + ", ".join(parts)
+            + f" ({_sources(now, before)})")
+
+
 #: bench/bench_quadrature_element_slope.py's record: actual and stated error with and without the element's slope.
 ELEMENT_SLOPE = "quadrature_element_slope"
 _SLOPE_CAPTURES = {"letter": "`nlos_letter.xml`, 8 x 8, 10 ms", "paper": "the demo's paper capture, 8 x 8, 1000 ms"}

@@ -212,6 +212,35 @@ def cell_terms(cell_p: np.ndarray, D: np.ndarray, ax: np.ndarray, ay: np.ndarray
     return rd, np.ascontiguousarray(uq), w0, corner_d
 
 
+@numba.njit(cache=True, fastmath=False, inline="always")
+def cell_curvature(x, p0, p1, p2, D0, D1, D2, l0, h0, h1, h2, fl, s_m):
+    """The path length's curvature across a cell along one of its edges ``h`` (m), as the one-cell spread takes
+    it: ``(shift_m, tilt)``.
+
+    Along the edge, ``l(u) = l0 + s u + a u^2 / 2`` (``u`` in ``[-1/2, 1/2]``, ``s`` the linear width ``s_m``, m;
+    ``a = 4 (l(1/2) + l(-1/2) - 2 l0)`` from the edge midpoints; ``l`` the detector leg ``fl |q - D|`` plus
+    ``|x - q|``). To first order in ``a / s`` the arrival times of a uniform ``u`` are uniform over ``s``, centred
+    ``a / 8`` late, with a density falling as ``1 - (a / |s|) v`` (``v`` in ``[-1/2, 1/2]``, growing with arrival
+    time): the mean ``a / 24`` is the same as the cell's shift alone gives. The correction is taken in full up to
+    ``|a| = |s| / 2`` and faded linearly to nothing at ``|a| = |s|`` (a near-stationary path length, where a linear
+    density is no model of it): ``phi``. Returns the centre's shift beyond the mean, ``a phi / 12`` (m), and the
+    density's relative slope ``-a phi / |s|``."""
+    acc = 0.0
+    for sg in (0.5, -0.5):
+        q0 = p0 + sg * h0
+        q1 = p1 + sg * h1
+        q2 = p2 + sg * h2
+        acc += fl * np.sqrt((q0 - D0) * (q0 - D0) + (q1 - D1) * (q1 - D1) + (q2 - D2) * (q2 - D2)) \
+            + np.sqrt((x[0] - q0) * (x[0] - q0) + (x[1] - q1) * (x[1] - q1) + (x[2] - q2) * (x[2] - q2))
+    a = 4.0 * (acc - 2.0 * l0)
+    w = abs(s_m)
+    if not abs(a) < w:
+        return 0.0, 0.0
+    rho = abs(a) / w
+    phi = 1.0 if rho <= 0.5 else 2.0 * (1.0 - rho)
+    return a * phi / 12.0, -a * phi / w
+
+
 @numba.njit(cache=True, fastmath=False)
 def _side(v):
     return 1 if v > 0.0 else (-1 if v < 0.0 else 0)
@@ -312,9 +341,10 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
     arrival time, :func:`~._nlos_time_spread.masses`: the central difference over the cell's edge midpoints of
     the weight's varying part, the sensor weight's ``cos cos / |q - D|^2``, the wall's cosine and
     ``cos(theta_X) / |X - q|^2``, exact for a quadratic; the wall's BSDF is taken Lambertian there: its cosine
-    varies, its albedo not) and ``side_x`` int8 (the side of the element's shading normal ``n_sh`` the cell
-    centre lies on). The cell's shift is the mean deviation of the detector-side path length from its tangent
-    plane over the cell: for a quadratic, 1/3 of the corner mean minus the centre (m). ``wall_n``: the wall's
+    varies, its albedo not; plus the path length's curvature along each width, :func:`cell_curvature`) and
+    ``side_x`` int8 (the side of the element's shading normal ``n_sh`` the cell centre lies on). The cell's shift is
+    the mean deviation of the detector-side path length from its tangent plane over the cell: for a quadratic, 1/3
+    of the corner mean minus the centre (m), plus :func:`cell_curvature`'s shifts. ``wall_n``: the wall's
     unit normal. ``lit``, then ``amp[n, 3]``: the detector side's part of the weight at the element's vertices
     over its value at the centroid (the wall's cosine at the cell times the element's over ``|V - p|^2``; 1 without
     ``slope`` and for unlit pairs), which :func:`~._nlos_element_slope.slope_of` regresses on the knots. The results
@@ -393,13 +423,20 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
                          / (q_p * q_m * a0))
                     sj = s1 if j == 0 else s2
                     tilt[i, j] = d if sj >= 0.0 else -d
-                # the linear weight 1 + t1 v1 + t2 v2 (|v| <= 1/2) must not go below 0 at a corner: where the
-                # geometric factors vary that much across the cell (grazing), the slopes are scaled down to
-                # |t1| + |t2| = 2, the weight 0 at one corner (else bins could come out negative)
-                tsum = abs(tilt[i, 0]) + abs(tilt[i, 1])
-                if tsum > MAX_TILT_SUM:
-                    tilt[i, 0] *= MAX_TILT_SUM / tsum
-                    tilt[i, 1] *= MAX_TILT_SUM / tsum
+            # the path length's curvature along each edge: a later centre and a falling density (cell_curvature)
+            l0 = fl * rd_c[c] + r
+            D0, D1, D2 = px - rd_c[c] * uq_c[c, 0], py - rd_c[c] * uq_c[c, 1], pz - rd_c[c] * uq_c[c, 2]
+            sh1, tc1 = cell_curvature(X0[e], px, py, pz, D0, D1, D2, l0, ax[0], ax[1], ax[2], fl, s1 * bin_m)
+            sh2, tc2 = cell_curvature(X0[e], px, py, pz, D0, D1, D2, l0, ay[0], ay[1], ay[2], fl, s2 * bin_m)
+            tilt[i, 0] += tc1
+            tilt[i, 1] += tc2
+            # the linear weight 1 + t1 v1 + t2 v2 (|v| <= 1/2) must not go below 0 at a corner: where the
+            # geometric factors vary that much across the cell (grazing), the slopes are scaled down to
+            # |t1| + |t2| = 2, the weight 0 at one corner (else bins could come out negative)
+            tsum = abs(tilt[i, 0]) + abs(tilt[i, 1])
+            if tsum > MAX_TILT_SUM:
+                tilt[i, 0] *= MAX_TILT_SUM / tsum
+                tilt[i, 1] *= MAX_TILT_SUM / tsum
             acc = corner_d[c]
             for cu in (-0.5, 0.5):
                 for cv in (-0.5, 0.5):
@@ -407,7 +444,7 @@ def _pair_geometry(cell_p, cell_w0, rd_c, uq_c, w0_c, corner_d, X0, tri, nrm, ar
                     sy = py + cu * ax[1] + cv * ay[1]
                     sz = pz + cu * ax[2] + cv * ay[2]
                     acc += np.sqrt((X0[e, 0] - sx) ** 2 + (X0[e, 1] - sy) ** 2 + (X0[e, 2] - sz) ** 2)
-            cell_shift = (acc * 0.25 - (fl * rd_c[c] + r)) * (1.0 / 3.0)
+            cell_shift = (acc * 0.25 - (fl * rd_c[c] + r)) * (1.0 / 3.0) + sh1 + sh2
         if slope and n0 > 0.0:
             for v in range(3):
                 nv, qv = _amplitude_parts(tri[e, v], px, py, pz, nrm[e], wall_n)

@@ -34,7 +34,11 @@ Here it is integrated by quadrature instead of sampling:
   every bin (:mod:`transient_mi.integrators._nlos_time_spread`), not deposited at the centre. The leading
   second-order term (the path length is convex) is removed from the mean: the knots are shifted by 3/4 of
   the centroid's deviation from the vertex mean (exact for a quadratic over a triangle) and by 1/3 of the
-  cell's corner-mean deviation from its centre (exact for a quadratic over a square).
+  cell's corner-mean deviation from its centre (exact for a quadratic over a square). Along each edge of the cell
+  the curvature ``a`` (from the edge midpoints) also shapes the spread to first order in ``a / s`` (``s`` the
+  width): the uniform component is centred ``a / 8`` late, not ``a / 24``, with a density falling as
+  ``1 - (a / |s|) v`` across it (the same mean; the slope joins the cell's tilt), faded out as ``|a|`` nears
+  ``|s|`` (:func:`~._nlos_pair_kernels.cell_curvature`).
 * **Visibility.** ``V(p, X)`` and ``V(X, S)`` are tested by ray casts at the centroid and at three points
   near the element's corners (each leg from the cell centre and from the spot; a sample is visible when no
   surface lies before ``1 - 1e-4`` of its distance: :func:`~._nlos_surfaces.visibility_masks`; from a cell

@@ -33,7 +33,8 @@ the *interior* derivative of the quadrature's primal: light appearing or vanishi
 edge, at a silhouette or where an element's visibility samples change their verdict is not differentiated
 (the primal jumps there); neither is the cell tilt's dependence on the geometry (the first-order amplitude
 slope across a wall cell, ``Chunk.tilt``: its terms enter the masses and their shift derivative, not their
-knot, width or tilt derivatives; measured up to 4e-3 of the gradient on the test scene), the error estimate
+knot, width or tilt derivatives; measured up to 4e-3 of the gradient on the test scene), nor the shift of the
+cell's curvature (:func:`~._nlos_pair_kernels.cell_curvature`: in the knots, its derivative not taken), the error estimate
 (the element's slope, by contrast, is differentiated: its term's knot and width derivatives in
 :func:`~._nlos_mass_adjoint.mass_adjoint`, and the slope itself through its knots and its vertices' amplitudes,
 :func:`~._nlos_element_slope.slope_adjoint`; without them the confocal rigid-motion gradient of the tests was 1.6 % off), the error estimate
@@ -56,6 +57,7 @@ from transient_mi._upload import upload
 from transient_mi.props import PluginParameterError
 
 from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
+from transient_mi.integrators._nlos_pair_kernels import cell_curvature
 from transient_mi.integrators._nlos_element_slope import laser_slope_terms, slope_adjoint, slope_of
 
 #: A cosine or distance below this does not take part in the log-derivative of a pair's light (a grazing pair).
@@ -148,7 +150,16 @@ def pair_lengths(cell_p, X0, tri, e0, e1, D, ax, ay, fl, has_cells):
                     acc += fl * np.sqrt((q0 - D[0]) * (q0 - D[0]) + (q1 - D[1]) * (q1 - D[1])
                                         + (q2 - D[2]) * (q2 - D[2])) \
                         + np.sqrt((x[0] - q0) * (x[0] - q0) + (x[1] - q1) * (x[1] - q1) + (x[2] - q2) * (x[2] - q2))
-            cell_shift[i] = (acc / 4.0 - (fl * rd + r)) / 3.0
+            # the curvature along each edge (the primal's cell_curvature: the same shift, from the same widths)
+            l0 = fl * rd + r
+            sw = 0.0
+            for h in (ax, ay):
+                gs = 0.0
+                for q in range(3):
+                    gs += (fl * (p[q] - D[q]) / rd - (x[q] - p[q]) / r) * h[q]
+                sh, _ = cell_curvature(x, p[0], p[1], p[2], D[0], D[1], D[2], l0, h[0], h[1], h[2], fl, gs)
+                sw += sh
+            cell_shift[i] = (acc / 4.0 - (fl * rd + r)) / 3.0 + sw
     return r_pv, r_px, opl_d, cell_shift
 
 
