@@ -16,9 +16,10 @@ Tolerances (every test here is deterministic: no false-failure rate to state):
   truncation, ~h^2 f''' / 6, is ~1e-6 of the derivative at these steps (16x smaller than at 1 mm, where it
   is ~1e-3 along z), float32 rounding (6e-8 of a bin) divided by the relative step a few 1e-6 more
   (measured before the cell tilt: at most 6e-5). The primal's cell tilt (a first-order amplitude slope across
-  a wall cell, main's dda01d8) is not differentiated yet (neither its geometric dependence nor its terms'
-  knot and width derivatives): measured 8e-4 along y and 4e-3 for the rotation about x with it; tolerance
-  relative 1e-2 until the tilt is differentiated.
+  a wall cell, main's dda01d8) has its terms' knot, width and tilt derivatives (both widths finite) and its
+  curvature part's geometric dependence (2026-12-08), not its weight part's: measured at most 2.0e-3 (array)
+  and 2.4e-3 (confocal), for the rotation about x (4e-3 before); tolerance relative 1e-2 until the weight part
+  is differentiated.
 """
 
 from __future__ import annotations
@@ -90,7 +91,9 @@ def test_mass_derivatives_equal_central_differences(slope):
 def test_tilted_mass_sum_and_shift_derivative_equal_the_primal():
     """With the cell's amplitude tilts (both widths finite: the fused path of ``mass_adjoint``, and one width
     infinitesimal), ``sum_j r_j m_j`` equals the primal's and its ``t_lo`` derivative equals central differences of
-    the primal (the tilts' own knot and width derivatives are not taken, as documented)."""
+    the primal, and so do its derivatives along the tilts themselves and, with both widths finite, along the knots
+    and widths (where a width is infinitesimal the tilts' terms' knot and width derivatives are not taken, as
+    documented)."""
     from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
     from transient_mi.integrators._nlos_time_spread import _masses
 
@@ -116,6 +119,23 @@ def test_tilted_mass_sum_and_shift_derivative_equal_the_primal():
         dp = np.array([h, 0, 0, 0, 0])
         fd = (loss(p0 + dp) - loss(p0 - dp)) / (2 * h)
         assert abs(out[1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, fd, out[1])
+        if u1 > 0.0:  # both widths finite: the tilts' terms' knot and width derivatives are taken too
+            for q in range(1, 5):
+                dp = np.zeros(5)
+                dp[q] = h
+                pp, pm = p0 + dp, p0 - dp
+                if pm[1] < 0 or pp[1] > pp[2] or pm[2] < pm[1]:
+                    continue  # (a one-sided neighbourhood)
+                fd = (loss(pp) - loss(pm)) / (2 * h)
+                assert abs(out[q + 1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, q, fd, out[q + 1])
+        # the tilts' own derivatives: the masses are linear in each, so the difference quotient is exact to rounding
+        for k, (d1, d2) in ((7, (0.1, 0.0)), (8, (0.0, 0.1))):
+            def loss_t(t_1, t_2):
+                buf = np.zeros(n_ext)
+                f, last, _ = _masses(buf, *p0, t_1, t_2, n_ext)
+                return float(np.dot(row[f:last + 1], buf[f:last + 1]))
+            dq = (loss_t(t1 + d1, t2 + d2) - loss_t(t1 - d1, t2 - d2)) / 0.2
+            assert out[k] == pytest.approx(dq, rel=1e-7, abs=1e-10), (trial, k, out[k], dq)
 
 
 def _rigid(scene, params, key, x0, t):

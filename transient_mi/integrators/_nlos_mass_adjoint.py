@@ -234,7 +234,7 @@ def _point(y, a, b, mu, var, mu3, g3_knots):
 
 @numba.njit(cache=True, fastmath=False, inline="always")
 def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3, beta, slope):
-    """``(C, dC/dx, dC/da, dC/db, dC/dw1, dC/dw2, E)`` at edge ``x`` with both widths finite, the tilts' terms added to
+    """``(C, dC/dx, dC/da, dC/db, dC/dw1, dC/dw2, E, dC/dt1, dC/dt2)`` at edge ``x`` with both widths finite, the tilts' terms added to
     ``C`` and ``dC/dx`` (the second difference of ``G_2`` over both widths, plus ``t_i`` :func:`_tilt` and
     :func:`_tilt_dx` as where a width is infinitesimal): every term is
     a second difference over the same four points ``y``, ``y - w1``, ``y - w2``, ``y - w1 - w2`` (``y = x + (w1 +
@@ -242,7 +242,7 @@ def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3, beta, slope):
     the element slope's term ``E[(A - mu) 1{T <= x}]`` (``C``'s derivative along ``beta``; 0 unless ``slope`` or
     ``beta`` is not 0)."""
     y = x + 0.5 * (w1 + w2)
-    g3k = beta != 0.0
+    g3k = beta != 0.0 or t1 != 0.0 or t2 != 0.0
     p1, p2, p3, pa, pb, p3a, p3b = _point(y, a, b, mu, var, mu3, g3k)
     q1, q2, q3, qa, qb, q3a, q3b = _point(y - w1, a, b, mu, var, mu3, g3k)
     r1, r2, r3, ra, rb, r3a, r3b = _point(y - w2, a, b, mu, var, mu3, g3k)
@@ -254,16 +254,43 @@ def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3, beta, slope):
     cb = (pb - qb - rb + sb) / ww
     cw1 = 0.5 * (p1 + q1 - r1 - s1) / ww - c / w1
     cw2 = 0.5 * (p1 - q1 + r1 - s1) / ww - c / w2
-    if t1 != 0.0:  # _tilt(x, w1, other w2): lo = x - w1/2 (points y - w1, y - w1 - w2), hi = x + w1/2 (y, y - w2)
-        k_lo = (q2 - s2) / w2
-        k_hi = (p2 - r2) / w2
-        c += t1 * (((p3 - r3) - (q3 - s3)) / w2 - 0.5 * w1 * (k_lo + k_hi)) / (w1 * w1)
+    # _tilt(x, w1, other w2): lo = x - w1/2 (points y - w1, y - w1 - w2), hi = x + w1/2 (y, y - w2); C's
+    # derivative along t1 whatever t1 (the tilts' own derivatives, :func:`mass_adjoint`)
+    k_lo = (q2 - s2) / w2
+    k_hi = (p2 - r2) / w2
+    ct1 = (((p3 - r3) - (q3 - s3)) / w2 - 0.5 * w1 * (k_lo + k_hi)) / (w1 * w1)
+    if t1 != 0.0:
+        c += t1 * ct1
         cx += t1 * (k_hi - k_lo - 0.5 * w1 * ((q1 - s1) / w2 + (p1 - r1) / w2)) / (w1 * w1)
-    if t2 != 0.0:  # _tilt(x, w2, other w1): lo = x - w2/2 (y - w2, y - w1 - w2), hi = x + w2/2 (y, y - w1)
-        k_lo = (r2 - s2) / w1
-        k_hi = (p2 - q2) / w1
-        c += t2 * (((p3 - q3) - (r3 - s3)) / w1 - 0.5 * w2 * (k_lo + k_hi)) / (w2 * w2)
+        # the term's knot and width derivatives (the points y, y - w1, y - w2, y - w1 - w2 move by +-1/2 with the
+        # widths; G_3' = G_2, G_2' = G_1)
+        ca += t1 * (((p3a - r3a) - (q3a - s3a)) / w2 - 0.5 * w1 * ((qa - sa) + (pa - ra)) / w2) / (w1 * w1)
+        cb += t1 * (((p3b - r3b) - (q3b - s3b)) / w2 - 0.5 * w1 * ((qb - sb) + (pb - rb)) / w2) / (w1 * w1)
+        n1 = ((p3 - r3) - (q3 - s3)) / w2
+        kk = k_lo + k_hi
+        dn = 0.5 * (p2 - r2 + q2 - s2) / w2
+        dk = 0.5 * (p1 - r1 - q1 + s1) / w2
+        cw1 += t1 * ((dn - 0.5 * kk - 0.5 * w1 * dk) / (w1 * w1) - 2.0 * ct1 / w1)
+        dn = 0.5 * (p2 + r2 - q2 - s2) / w2 - n1 / w2
+        dk = 0.5 * (q1 + s1 + p1 + r1) / w2 - kk / w2
+        cw2 += t1 * (dn - 0.5 * w1 * dk) / (w1 * w1)
+    # _tilt(x, w2, other w1): lo = x - w2/2 (y - w2, y - w1 - w2), hi = x + w2/2 (y, y - w1)
+    k_lo = (r2 - s2) / w1
+    k_hi = (p2 - q2) / w1
+    ct2 = (((p3 - q3) - (r3 - s3)) / w1 - 0.5 * w2 * (k_lo + k_hi)) / (w2 * w2)
+    if t2 != 0.0:
+        c += t2 * ct2
         cx += t2 * (k_hi - k_lo - 0.5 * w2 * ((r1 - s1) / w1 + (p1 - q1) / w1)) / (w2 * w2)
+        ca += t2 * (((p3a - q3a) - (r3a - s3a)) / w1 - 0.5 * w2 * ((ra - sa) + (pa - qa)) / w1) / (w2 * w2)
+        cb += t2 * (((p3b - q3b) - (r3b - s3b)) / w1 - 0.5 * w2 * ((rb - sb) + (pb - qb)) / w1) / (w2 * w2)
+        n2 = ((p3 - q3) - (r3 - s3)) / w1
+        kk = k_lo + k_hi
+        dn = 0.5 * (p2 - q2 + r2 - s2) / w1
+        dk = 0.5 * (p1 - q1 - r1 + s1) / w1
+        cw2 += t2 * ((dn - 0.5 * kk - 0.5 * w2 * dk) / (w2 * w2) - 2.0 * ct2 / w2)
+        dn = 0.5 * (p2 + q2 - r2 - s2) / w1 - n2 / w1
+        dk = 0.5 * (r1 + s1 + p1 + q1) / w1 - kk / w1
+        cw1 += t2 * (dn - 0.5 * w2 * dk) / (w2 * w2)
     # the element's slope: E[(A - mu) 1{T <= x}] with H(y) = (y - mu) G_2(y) - 3 G_3(y) over the same four points,
     # and its x derivative with (y - mu) G_1(y) - 2 G_2(y)
     yq = y - w1
@@ -288,7 +315,7 @@ def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3, beta, slope):
                       - 3.0 * (p3b - q3b - r3b + s3b) / ww)
         cw1 += beta * (0.5 * (hp + hq - hr - hs) / ww - ce / w1)
         cw2 += beta * (0.5 * (hp - hq + hr - hs) / ww - ce / w2)
-    return c, cx, ca, cb, cw1, cw2, ce
+    return c, cx, ca, cb, cw1, cw2, ce, ct1, ct2
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -325,11 +352,13 @@ def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext, beta=0.0, slope=False):
     amplitude tilts ``t1``, ``t2``, the element's amplitude slope ``beta`` per bin, bins of the padded axis) and a
     row of bin adjoints ``row [n_ext]``:
     ``(sum_j row_j m_j`` and its derivatives with respect to ``tlo, a, b, u1, u2, beta)``, the bins outside
-    ``[0, n_ext)`` left out as in the primal. The tilts' terms (the cell's and the element's) enter the sum and the
-    ``tlo`` derivative exactly, the element slope's term its ``a, b, u`` derivatives too, and with ``slope`` the
-    ``beta`` derivative is returned (0 otherwise; the caller differentiates the slope through its inputs); the cell tilts' own ``a, b, u``
-    derivatives are not taken (a first-order correction times a derivative: see
-    :mod:`~._nlos_quadrature_geom`)."""
+    ``[0, n_ext)`` left out as in the primal, then its derivatives with respect to the cell's tilts ``t1, t2`` (the
+    sum is linear in them; 0 along a width the primal takes as infinitesimal). The tilts' terms (the cell's and the
+    element's) enter the sum and the ``tlo`` derivative exactly, the element slope's term its ``a, b, u`` derivatives
+    too, and with ``slope`` the ``beta`` derivative is returned (0 otherwise; the caller differentiates the slope
+    through its inputs); the cell tilts' terms' ``a, b, u`` derivatives are taken where both widths are finite (the
+    fused path, :func:`_edge_both_widths`), not where a width is infinitesimal (a first-order correction times a
+    derivative, on a cell seen edge-on: see :mod:`~._nlos_quadrature_geom`)."""
     spread = b + u1 + u2
     eps = REL_WIDTH_EPS * spread
     small1 = u1 <= eps
@@ -344,22 +373,25 @@ def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext, beta=0.0, slope=False):
     hi = tlo + b + 0.5 * (u1 + u2)
     b0 = int(np.floor(lo))
     b1 = int(np.floor(hi))
-    acc = st = sa = sb = s1 = s2 = se = 0.0  # the sum and its derivatives along tlo, a, b, u1, u2, beta
-    p0 = p1 = p2 = p3 = p4 = p5 = p6 = 0.0  # C and its derivatives at the bin's lower edge
+    acc = st = sa = sb = s1 = s2 = se = sk1 = sk2 = 0.0  # the sum, its derivatives along tlo, a, b, u1, u2, beta, t1, t2
+    p0 = p1 = p2 = p3 = p4 = p5 = p6 = p7 = p8 = 0.0  # C and its derivatives at the bin's lower edge
     for bin_ in range(b0, b1 + 1):
         edge = float(bin_ + 1) - tlo
         if edge + tlo >= hi:
-            c0, c1, c2, c3, c4, c5, c6 = 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            c0, c1, c2, c3, c4, c5, c6, c7, c8 = 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         elif both:
-            c0, cx, c2, c3, c4, c5, c6 = _edge_both_widths(edge, a, b, u1, u2, t1, t2, mu, var, mu3, beta, slope)
+            c0, cx, c2, c3, c4, c5, c6, c7, c8 = _edge_both_widths(edge, a, b, u1, u2, t1, t2, mu, var, mu3, beta,
+                                                                   slope)
             c1 = -cx
         else:
             c0, cx, c2, c3, c4, c5 = cdf_derivatives(edge, a, b, u1, u2, mu, var, small1, small2)
+            c7 = 0.0 if small1 else _tilt(edge, a, b, u1, u2, mu, var, mu3, small2)
+            c8 = 0.0 if small2 else _tilt(edge, a, b, u2, u1, mu, var, mu3, small1)
             if tilt1:
-                c0 += t1 * _tilt(edge, a, b, u1, u2, mu, var, mu3, small2)
+                c0 += t1 * c7
                 cx += t1 * _tilt_dx(edge, u1, u2, a, b, mu, var, mu3, small2)
             if tilt2:
-                c0 += t2 * _tilt(edge, a, b, u2, u1, mu, var, mu3, small1)
+                c0 += t2 * c8
                 cx += t2 * _tilt_dx(edge, u2, u1, a, b, mu, var, mu3, small1)
             c6 = 0.0
             if slope or beta != 0.0:
@@ -384,5 +416,7 @@ def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext, beta=0.0, slope=False):
                 s1 += r * (c4 - p4)
                 s2 += r * (c5 - p5)
                 se += r * (c6 - p6)
-        p0, p1, p2, p3, p4, p5, p6 = c0, c1, c2, c3, c4, c5, c6
-    return acc, st, sa, sb, s1, s2, se
+                sk1 += r * (c7 - p7)
+                sk2 += r * (c8 - p8)
+        p0, p1, p2, p3, p4, p5, p6, p7, p8 = c0, c1, c2, c3, c4, c5, c6, c7, c8
+    return acc, st, sa, sb, s1, s2, se, sk1, sk2
