@@ -51,7 +51,7 @@ from docgen.recon import (  # noqa: E402
 )
 from docgen.quadrature import (  # noqa: E402
     PAPER_ESTIMATORS, PROFILE_COMPARE, QUADRATURE_PARTS, QUADRATURE_PROFILES, QUADRATURE_SETTINGS, REFINEMENT_RULE,
-    CELLS_CURVATURE, CELLS_ERROR, ELEMENT_SLOPE, cells_curvature_inline, SCENE_SETTINGS, cells_error_table, element_slope_inline, element_slope_table, paper_estimators_table, profile_compare_inline, quadrature_parts_table, quadrature_settings_table,
+    CELLS_CURVATURE, CELLS_ERROR, ELEMENT_SLOPE, LETTER_CURVATURE, cells_curvature_inline, letter_curvature_inline, SCENE_SETTINGS, cells_error_table, element_slope_inline, element_slope_table, paper_estimators_table, profile_compare_inline, quadrature_parts_table, quadrature_settings_table,
     QUADRATURE_PARTS_A4, cells_plan_para, PROFILE_OWNED, profile_owned_inline, CONFOCAL_BLOCKS, confocal_blocks_inline, MASSES, masses_inline,
     quadrature_cost_inline,
     quadrature_inline, quadrature_profile_inline, quadrature_table, refinement_rule_inline, scene_settings_table,
@@ -131,6 +131,7 @@ GENERATORS = {
     "quadrature_scene_settings": (scene_settings_table, list(SCENE_SETTINGS), False),
     "quadrature_cells_error": (cells_error_table, [CELLS_ERROR], False),
     "quadrature_cells_curvature": (cells_curvature_inline, [CELLS_ERROR, CELLS_CURVATURE], True),
+    "quadrature_letter_curvature": (letter_curvature_inline, list(LETTER_CURVATURE), True),
     "element_slope": (element_slope_table, [ELEMENT_SLOPE], False),
     "element_slope_inline": (element_slope_inline, [ELEMENT_SLOPE], True),
     "nlos_quadrature_table": (nlos_quadrature_table, ["nlos_quadrature", "nlos_quadrature_64x64",

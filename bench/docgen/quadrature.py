@@ -55,6 +55,21 @@ def quadrature_inline(R) -> str:
             f"({provenance(rec, short=True)})")
 
 
+#: bench/bench_quadrature.py's record and the same with the code and scene defaults before the cell's curvature (run
+#: one after the other).
+LETTER_CURVATURE = ("quadrature", "quadrature_before_curvature")
+
+
+def letter_curvature_inline(R) -> str:
+    """The README letter capture's render time and stated ratio at 10 ms, this code against the code before."""
+    now, before = R(LETTER_CURVATURE[0]), R(LETTER_CURVATURE[1])
+    n, b = now["result"]["readme_capture"], before["result"]["readme_capture"]
+    return (f"the README's 16 x 16, 4 x 4-spot capture rendered in {n['quadrature']['time_s']:.1f} s, stating "
+            f"{n['quadrature']['stated']['10ms']['ratio']:.2g} at 10 ms, against {b['quadrature']['time_s']:.1f} s "
+            f"and {b['quadrature']['stated']['10ms']['ratio']:.2g} with 10 mm, 6 cells and the code before, one run "
+            f"after the other (4096-spp Monte Carlo: {n['monte_carlo']['time_s']:.2f} s and "
+            f"{b['monte_carlo']['time_s']:.2f} s; {_sources(now, before)})")
+
 def quadrature_cost_inline(R) -> str:
     """How the render time grows when one factor is multiplied by 4 (linear would be 4)."""
     rec = R("quadrature_cost")
