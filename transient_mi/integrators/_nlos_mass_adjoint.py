@@ -233,6 +233,33 @@ def _point(y, a, b, mu, var, mu3, g3_knots):
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
+def _tilt_terms(A1, A2, A3, Aa, Ab, A3a, A3b, B1, B2, B3, Ba, Bb, B3a, B3b, C1, C2, C3, Ca, Cb, C3a, C3b,
+                D1, D2, D3, Da, Db, D3a, D3b, wa, wo):
+    """A cell tilt's term of :func:`_edge_both_widths` along the width ``wa`` (the other ``wo``) and its derivatives:
+    ``(T, dT/dx, dT/da, dT/db, dT/dwa, dT/dwo)`` with ``T = [(G_3(A) - G_3(B) - G_3(C) + G_3(D)) / wo - (wa / 2)
+    (k_lo + k_hi)] / wa^2``, ``k_hi = (G_2(A) - G_2(B)) / wo``, ``k_lo = (G_2(C) - G_2(D)) / wo`` (:func:`_tilt` on
+    both widths). The points (each given as :func:`_point`'s seven values): ``A = y``, ``B = y - wo``, ``C = y -
+    wa``, ``D = y - wa - wo``; with ``y = x + (wa + wo) / 2`` they move by ``+-1/2`` with each width (``G_3' = G_2``,
+    ``G_2' = G_1``)."""
+    wa2 = wa * wa
+    k_lo = (C2 - D2) / wo
+    k_hi = (A2 - B2) / wo
+    kk = k_lo + k_hi
+    n = ((A3 - B3) - (C3 - D3)) / wo
+    t = (n - 0.5 * wa * kk) / wa2
+    tx = (k_hi - k_lo - 0.5 * wa * ((C1 - D1) / wo + (A1 - B1) / wo)) / wa2
+    ta = (((A3a - B3a) - (C3a - D3a)) / wo - 0.5 * wa * ((Ca - Da) + (Aa - Ba)) / wo) / wa2
+    tb = (((A3b - B3b) - (C3b - D3b)) / wo - 0.5 * wa * ((Cb - Db) + (Ab - Bb)) / wo) / wa2
+    dn = 0.5 * (A2 - B2 + C2 - D2) / wo
+    dk = 0.5 * (A1 - B1 - C1 + D1) / wo
+    t_wa = (dn - 0.5 * kk - 0.5 * wa * dk) / wa2 - 2.0 * t / wa
+    dn = 0.5 * (A2 + B2 - C2 - D2) / wo - n / wo
+    dk = 0.5 * (C1 + D1 + A1 + B1) / wo - kk / wo
+    t_wo = (dn - 0.5 * wa * dk) / wa2
+    return t, tx, ta, tb, t_wa, t_wo
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
 def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3, beta, slope):
     """``(C, dC/dx, dC/da, dC/db, dC/dw1, dC/dw2, E, dC/dt1, dC/dt2)`` at edge ``x`` with both widths finite, the tilts' terms added to
     ``C`` and ``dC/dx`` (the second difference of ``G_2`` over both widths, plus ``t_i`` :func:`_tilt` and
@@ -254,43 +281,19 @@ def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3, beta, slope):
     cb = (pb - qb - rb + sb) / ww
     cw1 = 0.5 * (p1 + q1 - r1 - s1) / ww - c / w1
     cw2 = 0.5 * (p1 - q1 + r1 - s1) / ww - c / w2
-    # _tilt(x, w1, other w2): lo = x - w1/2 (points y - w1, y - w1 - w2), hi = x + w1/2 (y, y - w2); C's
-    # derivative along t1 whatever t1 (the tilts' own derivatives, :func:`mass_adjoint`)
-    k_lo = (q2 - s2) / w2
-    k_hi = (p2 - r2) / w2
-    ct1 = (((p3 - r3) - (q3 - s3)) / w2 - 0.5 * w1 * (k_lo + k_hi)) / (w1 * w1)
-    if t1 != 0.0:
-        c += t1 * ct1
-        cx += t1 * (k_hi - k_lo - 0.5 * w1 * ((q1 - s1) / w2 + (p1 - r1) / w2)) / (w1 * w1)
-        # the term's knot and width derivatives (the points y, y - w1, y - w2, y - w1 - w2 move by +-1/2 with the
-        # widths; G_3' = G_2, G_2' = G_1)
-        ca += t1 * (((p3a - r3a) - (q3a - s3a)) / w2 - 0.5 * w1 * ((qa - sa) + (pa - ra)) / w2) / (w1 * w1)
-        cb += t1 * (((p3b - r3b) - (q3b - s3b)) / w2 - 0.5 * w1 * ((qb - sb) + (pb - rb)) / w2) / (w1 * w1)
-        n1 = ((p3 - r3) - (q3 - s3)) / w2
-        kk = k_lo + k_hi
-        dn = 0.5 * (p2 - r2 + q2 - s2) / w2
-        dk = 0.5 * (p1 - r1 - q1 + s1) / w2
-        cw1 += t1 * ((dn - 0.5 * kk - 0.5 * w1 * dk) / (w1 * w1) - 2.0 * ct1 / w1)
-        dn = 0.5 * (p2 + r2 - q2 - s2) / w2 - n1 / w2
-        dk = 0.5 * (q1 + s1 + p1 + r1) / w2 - kk / w2
-        cw2 += t1 * (dn - 0.5 * w1 * dk) / (w1 * w1)
-    # _tilt(x, w2, other w1): lo = x - w2/2 (y - w2, y - w1 - w2), hi = x + w2/2 (y, y - w1)
-    k_lo = (r2 - s2) / w1
-    k_hi = (p2 - q2) / w1
-    ct2 = (((p3 - q3) - (r3 - s3)) / w1 - 0.5 * w2 * (k_lo + k_hi)) / (w2 * w2)
-    if t2 != 0.0:
-        c += t2 * ct2
-        cx += t2 * (k_hi - k_lo - 0.5 * w2 * ((r1 - s1) / w1 + (p1 - q1) / w1)) / (w2 * w2)
-        ca += t2 * (((p3a - q3a) - (r3a - s3a)) / w1 - 0.5 * w2 * ((ra - sa) + (pa - qa)) / w1) / (w2 * w2)
-        cb += t2 * (((p3b - q3b) - (r3b - s3b)) / w1 - 0.5 * w2 * ((rb - sb) + (pb - qb)) / w1) / (w2 * w2)
-        n2 = ((p3 - q3) - (r3 - s3)) / w1
-        kk = k_lo + k_hi
-        dn = 0.5 * (p2 - q2 + r2 - s2) / w1
-        dk = 0.5 * (p1 - q1 - r1 + s1) / w1
-        cw2 += t2 * ((dn - 0.5 * kk - 0.5 * w2 * dk) / (w2 * w2) - 2.0 * ct2 / w2)
-        dn = 0.5 * (p2 + q2 - r2 - s2) / w1 - n2 / w1
-        dk = 0.5 * (r1 + s1 + p1 + q1) / w1 - kk / w1
-        cw1 += t2 * (dn - 0.5 * w2 * dk) / (w2 * w2)
+    # the cell's tilts: _tilt(x, w1, other w2) reads the points y, y - w2 (at x + w1/2) and y - w1, y - w1 - w2
+    # (at x - w1/2); _tilt(x, w2, other w1) the points y, y - w1 and y - w2, y - w1 - w2. C's derivative along
+    # each tilt is returned whatever the tilt (the tilts' own derivatives, :func:`mass_adjoint`)
+    ct1, x1, a1, b1, wa1, wo1 = _tilt_terms(p1, p2, p3, pa, pb, p3a, p3b, r1, r2, r3, ra, rb, r3a, r3b,
+                                            q1, q2, q3, qa, qb, q3a, q3b, s1, s2, s3, sa, sb, s3a, s3b, w1, w2)
+    ct2, x2, a2, b2, wa2, wo2 = _tilt_terms(p1, p2, p3, pa, pb, p3a, p3b, q1, q2, q3, qa, qb, q3a, q3b,
+                                            r1, r2, r3, ra, rb, r3a, r3b, s1, s2, s3, sa, sb, s3a, s3b, w2, w1)
+    c += t1 * ct1 + t2 * ct2
+    cx += t1 * x1 + t2 * x2
+    ca += t1 * a1 + t2 * a2
+    cb += t1 * b1 + t2 * b2
+    cw1 += t1 * wa1 + t2 * wo2
+    cw2 += t1 * wo1 + t2 * wa2
     # the element's slope: E[(A - mu) 1{T <= x}] with H(y) = (y - mu) G_2(y) - 3 G_3(y) over the same four points,
     # and its x derivative with (y - mu) G_1(y) - 2 G_2(y)
     yq = y - w1
