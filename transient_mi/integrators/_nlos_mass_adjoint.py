@@ -261,7 +261,8 @@ def _tilt_terms(A1, A2, A3, Aa, Ab, A3a, A3b, B1, B2, B3, Ba, Bb, B3a, B3b, C1, 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
 def _edge_both_widths(x, a, b, w1, w2, t1, t2, mu, var, mu3, beta, slope):
-    """``(C, dC/dx, dC/da, dC/db, dC/dw1, dC/dw2, E, dC/dt1, dC/dt2)`` at edge ``x`` with both widths finite, the tilts' terms added to
+    """``(C, dC/dx, dC/da, dC/db, dC/dw1, dC/dw2, E, dC/dt1, dC/dt2)`` at edge ``x`` with both widths finite, the
+    tilts' terms added to
     ``C`` and ``dC/dx`` (the second difference of ``G_2`` over both widths, plus ``t_i`` :func:`_tilt` and
     :func:`_tilt_dx` as where a width is infinitesimal): every term is
     a second difference over the same four points ``y``, ``y - w1``, ``y - w2``, ``y - w1 - w2`` (``y = x + (w1 +
@@ -376,7 +377,8 @@ def mass_adjoint(row, tlo, a, b, u1, u2, t1, t2, n_ext, beta=0.0, slope=False):
     hi = tlo + b + 0.5 * (u1 + u2)
     b0 = int(np.floor(lo))
     b1 = int(np.floor(hi))
-    acc = st = sa = sb = s1 = s2 = se = sk1 = sk2 = 0.0  # the sum, its derivatives along tlo, a, b, u1, u2, beta, t1, t2
+    # the sum and its derivatives along tlo, a, b, u1, u2, beta, t1, t2
+    acc = st = sa = sb = s1 = s2 = se = sk1 = sk2 = 0.0
     p0 = p1 = p2 = p3 = p4 = p5 = p6 = p7 = p8 = 0.0  # C and its derivatives at the bin's lower edge
     for bin_ in range(b0, b1 + 1):
         edge = float(bin_ + 1) - tlo

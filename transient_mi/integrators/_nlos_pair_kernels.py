@@ -22,6 +22,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from transient_mi.integrators._nlos_cell_curvature import cell_curvature
 from transient_mi.integrators._nlos_element_slope import slope_of
 from transient_mi.integrators._nlos_time_spread import MASS_FASTMATH, cell_widths, masses
 
@@ -210,35 +211,6 @@ def cell_terms(cell_p: np.ndarray, D: np.ndarray, ax: np.ndarray, ay: np.ndarray
         for cv in (-0.5, 0.5):
             corner_d += fl * np.linalg.norm(v + cu * ax + cv * ay, axis=1)
     return rd, np.ascontiguousarray(uq), w0, corner_d
-
-
-@numba.njit(cache=True, fastmath=False, inline="always")
-def cell_curvature(x, p0, p1, p2, D0, D1, D2, l0, h0, h1, h2, fl, s_m):
-    """The path length's curvature across a cell along one of its edges ``h`` (m), as the one-cell spread takes
-    it: ``(shift_m, tilt)``.
-
-    Along the edge, ``l(u) = l0 + s u + a u^2 / 2`` (``u`` in ``[-1/2, 1/2]``, ``s`` the linear width ``s_m``, m;
-    ``a = 4 (l(1/2) + l(-1/2) - 2 l0)`` from the edge midpoints; ``l`` the detector leg ``fl |q - D|`` plus
-    ``|x - q|``). To first order in ``a / s`` the arrival times of a uniform ``u`` are uniform over ``s``, centred
-    ``a / 8`` late, with a density falling as ``1 - (a / |s|) v`` (``v`` in ``[-1/2, 1/2]``, growing with arrival
-    time): the mean ``a / 24`` is the same as the cell's shift alone gives. The correction is taken in full up to
-    ``|a| = |s| / 2`` and faded linearly to nothing at ``|a| = |s|`` (a near-stationary path length, where a linear
-    density is no model of it): ``phi``. Returns the centre's shift beyond the mean, ``a phi / 12`` (m), and the
-    density's relative slope ``-a phi / |s|``."""
-    acc = 0.0
-    for sg in (0.5, -0.5):
-        q0 = p0 + sg * h0
-        q1 = p1 + sg * h1
-        q2 = p2 + sg * h2
-        acc += fl * np.sqrt((q0 - D0) * (q0 - D0) + (q1 - D1) * (q1 - D1) + (q2 - D2) * (q2 - D2)) \
-            + np.sqrt((x[0] - q0) * (x[0] - q0) + (x[1] - q1) * (x[1] - q1) + (x[2] - q2) * (x[2] - q2))
-    a = 4.0 * (acc - 2.0 * l0)
-    w = abs(s_m)
-    if not abs(a) < w:
-        return 0.0, 0.0
-    rho = abs(a) / w
-    phi = 1.0 if rho <= 0.5 else 2.0 * (1.0 - rho)
-    return a * phi / 12.0, -a * phi / w
 
 
 @numba.njit(cache=True, fastmath=False)

@@ -38,7 +38,7 @@ Here it is integrated by quadrature instead of sampling:
   the curvature ``a`` (from the edge midpoints) also shapes the spread to first order in ``a / s`` (``s`` the
   width): the uniform component is centred ``a / 8`` late, not ``a / 24``, with a density falling as
   ``1 - (a / |s|) v`` across it (the same mean; the slope joins the cell's tilt), faded out as ``|a|`` nears
-  ``|s|`` (:func:`~._nlos_pair_kernels.cell_curvature`).
+  ``|s|`` (:func:`~._nlos_cell_curvature.cell_curvature`).
 * **Visibility.** ``V(p, X)`` and ``V(X, S)`` are tested by ray casts at the centroid and at three points
   near the element's corners (each leg from the cell centre and from the spot; a sample is visible when no
   surface lies before ``1 - 1e-4`` of its distance: :func:`~._nlos_surfaces.visibility_masks`; from a cell

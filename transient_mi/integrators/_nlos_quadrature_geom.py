@@ -34,10 +34,10 @@ edge, at a silhouette or where an element's visibility samples change their verd
 (the primal jumps there); neither is the geometric dependence of the cell tilt's weight part (the first-order
 amplitude slope across a wall cell from the weight's variation, in ``Chunk.tilt``; the tilt's terms' knot, width
 and tilt derivatives are taken where both widths are finite, :func:`~._nlos_mass_adjoint.mass_adjoint`). The
-tilt's other part, the path length's curvature (:func:`~._nlos_pair_kernels.cell_curvature`), is differentiated
-with its shift by :func:`_curvature_gradient`. On the rigid-motion test's scene the gradient is then within
-2.4e-3 of central differences, against 5.4e-3 with neither the curvature's derivatives nor the tilt terms' (a
-scratch measurement, 2026-12-08), the error estimate
+tilt's other part, the path length's curvature (:func:`~._nlos_cell_curvature.cell_curvature`), is
+differentiated with its shift by :func:`~._nlos_cell_curvature.curvature_gradient`. On the rigid-motion test's
+scene the gradient is then within 2.4e-3 of central differences, against 5.4e-3 with neither the curvature's
+derivatives nor the tilt terms' (a scratch measurement, 2026-12-08), the error estimate
 (the element's slope, by contrast, is differentiated: its term's knot and width derivatives in
 :func:`~._nlos_mass_adjoint.mass_adjoint`, and the slope itself through its knots and its vertices' amplitudes,
 :func:`~._nlos_element_slope.slope_adjoint`; without them the confocal rigid-motion gradient of the tests was 1.6 % off), the error estimate
@@ -60,7 +60,8 @@ from transient_mi._upload import upload
 from transient_mi.props import PluginParameterError
 
 from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
-from transient_mi.integrators._nlos_pair_kernels import MAX_TILT_SUM, cell_curvature
+from transient_mi.integrators._nlos_cell_curvature import cell_curvature, curvature_gradient
+from transient_mi.integrators._nlos_pair_kernels import MAX_TILT_SUM
 from transient_mi.integrators._nlos_element_slope import laser_slope_terms, slope_adjoint, slope_of
 
 #: A cosine or distance below this does not take part in the log-derivative of a pair's light (a grazing pair).
@@ -115,61 +116,6 @@ def _pair_knots(i, e, r_pv, r_px, opl_d, cell_shift, r_sv, r_sx, spot_opl, bin_m
     if t0 > t1:
         t0, t1 = t1, t0
     return v0, v1, v2, t0, t1 - t0, t2 - t0
-
-
-@numba.njit(cache=True, fastmath=False)
-def _curvature_gradient(x, p, D, h, fl, r, d, dsh, dtl):
-    """:func:`~._nlos_pair_kernels.cell_curvature` along the cell's edge ``h`` for the centroid ``x`` (cell centre
-    ``p``, detector ``D``, ``r = |x - p|``, ``d`` the unit vector ``p -> x``) and its derivatives with respect to
-    ``x``: returns ``(shift_m, tilt)`` and writes ``d shift / dx`` to ``dsh[3]`` and ``d tilt / dx`` to ``dtl[3]``
-    (0 where the correction is off). ``a``'s derivative: the edge midpoints' and the centre's unit vectors to ``x``
-    (the detector leg does not move); the width ``|s|``'s: ``s = (fl u_D - d) . h``, ``ds/dx = -(h - (h.d) d) / r``."""
-    for q in range(3):
-        dsh[q] = 0.0
-        dtl[q] = 0.0
-    rd = np.sqrt((p[0] - D[0]) ** 2 + (p[1] - D[1]) ** 2 + (p[2] - D[2]) ** 2)
-    l0 = fl * rd + r
-    acc = 0.0
-    da0 = da1 = da2 = 0.0
-    for sg in (0.5, -0.5):
-        q0 = p[0] + sg * h[0]
-        q1 = p[1] + sg * h[1]
-        q2 = p[2] + sg * h[2]
-        rq = np.sqrt((x[0] - q0) * (x[0] - q0) + (x[1] - q1) * (x[1] - q1) + (x[2] - q2) * (x[2] - q2))
-        acc += fl * np.sqrt((q0 - D[0]) * (q0 - D[0]) + (q1 - D[1]) * (q1 - D[1]) + (q2 - D[2]) * (q2 - D[2])) + rq
-        da0 += 4.0 * (x[0] - q0) / rq
-        da1 += 4.0 * (x[1] - q1) / rq
-        da2 += 4.0 * (x[2] - q2) / rq
-    a = 4.0 * (acc - 2.0 * l0)
-    da0 -= 8.0 * d[0]
-    da1 -= 8.0 * d[1]
-    da2 -= 8.0 * d[2]
-    s = 0.0
-    for q in range(3):
-        s += (fl * (p[q] - D[q]) / rd - d[q]) * h[q]
-    w = abs(s)
-    if not abs(a) < w:
-        return 0.0, 0.0
-    hd = h[0] * d[0] + h[1] * d[1] + h[2] * d[2]
-    sg_s = 1.0 if s > 0.0 else -1.0
-    dw = np.empty(3)
-    da = np.empty(3)
-    da[0], da[1], da[2] = da0, da1, da2
-    for q in range(3):
-        dw[q] = -sg_s * (h[q] - hd * d[q]) / r
-    aa = abs(a)
-    if aa <= 0.5 * w:
-        for q in range(3):
-            dsh[q] = da[q] / 12.0
-            dtl[q] = -da[q] / w + a * dw[q] / (w * w)
-        return a / 12.0, -a / w
-    # the fade, phi = 2 (1 - |a| / w): shift (2 a - 2 a |a| / w) / 12, tilt -2 a / w + 2 a |a| / w^2
-    for q in range(3):
-        dsh[q] = (2.0 * da[q] - 4.0 * aa * da[q] / w + 2.0 * a * aa * dw[q] / (w * w)) / 12.0
-        dtl[q] = (-2.0 * da[q] / w + 2.0 * a * dw[q] / (w * w) + 4.0 * aa * da[q] / (w * w)
-                  - 4.0 * a * aa * dw[q] / (w * w * w))
-    phi = 2.0 * (1.0 - aa / w)
-    return a * phi / 12.0, -a * phi / w
 
 
 @numba.njit(cache=True, parallel=True, fastmath=False)
@@ -399,7 +345,7 @@ def geometry_adjoint(out, grad_ext, e0, ne, c_lo, c_hi, cell_pixel, cell_p, ax, 
                     # masses (not where the primal scaled the tilts down to MAX_TILT_SUM)
                     clamped = abs(tilt[i, 0]) + abs(tilt[i, 1]) >= MAX_TILT_SUM * (1.0 - 1e-12)
                     for (hv, s_k) in ((ax, s_k1), (ay, s_k2)):
-                        _curvature_gradient(X0[e], p, D, hv, fl, r, d, dsh, dtl)
+                        curvature_gradient(X0[e], p, D, hv, fl, r, d, dsh, dtl)
                         for q in range(3):
                             acc[cb, j, q] += fb * s_t * dsh[q]
                         if not clamped:
