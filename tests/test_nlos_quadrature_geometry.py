@@ -46,6 +46,20 @@ STEP_DEG = 0.2
 REL_TOL = 1e-2
 
 
+def _assert_knot_and_width_derivatives(out, loss, p0, h, trial, first=0):
+    """``out[q + 1]`` (``mass_adjoint``'s derivative along ``p[q]``: ``t_lo, a, b, w1, w2``) against central
+    differences of ``loss`` with step ``h``, for ``q`` from ``first``; neighbourhoods that would leave the knots'
+    order or the widths' sign, and widths the primal ignores (0), are skipped. Tolerance 1e-5 of ``1 + |fd|``."""
+    for q in range(first, 5):
+        dp = np.zeros(5)
+        dp[q] = h
+        pp, pm = p0 + dp, p0 - dp
+        if pm[1] < 0 or pp[1] > pp[2] or pm[2] < pm[1] or min(pm[3:]) < 0 or (q >= 3 and p0[q] == 0):
+            continue  # (a one-sided neighbourhood, or a width the primal ignores)
+        fd = (loss(pp) - loss(pm)) / (2 * h)
+        assert abs(out[q + 1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, q, fd, out[q + 1])
+
+
 @pytest.mark.parametrize("slope", [False, True])
 def test_mass_derivatives_equal_central_differences(slope):
     """d(sum_j r_j m_j) / d(t_lo, a, b, w1, w2) against central differences of the primal's masses, for
@@ -78,14 +92,7 @@ def test_mass_derivatives_equal_central_differences(slope):
 
         out = mass_adjoint(row, *p0, 0.0, 0.0, n_ext, beta)
         assert out[0] == pytest.approx(loss(p0), abs=1e-12)
-        for q in range(5):
-            dp = np.zeros(5)
-            dp[q] = h
-            pp, pm = p0 + dp, p0 - dp
-            if pm[1] < 0 or pp[1] > pp[2] or pm[2] < pm[1] or min(pm[3:]) < 0 or (q >= 3 and p0[q] == 0):
-                continue  # (a one-sided neighbourhood, or a width the primal ignores)
-            fd = (loss(pp) - loss(pm)) / (2 * h)
-            assert abs(out[q + 1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, q, fd, out[q + 1])
+        _assert_knot_and_width_derivatives(out, loss, p0, h, trial)
 
 
 def test_tilted_mass_sum_and_shift_derivative_equal_the_primal():
@@ -109,9 +116,9 @@ def test_tilted_mass_sum_and_shift_derivative_equal_the_primal():
         p0 = np.array([rng.uniform(5, 40), a0, b0, u1, u2])
         row = rng.normal(size=n_ext)
 
-        def loss(p):
+        def loss(p, t_1=t1, t_2=t2):
             buf = np.zeros(n_ext)
-            f, last, _ = _masses(buf, *p, t1, t2, n_ext)
+            f, last, _ = _masses(buf, *p, t_1, t_2, n_ext)
             return float(np.dot(row[f:last + 1], buf[f:last + 1]))
 
         out = mass_adjoint(row, *p0, t1, t2, n_ext)
@@ -120,21 +127,10 @@ def test_tilted_mass_sum_and_shift_derivative_equal_the_primal():
         fd = (loss(p0 + dp) - loss(p0 - dp)) / (2 * h)
         assert abs(out[1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, fd, out[1])
         if u1 > 0.0:  # both widths finite: the tilts' terms' knot and width derivatives are taken too
-            for q in range(1, 5):
-                dp = np.zeros(5)
-                dp[q] = h
-                pp, pm = p0 + dp, p0 - dp
-                if pm[1] < 0 or pp[1] > pp[2] or pm[2] < pm[1]:
-                    continue  # (a one-sided neighbourhood)
-                fd = (loss(pp) - loss(pm)) / (2 * h)
-                assert abs(out[q + 1] - fd) <= 1e-5 * (1 + abs(fd)), (trial, q, fd, out[q + 1])
+            _assert_knot_and_width_derivatives(out, loss, p0, h, trial, first=1)
         # the tilts' own derivatives: the masses are linear in each, so the difference quotient is exact to rounding
         for k, (d1, d2) in ((7, (0.1, 0.0)), (8, (0.0, 0.1))):
-            def loss_t(t_1, t_2):
-                buf = np.zeros(n_ext)
-                f, last, _ = _masses(buf, *p0, t_1, t_2, n_ext)
-                return float(np.dot(row[f:last + 1], buf[f:last + 1]))
-            dq = (loss_t(t1 + d1, t2 + d2) - loss_t(t1 - d1, t2 - d2)) / 0.2
+            dq = (loss(p0, t1 + d1, t2 + d2) - loss(p0, t1 - d1, t2 - d2)) / 0.2
             assert out[k] == pytest.approx(dq, rel=1e-7, abs=1e-10), (trial, k, out[k], dq)
 
 

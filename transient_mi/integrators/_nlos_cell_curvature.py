@@ -10,6 +10,27 @@ import numpy as np
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
+def edge_width_m(x, p, D, h, fl, r, rd):
+    """The path length's linear width along the cell's edge ``h`` (m, signed): ``(fl u_D - d) . h`` with ``u_D``
+    the unit vector ``D -> p`` (``rd = |p - D|``) and ``d`` the unit vector ``p -> x`` (``r = |x - p|``)."""
+    s = 0.0
+    for q in range(3):
+        s += (fl * (p[q] - D[q]) / rd - (x[q] - p[q]) / r) * h[q]
+    return s
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _faded(a, w):
+    """``(shift_m, tilt)`` of :func:`cell_curvature` for the curvature ``a`` and the width ``w = |s|`` (m): the
+    correction in full up to ``|a| = w / 2``, faded linearly to nothing at ``|a| = w``."""
+    if not abs(a) < w:
+        return 0.0, 0.0
+    rho = abs(a) / w
+    phi = 1.0 if rho <= 0.5 else 2.0 * (1.0 - rho)
+    return a * phi / 12.0, -a * phi / w
+
+
+@numba.njit(cache=True, fastmath=False, inline="always")
 def cell_curvature(x, p0, p1, p2, D0, D1, D2, l0, h0, h1, h2, fl, s_m):
     """The path length's curvature across a cell along one of its edges ``h`` (m), as the one-cell spread takes
     it: ``(shift_m, tilt)``.
@@ -29,13 +50,7 @@ def cell_curvature(x, p0, p1, p2, D0, D1, D2, l0, h0, h1, h2, fl, s_m):
         q2 = p2 + sg * h2
         acc += fl * np.sqrt((q0 - D0) * (q0 - D0) + (q1 - D1) * (q1 - D1) + (q2 - D2) * (q2 - D2)) \
             + np.sqrt((x[0] - q0) * (x[0] - q0) + (x[1] - q1) * (x[1] - q1) + (x[2] - q2) * (x[2] - q2))
-    a = 4.0 * (acc - 2.0 * l0)
-    w = abs(s_m)
-    if not abs(a) < w:
-        return 0.0, 0.0
-    rho = abs(a) / w
-    phi = 1.0 if rho <= 0.5 else 2.0 * (1.0 - rho)
-    return a * phi / 12.0, -a * phi / w
+    return _faded(4.0 * (acc - 2.0 * l0), abs(s_m))
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -65,9 +80,7 @@ def curvature_gradient(x, p, D, h, fl, r, d, dsh, dtl):
     da0 -= 8.0 * d[0]
     da1 -= 8.0 * d[1]
     da2 -= 8.0 * d[2]
-    s = 0.0
-    for q in range(3):
-        s += (fl * (p[q] - D[q]) / rd - d[q]) * h[q]
+    s = edge_width_m(x, p, D, h, fl, r, rd)
     w = abs(s)
     if not abs(a) < w:
         return 0.0, 0.0
@@ -83,12 +96,11 @@ def curvature_gradient(x, p, D, h, fl, r, d, dsh, dtl):
         for q in range(3):
             dsh[q] = da[q] / 12.0
             dtl[q] = -da[q] / w + a * dw[q] / (w * w)
-        return a / 12.0, -a / w
+        return _faded(a, w)
     # the fade, phi = 2 (1 - |a| / w): shift (2 a - 2 a |a| / w) / 12, tilt -2 a / w + 2 a |a| / w^2
     for q in range(3):
         dsh[q] = (2.0 * da[q] - 4.0 * aa * da[q] / w + 2.0 * a * aa * dw[q] / (w * w)) / 12.0
         dtl[q] = (-2.0 * da[q] / w + 2.0 * a * dw[q] / (w * w) + 4.0 * aa * da[q] / (w * w)
                   - 4.0 * a * aa * dw[q] / (w * w * w))
-    phi = 2.0 * (1.0 - aa / w)
-    return a * phi / 12.0, -a * phi / w
+    return _faded(a, w)
 

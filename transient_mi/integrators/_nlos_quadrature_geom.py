@@ -60,7 +60,7 @@ from transient_mi._upload import upload
 from transient_mi.props import PluginParameterError
 
 from transient_mi.integrators._nlos_mass_adjoint import mass_adjoint
-from transient_mi.integrators._nlos_cell_curvature import cell_curvature, curvature_gradient
+from transient_mi.integrators._nlos_cell_curvature import cell_curvature, curvature_gradient, edge_width_m
 from transient_mi.integrators._nlos_pair_kernels import MAX_TILT_SUM
 from transient_mi.integrators._nlos_element_slope import laser_slope_terms, slope_adjoint, slope_of
 
@@ -158,10 +158,8 @@ def pair_lengths(cell_p, X0, tri, e0, e1, D, ax, ay, fl, has_cells):
             l0 = fl * rd + r
             sw = 0.0
             for h in (ax, ay):
-                gs = 0.0
-                for q in range(3):
-                    gs += (fl * (p[q] - D[q]) / rd - (x[q] - p[q]) / r) * h[q]
-                sh, _ = cell_curvature(x, p[0], p[1], p[2], D[0], D[1], D[2], l0, h[0], h[1], h[2], fl, gs)
+                sh, _ = cell_curvature(x, p[0], p[1], p[2], D[0], D[1], D[2], l0, h[0], h[1], h[2], fl,
+                                       edge_width_m(x, p, D, h, fl, r, rd))
                 sw += sh
             cell_shift[i] = (acc / 4.0 - (fl * rd + r)) / 3.0 + sw
     return r_pv, r_px, opl_d, cell_shift
